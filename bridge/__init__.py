@@ -1,0 +1,1 @@
+"""bridge: publishes a board's decoded stream on eclipse-zenoh (built in the rig-service issue)."""

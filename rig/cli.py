@@ -1,0 +1,245 @@
+"""The `rig` command: one entry point for every job of the test rig.
+
+Each sub-command lives in a small function below; the heavy lifting is in the
+module named after the job (importer, simulate, metrics, ...).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from rig import paths
+
+log = logging.getLogger("rig")
+
+EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT = 0, 1, 2
+
+
+class CliError(Exception):
+    """An error to report to the user in one line, without a traceback."""
+
+
+def _progress(total: int | None = None, desc: str = ""):
+    """A tqdm wrapper factory that stays quiet when stderr is not a terminal."""
+    from tqdm import tqdm
+
+    def wrap(iterable):
+        return tqdm(iterable, total=total, desc=desc, unit="msg", disable=not sys.stderr.isatty(),
+                    mininterval=0.5, leave=False)
+    return wrap
+
+
+def _write_json(path: Path | None, data: dict) -> None:
+    if path is None:
+        return
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(data, indent=2, sort_keys=True) + "\n")
+    log.info("wrote %s", path)
+
+
+# ----------------------------------------------------------------------------- import
+
+def cmd_import(args: argparse.Namespace) -> int:
+    from rig.importer import import_log
+    from rig.recording import write_recording
+
+    rec = import_log(args.log, args.survey, salvage=args.salvage, uwb_mode=args.uwb_mode)
+    args.output.parent.mkdir(parents=True, exist_ok=True)
+    write_recording(rec, args.output, progress=_progress(desc="writing"))
+    print(f"{args.output}: {len(rec.accel)} accel, {len(rec.gyro)} gyro, {len(rec.tdoa)} TDOA, "
+          f"{len(rec.truth)} ground-truth samples, {len(rec.anchors)} anchors, mode {rec.metadata['uwb_mode']}")
+    if "salvage" in rec.metadata:
+        print(f"warning: salvaged a damaged log: {rec.metadata['salvage']}", file=sys.stderr)
+    return EXIT_OK
+
+
+# ----------------------------------------------------------------------------- simulate
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    from rig.recording import write_recording
+    from rig.simulate import SimConfig, simulate
+
+    cfg = SimConfig.load(args.config) if args.config else SimConfig()
+    overrides = {
+        "trajectory": args.trajectory, "duration": args.duration, "recording": args.recording,
+        "survey": args.survey, "imu_hz": args.imu_hz, "tdoa_hz": args.tdoa_hz,
+        "uwb_mode": args.uwb_mode, "seed": args.seed,
+    }
+    for key, value in overrides.items():
+        if value is not None:
+            setattr(cfg, key, str(value) if isinstance(value, Path) else value)
+    if args.recording is not None and args.trajectory is None:
+        cfg.trajectory = "recording"
+    if cfg.trajectory != "recording" and not cfg.survey:
+        cfg.survey = str(paths.default_survey())
+    if args.noiseless:
+        cfg.effects = []
+    rec = simulate(cfg)
+    args.output.parent.mkdir(parents=True, exist_ok=True)
+    write_recording(rec, args.output, progress=_progress(desc="writing"))
+    print(f"{args.output}: simulated {rec.time_span()[1] - rec.time_span()[0]:.1f} s, {len(rec.accel)} IMU, "
+          f"{len(rec.tdoa)} TDOA ({cfg.uwb_mode}), seed {cfg.seed}")
+    return EXIT_OK
+
+
+# ----------------------------------------------------------------------------- metrics
+
+def _load_estimates(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Estimates from a CSV (t,x,y,z with a header line) or from an MCAP `estimate` topic."""
+    from rig.recording import read_topics
+
+    if path.suffix == ".mcap":
+        messages, _ = read_topics(path)
+        topics = [t for t in messages if "estimate" in t]
+        if not topics:
+            raise CliError(f"{path} has no topic with 'estimate' in its name")
+        msgs = messages[topics[0]]
+        return (np.array([m["t"] for m in msgs], float),
+                np.array([[m["position"][c] for c in "xyz"] for m in msgs], float))
+    try:
+        data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+    except (OSError, ValueError) as exc:
+        raise CliError(f"cannot read estimates from {path}: {exc}") from exc
+    if data.shape[1] < 4:
+        raise CliError(f"{path}: expected columns t,x,y,z")
+    return data[:, 0], data[:, 1:4]
+
+
+def _segment_rule(args: argparse.Namespace):
+    from rig.metrics import SegmentRule
+
+    return SegmentRule(min_height=args.min_height, skip_after_takeoff=args.skip_after_takeoff)
+
+
+def cmd_metrics(args: argparse.Namespace) -> int:
+    from rig import metrics
+    from rig.recording import read_recording
+
+    truth = read_recording(args.recording).truth
+    t, pos = _load_estimates(args.estimates)
+    rule = _segment_rule(args)
+    result = metrics.score(t, pos, truth, rule)
+    _print_accuracy(result)
+    _write_json(args.json, result)
+    if args.plot:
+        metrics.plot(t, pos, truth, args.plot, rule, title=str(args.estimates))
+    return EXIT_OK
+
+
+def _print_accuracy(result: dict) -> None:
+    x, y, z = result["rmse_xyz"]
+    print(f"RMSE 3D {result['rmse_3d']:.3f} m (x {x:.3f}, y {y:.3f}, z {z:.3f}); "
+          f"p95 {result['p95_3d']:.3f} m, max {result['max_3d']:.3f} m over {result['n_scored']} estimates")
+
+
+# ----------------------------------------------------------------------------- demo (main job)
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    """The README's main job on the shipped default recording."""
+    from rig import metrics
+    from rig.multilateration import multilaterate
+    from rig.recording import read_recording
+
+    rec = read_recording(args.recording)
+    args.out.mkdir(parents=True, exist_ok=True)
+    t, pos = multilaterate(rec)
+    result = metrics.score(t, pos, rec.truth)
+    result["estimator"] = "multilateration (UWB only, reference)"
+    result["recording"] = str(args.recording)
+    print(f"{args.recording}: {len(rec.accel)} IMU, {len(rec.tdoa)} TDOA, {len(rec.truth)} poses, "
+          f"{len(rec.anchors)} anchors")
+    print("multilateration reference:", end=" ")
+    _print_accuracy(result)
+    _write_json(args.out / "metrics.json", result)
+    png = metrics.plot(t, pos, rec.truth, args.out / "trajectory.png", title=f"{args.recording.name}: multilateration")
+    print(f"wrote {args.out / 'metrics.json'} and {png}")
+    return EXIT_OK
+
+
+# ----------------------------------------------------------------------------- parser
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="rig",
+        description="uwb-rig: replay UWB TDOA + IMU flights into the onboard estimator, "
+                    "simulate flights, score estimates against ground truth.",
+        epilog=f"Real flights are read from $UWB_RIG_DATA (default {paths.DEFAULT_DATA_DIR}).",
+    )
+    parser.add_argument("-v", "--verbose", action="store_true", help="log progress details")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    p = sub.add_parser("import", help="convert a Crazyflie uSD event log + anchor survey to MCAP",
+                       description="Decode a Crazyflie uSD event log (version 2), verify magic, version and "
+                                   "CRC-32, attach the surveyed anchors and write an MCAP recording in SI units.")
+    p.add_argument("log", type=Path, help="uSD event log file")
+    p.add_argument("--survey", type=Path, required=True, help="anchor survey (anchor_MMDD.txt)")
+    p.add_argument("-o", "--output", type=Path, required=True, help="output .mcap")
+    p.add_argument("--salvage", action="store_true",
+                   help="import the valid prefix of a truncated or corrupted log (with a warning)")
+    p.add_argument("--uwb-mode", choices=("TDOA2", "TDOA3"), help="override the inferred UWB mode")
+    p.set_defaults(func=cmd_import)
+
+    p = sub.add_parser("simulate", help="simulate IMU + TDOA along a trajectory",
+                       description="Simulate a flight: parametric trajectory or a recording's ground truth, "
+                                   "anchors from a survey or the recording, effects from a JSON config. "
+                                   "Deterministic for a seed.")
+    p.add_argument("-o", "--output", type=Path, required=True, help="output .mcap")
+    p.add_argument("--config", type=Path, help="simulation config JSON (see recordings/default.sim.json)")
+    p.add_argument("--trajectory", choices=("circle", "circle-sine", "smooth-random", "recording"))
+    p.add_argument("--duration", type=float, help="seconds of pattern flight (parametric trajectories)")
+    p.add_argument("--recording", type=Path, help="fly this recording's ground truth past its anchors")
+    p.add_argument("--survey", type=Path, help="anchor survey file")
+    p.add_argument("--imu-hz", type=float)
+    p.add_argument("--tdoa-hz", type=float)
+    p.add_argument("--uwb-mode", choices=("TDOA2", "TDOA3"))
+    p.add_argument("--seed", type=int)
+    p.add_argument("--noiseless", action="store_true", help="no effects at all: ideal sensors")
+    p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser("metrics", help="score an estimate stream against a recording's ground truth",
+                       description="Align estimates with ground truth (interpolated), keep the flight segment, "
+                                   "report 3D/per-axis RMSE, max and percentiles.")
+    p.add_argument("recording", type=Path, help="recording with the ground truth")
+    p.add_argument("--estimates", type=Path, required=True, help="CSV t,x,y,z or MCAP with an estimate topic")
+    p.add_argument("--json", type=Path, help="write the metrics here")
+    p.add_argument("--plot", type=Path, help="write a PNG of trajectory and error here")
+    _add_segment_options(p)
+    p.set_defaults(func=cmd_metrics)
+
+    p = sub.add_parser("demo", help="the main job on the shipped default recording",
+                       description="Read the default recording, estimate, score and plot.")
+    p.add_argument("--recording", type=Path, default=paths.default_recording())
+    p.add_argument("--out", type=Path, default=Path("out/demo"))
+    p.set_defaults(func=cmd_demo)
+    return parser
+
+
+def _add_segment_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--min-height", type=float, default=0.3, help="score only above this height (m)")
+    p.add_argument("--skip-after-takeoff", type=float, default=5.0, help="seconds after take-off not scored")
+
+
+def main(argv: list[str] | None = None) -> int:
+    from rig.errors import USER_ERRORS
+
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                        format="%(levelname)s %(name)s: %(message)s")
+    try:
+        return args.func(args)
+    except (CliError, *USER_ERRORS) as exc:
+        print(f"rig {args.command}: error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        print(f"rig {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,38 @@
+"""Where the rig finds things: the shared real data and the shipped recordings.
+
+Real flights are never copied into the project; `UWB_RIG_DATA` points at them and
+defaults to ``../shared/data/util`` next to the checkout.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+PROJECT_ROOT = Path(__file__).resolve().parent.parent
+DEFAULT_DATA_DIR = PROJECT_ROOT.parent / "shared" / "data" / "util"
+RECORDINGS_DIR = PROJECT_ROOT / "recordings"
+DEFAULT_SURVEY_NAME = "anchor_0425.txt"
+
+
+def data_dir() -> Path:
+    return Path(os.environ.get("UWB_RIG_DATA", DEFAULT_DATA_DIR))
+
+
+def flights() -> list[Path]:
+    """All real flight logs, sorted by name."""
+    return sorted(p for p in (data_dir() / "flights").iterdir() if p.is_file())
+
+
+def survey_for(flight: Path) -> Path:
+    """The survey of a flight's day: logs are named MMDD-..., surveys anchor_MMDD.txt."""
+    day = Path(flight).name.split("-")[0]
+    return data_dir() / "surveys" / f"anchor_{day}.txt"
+
+
+def default_survey() -> Path:
+    return data_dir() / "surveys" / DEFAULT_SURVEY_NAME
+
+
+def default_recording() -> Path:
+    return RECORDINGS_DIR / "default.mcap"

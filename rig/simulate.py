@@ -1,0 +1,160 @@
+"""The IMU + UWB TDOA simulator.
+
+A simulation is described by a JSON-able `SimConfig`: a trajectory (parametric, or
+a recording's own ground truth), an anchor set (a survey file or the recording's),
+sensor rates, the UWB mode, a seed and a list of effects (see `rig.effects`).
+The same config and seed give the same recording, byte for byte.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from rig import effects as fx
+from rig.recording import PoseSeries, Recording, TdoaSeries, Vec3Series, read_recording
+from rig.survey import Anchor, parse_survey
+from rig.trajectory import RecordedTrajectory, Trajectory, parametric
+
+log = logging.getLogger(__name__)
+
+# Output resolution (like a sensor's LSB); 0 keeps full float64 precision.
+DEFAULT_RESOLUTION = {"time": 1e-6, "accel": 1e-3, "gyro": 1e-4, "tdoa": 1e-4, "position": 1e-4, "quaternion": 1e-7}
+UWB_MODES = ("TDOA2", "TDOA3")
+
+
+@dataclass
+class SimConfig:
+    """Everything that determines a simulated recording."""
+
+    trajectory: str = "circle"              # circle | circle-sine | smooth-random | recording
+    duration: float = 30.0                  # seconds of pattern flight (parametric only)
+    trajectory_params: dict = field(default_factory=dict)
+    recording: str | None = None            # recording whose ground truth (and anchors) to fly
+    survey: str | None = None               # anchor survey; default: the recording's anchors
+    imu_hz: float = 1000.0
+    tdoa_hz: float = 200.0
+    truth_hz: float = 100.0
+    uwb_mode: str = "TDOA2"
+    seed: int = 0
+    effects: list[dict] = field(default_factory=lambda: [
+        {"effect": "imu_noise", "params": {"accel_std": 0.05, "gyro_std": 0.005}},
+        {"effect": "imu_accel_bias", "params": {"bias_mps2": [0.05, -0.03, 0.08]}},
+        {"effect": "imu_gyro_bias", "params": {"bias_rps": [0.002, -0.003, 0.001]}},
+        {"effect": "tdoa_noise", "params": {"std_m": 0.1}},
+        {"effect": "outliers", "params": {"fraction": 0.05, "mean_excess_m": 2.0}},
+    ])
+    resolution: dict[str, float] = field(default_factory=lambda: dict(DEFAULT_RESOLUTION))
+
+    @classmethod
+    def load(cls, path: Path) -> "SimConfig":
+        data = json.loads(Path(path).read_text())
+        unknown = set(data) - set(cls.__dataclass_fields__)
+        if unknown:
+            raise ValueError(f"{path}: unknown simulation setting(s) {sorted(unknown)}")
+        return cls(**data)
+
+    def to_json(self) -> str:
+        return json.dumps(asdict(self), indent=2, sort_keys=True)
+
+
+def tdoa_schedule(t0: float, t1: float, rate: float, mode: str, anchor_ids: list[int],
+                  rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Sample times and anchor pairs: TDOA2 cycles the ring (k, k+1); TDOA3 draws
+    random ordered pairs of distinct anchors."""
+    if mode not in UWB_MODES:
+        raise ValueError(f"unknown UWB mode {mode!r}; choose one of {UWB_MODES}")
+    t = np.arange(t0, t1, 1.0 / rate)
+    ids = np.asarray(sorted(anchor_ids))
+    n = len(ids)
+    if mode == "TDOA2":
+        k = np.arange(len(t)) % n
+        return t, ids[k], ids[(k + 1) % n]
+    a = rng.integers(0, n, len(t))
+    b = (a + rng.integers(1, n, len(t))) % n  # any anchor but a
+    return t, ids[a], ids[b]
+
+
+def _quantize(values: np.ndarray, step: float) -> np.ndarray:
+    """Round to a power-of-ten step, as decimals, so the numbers print short."""
+    if step <= 0:
+        return values
+    decimals = int(round(-np.log10(step)))
+    if not np.isclose(10.0 ** -decimals, step):
+        raise ValueError(f"resolution {step} is not a power of ten")
+    return np.round(values, decimals)
+
+
+def _trajectory_and_anchors(cfg: SimConfig) -> tuple[Trajectory, list[Anchor], dict[str, str]]:
+    meta: dict[str, str] = {}
+    anchors: list[Anchor] | None = None
+    if cfg.trajectory == "recording":
+        if not cfg.recording:
+            raise ValueError("trajectory 'recording' needs a recording path")
+        source = read_recording(Path(cfg.recording))
+        trajectory: Trajectory = RecordedTrajectory(source.truth)
+        anchors = source.anchors
+        meta["trajectory_source"] = str(cfg.recording)
+    else:
+        trajectory = parametric(cfg.trajectory, duration=cfg.duration, seed=cfg.seed, **cfg.trajectory_params)
+    if cfg.survey:
+        anchors = parse_survey(Path(cfg.survey))
+        meta["survey"] = str(cfg.survey)
+    if not anchors:
+        raise ValueError("no anchors: give a survey or a recording")
+    return trajectory, anchors, meta
+
+
+def simulate(cfg: SimConfig) -> Recording:
+    """Fly `cfg.trajectory` past `cfg`'s anchors and return the simulated recording."""
+    rng = np.random.default_rng(cfg.seed)
+    trajectory, anchors, meta = _trajectory_and_anchors(cfg)
+    effects = sorted(fx.effects_from_json(cfg.effects), key=lambda e: e.stage)
+    res = {**{k: 0.0 for k in DEFAULT_RESOLUTION}, **cfg.resolution}
+    t0, t1 = trajectory.t_start, trajectory.t_end
+
+    world = fx.World(
+        anchor_positions={a.id: np.array(a.position) for a in anchors},
+        anchor_rotations={a.id: a.rotation for a in anchors},
+    )
+    for effect in effects:
+        effect.apply_world(world)
+
+    t_imu = _quantize(np.arange(t0, t1, 1.0 / cfg.imu_hz), res["time"])
+    imu = fx.ImuBatch(t_imu, trajectory.specific_force(t_imu), trajectory.angular_rate(t_imu))
+    for effect in effects:
+        effect.apply_imu(imu, rng)
+
+    t_uwb, id_a, id_b = tdoa_schedule(t0, t1, cfg.tdoa_hz, cfg.uwb_mode, [a.id for a in anchors], rng)
+    t_uwb = _quantize(t_uwb, res["time"])
+    rotation = trajectory.rotation(t_uwb)
+    tag = trajectory.position(t_uwb) + rotation.apply(world.lever_arm)
+    batch = fx.TdoaBatch(t_uwb, id_a, id_b, tag, rotation, np.zeros(len(t_uwb)))
+    batch.value = batch.range_to(world, id_b) - batch.range_to(world, id_a)
+    for effect in effects:
+        effect.apply_tdoa(batch, world, rng)
+    order = np.argsort(batch.t, kind="stable")  # timing effects may reorder samples
+
+    t_truth = _quantize(np.arange(t0, t1, 1.0 / cfg.truth_hz), res["time"])
+    quat = trajectory.rotation(t_truth).as_quat()
+    quat *= np.where(quat[:, 3:] < 0, -1.0, 1.0)  # one hemisphere: w ≥ 0
+    return Recording(
+        accel=Vec3Series(imu.t, _quantize(imu.accel, res["accel"])),
+        gyro=Vec3Series(imu.t.copy(), _quantize(imu.gyro, res["gyro"])),
+        tdoa=TdoaSeries(_quantize(batch.t[order], res["time"]), batch.id_a[order].astype(int),
+                        batch.id_b[order].astype(int), _quantize(batch.value[order], res["tdoa"])),
+        truth=PoseSeries(t_truth, _quantize(trajectory.position(t_truth), res["position"]),
+                         _quantize(quat, res["quaternion"])),
+        anchors=anchors,
+        metadata={
+            "source": "rig simulate",
+            "uwb_mode": cfg.uwb_mode,
+            "simulation": json.dumps(asdict(cfg), sort_keys=True),
+            **meta,
+        },
+    )
+

@@ -1,0 +1,59 @@
+"""Shared fixtures: the real data directory and small crafted logs."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from rig import paths
+from rig.usdlog import EventType, encode
+
+ROOT = Path(__file__).resolve().parent.parent
+RIG = [sys.executable, "-m", "rig"]
+
+# The event types of a real Crazyflie log, as far as the rig uses them.
+ACC = EventType(1, "estAcceleration", ("acc.x", "acc.y", "acc.z"), "fff")
+GYRO = EventType(5, "estGyroscope", ("gyro.x", "gyro.y", "gyro.z"), "fff")
+POSE = EventType(6, "estPose", ("locSrv.x", "locSrv.y", "locSrv.z", "locSrv.qx", "locSrv.qy", "locSrv.qz",
+                                "locSrv.qw"), "fffffff")
+TDOA = EventType(9, "estTDOA", ("idA", "idB", "distanceDiff"), "BBf")
+TYPES = [ACC, GYRO, POSE, TDOA]
+
+
+@pytest.fixture(scope="session")
+def data_dir() -> Path:
+    path = paths.data_dir()
+    assert (path / "flights").is_dir(), f"real flights not found at {path}: set UWB_RIG_DATA"
+    return path
+
+
+@pytest.fixture(scope="session")
+def survey_0425(data_dir: Path) -> Path:
+    return data_dir / "surveys" / "anchor_0425.txt"
+
+
+def crafted_log(n: int = 50) -> bytes:
+    """A small valid log: n samples of each stream, one event out of time order."""
+    events = []
+    for k in range(n):
+        t = 1_000_000 + 1000 * k
+        events.append(("estAcceleration", t, (0.0, 0.5, 1.0)))
+        events.append(("estGyroscope", t + 17, (90.0, -180.0, 0.0)))
+        if k % 4 == 0:
+            events.append(("estPose", t + 5, (1.0, 2.0, 0.5 + k * 0.01, 0.0, 0.0, 0.0, 1.0)))
+            events.append(("estTDOA", t + 9, (k % 8, (k + 1) % 8, 0.25)))
+    if len(events) > 11:  # recording order is not time order
+        events[10], events[11] = events[11], events[10]
+    return encode(TYPES, events)
+
+
+def run_rig(*args: str, cwd: Path = ROOT, check: bool = False) -> subprocess.CompletedProcess:
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    proc = subprocess.run([*RIG, *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=600)
+    if check:
+        assert proc.returncode == 0, proc.stderr
+    return proc

@@ -1,0 +1,125 @@
+"""`rig import`: unit conversions, time order, every real flight imported losslessly."""
+
+from __future__ import annotations
+
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+
+from conftest import crafted_log, run_rig
+from rig import paths
+from rig.importer import GRAVITY, import_log, infer_uwb_mode
+from rig.recording import read_recording, write_recording
+from rig.usdlog import read_log
+
+
+def test_unit_conversions_and_time_order(tmp_path: Path, survey_0425: Path) -> None:
+    log = tmp_path / "log"
+    log.write_bytes(crafted_log(40))
+    rec = import_log(log, survey_0425)
+    np.testing.assert_allclose(rec.accel.xyz[0], [0.0, 0.5 * 9.81, 9.81])  # g → m/s²
+    np.testing.assert_allclose(rec.gyro.xyz[0], [np.pi / 2, -np.pi, 0.0])  # deg/s → rad/s
+    assert rec.accel.t[0] == pytest.approx(1.0)  # µs → s (first event at 1 000 000 µs)
+    assert rec.gyro.t[0] == pytest.approx(1.000017)
+    for series in (rec.accel, rec.gyro, rec.tdoa, rec.truth):
+        assert np.all(np.diff(series.t) >= 0), "streams must be sorted by time"
+    assert GRAVITY == 9.81
+
+
+def test_uwb_mode_inference() -> None:
+    ring = np.arange(80) % 8
+    assert infer_uwb_mode(ring, (ring + 1) % 8, 8) == "TDOA2"
+    rng = np.random.default_rng(0)
+    a = rng.integers(0, 8, 500)
+    assert infer_uwb_mode(a, (a + rng.integers(1, 8, 500)) % 8, 8) == "TDOA3"
+
+
+def _import_and_compare(flight: Path, tmp: Path) -> str | None:
+    """Import one real flight, read it back, compare with the raw log. Returns a problem or None."""
+    decoded = read_log(flight)
+    if not decoded.crc_ok:
+        return f"{flight.name}: CRC not verified"
+    out = tmp / f"{flight.name}.mcap"
+    write_recording(import_log(flight, paths.survey_for(flight)), out)
+    back = read_recording(out)
+    expected = {"estAcceleration": back.accel, "estGyroscope": back.gyro, "estTDOA": back.tdoa,
+                "estPose": back.truth}
+    for event, series in expected.items():
+        if len(series) != decoded.counts()[event]:
+            return f"{flight.name}: {event} {decoded.counts()[event]} in log, {len(series)} in MCAP"
+    raw = decoded.series("estTDOA")
+    order = np.argsort(raw.timestamps_us, kind="stable")
+    if not np.array_equal(raw.values[order, 2], back.tdoa.distance_diff):
+        return f"{flight.name}: TDOA values differ"
+    if not np.allclose(decoded.series("estAcceleration").values[np.argsort(
+            decoded.series("estAcceleration").timestamps_us, kind="stable")] * 9.81, back.accel.xyz, rtol=0, atol=0):
+        return f"{flight.name}: accelerations differ"
+    out.unlink()
+    return None
+
+
+def test_every_shared_flight_imports_without_losing_an_event(tmp_path: Path, data_dir: Path) -> None:
+    flights = paths.flights()
+    assert len(flights) >= 35
+    with ProcessPoolExecutor(max_workers=2) as pool:
+        problems = [p for p in pool.map(_import_and_compare, flights, [tmp_path] * len(flights)) if p]
+    assert problems == []
+
+
+def test_cli_import_writes_an_mcap_with_the_contract_topics(tmp_path: Path, data_dir: Path) -> None:
+    flight = data_dir / "flights" / "0425-traj1"
+    out = tmp_path / "x.mcap"
+    run_rig("import", str(flight), "--survey", str(data_dir / "surveys" / "anchor_0425.txt"), "-o", str(out),
+            check=True)
+    counts: dict[str, int] = {}
+    with open(out, "rb") as stream:
+        for _, channel, _ in make_reader(stream).iter_messages():
+            counts[channel.topic] = counts.get(channel.topic, 0) + 1
+    log_counts = read_log(flight).counts()
+    assert counts[next(t for t in counts if "tdoa" in t)] == log_counts["estTDOA"]
+    assert counts[next(t for t in counts if "truth" in t)] == log_counts["estPose"]
+    imu_topics = [t for t in counts if "imu" in t]
+    assert sorted(counts[t] for t in imu_topics) == sorted([log_counts["estAcceleration"],
+                                                            log_counts["estGyroscope"]])
+
+
+@pytest.mark.parametrize("damage", ["truncate", "corrupt"])
+def test_cli_import_of_a_damaged_log_fails_cleanly(tmp_path: Path, data_dir: Path, damage: str) -> None:
+    data = bytearray((data_dir / "flights" / "0425-traj2").read_bytes())
+    if damage == "truncate":
+        data = data[: len(data) * 2 // 3]
+    else:
+        data[len(data) // 3] ^= 0xFF
+    log = tmp_path / "damaged"
+    log.write_bytes(bytes(data))
+    out = tmp_path / "out.mcap"
+    proc = run_rig("import", str(log), "--survey", str(data_dir / "surveys" / "anchor_0425.txt"), "-o", str(out))
+    assert proc.returncode != 0
+    assert "CRC-32" in proc.stderr and "--salvage" in proc.stderr
+    assert "Traceback" not in proc.stderr
+    assert not out.exists()
+
+
+def test_cli_salvage_imports_the_valid_prefix_with_a_warning(tmp_path: Path, data_dir: Path) -> None:
+    source = data_dir / "flights" / "0425-traj2"
+    data = source.read_bytes()
+    log = tmp_path / "truncated"
+    log.write_bytes(data[: len(data) // 2])
+    out = tmp_path / "out.mcap"
+    proc = run_rig("import", str(log), "--survey", str(data_dir / "surveys" / "anchor_0425.txt"), "-o", str(out),
+                   "--salvage")
+    assert proc.returncode == 0, proc.stderr
+    assert "salvage" in proc.stderr.lower() and "not decoded" in proc.stderr
+    rec = read_recording(out)
+    full = read_log(source).counts()
+    assert 0 < len(rec.accel) < full["estAcceleration"]
+    assert rec.metadata["crc"].startswith("bad")
+
+
+def test_cli_reports_a_missing_file_without_traceback(tmp_path: Path) -> None:
+    proc = run_rig("import", str(tmp_path / "nope"), "--survey", str(tmp_path / "nope.txt"), "-o",
+                   str(tmp_path / "o.mcap"))
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr and "cannot read" in proc.stderr
