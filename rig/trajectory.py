@@ -178,9 +178,12 @@ class SmoothRandomTrajectory(PatternTrajectory):
 
 class RecordedTrajectory(Trajectory):
     """A recording's ground truth made smooth: smoothing splines on position,
-    a rotation spline on (decimated) attitude."""
+    a rotation spline on (decimated) attitude.
 
-    def __init__(self, truth: PoseSeries, attitude_step: float = 0.02, smoothing: float | None = None):
+    `smoothing` is the spline's penalty weight (s⁴·m⁻² scale); the GCV choice
+    follows the motion-capture noise and makes accelerations far too rough."""
+
+    def __init__(self, truth: PoseSeries, attitude_step: float = 0.02, smoothing: float = 1e-3):
         if len(truth) < 10:
             raise ValueError("ground truth too short to fly (fewer than 10 poses)")
         t, keep = np.unique(truth.t, return_index=True)
