@@ -1,0 +1,150 @@
+/*
+ * uwb-rig onboard estimator: IMU-driven error-state EKF with TDOA updates,
+ * learned TDOA bias correction and an M-estimation (Geman-McClure, IRLS)
+ * robust update. C99, float32, no heap, no hidden state: everything lives in
+ * one estimator_t passed by pointer.
+ *
+ * Use: est_init, est_set_anchor for every anchor, optionally est_set_bias_net,
+ * est_reset with the start pose; then feed est_handle_event with accelerometer,
+ * gyroscope and TDOA events in time order and a STEP event every 10 ms (100 Hz).
+ * A STEP predicts with the averaged IMU samples of the window, then applies the
+ * TDOA measurements queued during it, and fills an est_output_t.
+ */
+#ifndef UWB_RIG_ESTIMATOR_H
+#define UWB_RIG_ESTIMATOR_H
+
+#include <stdint.h>
+
+#include "bias_net.h"
+
+#define EST_STATE_DIM 9            /* error state: position, velocity, attitude */
+#define EST_MAX_ANCHORS 16         /* anchor ids 0..EST_MAX_ANCHORS-1 */
+#define EST_TDOA_QUEUE 32          /* TDOA measurements buffered within one window */
+#define EST_API_VERSION 1
+
+/* Error-state indices. */
+#define EST_X 0
+#define EST_VX 3
+#define EST_ATT 6
+
+typedef enum {
+    EST_EV_ACCEL = 1, /* v = specific force, body frame, m/s^2 */
+    EST_EV_GYRO = 2,  /* v = angular rate, body frame, rad/s */
+    EST_EV_TDOA = 3,  /* id_a, id_b, v[0] = |p - a_B| - |p - a_A| in m */
+    EST_EV_STEP = 4   /* end of a window: predict to t_us, apply queued TDOA */
+} est_event_kind_t;
+
+/* One input event (20 bytes). The same record is used by the batch replay of the
+ * native library and, packed, by the wire protocol. */
+typedef struct {
+    uint32_t t_us;
+    uint8_t kind;
+    uint8_t id_a;
+    uint8_t id_b;
+    uint8_t reserved;
+    float v[3];
+} est_event_t;
+
+typedef enum {
+    EST_OK = 0,
+    EST_OUTPUT = 1,            /* a STEP produced an estimate */
+    EST_REJECTED = -1          /* the input was counted as rejected and ignored */
+} est_status_t;
+
+/* Why inputs were rejected; indices into est_counters_t.rejected. */
+typedef enum {
+    EST_REJ_NONFINITE = 0,     /* NaN or inf in the value */
+    EST_REJ_UNKNOWN_ANCHOR,    /* id not configured */
+    EST_REJ_SAME_ANCHOR,       /* id_a == id_b */
+    EST_REJ_EXCEEDS_BASELINE,  /* |distance_diff| larger than the anchors' separation */
+    EST_REJ_TIME_BACKWARDS,    /* timestamp before the last STEP */
+    EST_REJ_QUEUE_FULL,        /* more TDOA in one window than EST_TDOA_QUEUE */
+    EST_REJ_BAD_KIND,          /* unknown event kind */
+    EST_REJ_GATE,              /* innovation beyond the hard gate */
+    EST_REJ_COUNT
+} est_reject_reason_t;
+
+typedef struct {
+    uint32_t steps;
+    uint32_t imu_samples;
+    uint32_t imu_gaps;         /* STEPs without any IMU sample in their window */
+    uint32_t tdoa_accepted;    /* final robust weight >= EST_WEIGHT_ACCEPTED (or plain update) */
+    uint32_t tdoa_downweighted;
+    uint32_t tdoa_rejected;    /* weight < EST_WEIGHT_REJECTED, or any reject reason below */
+    uint32_t rejected[EST_REJ_COUNT];
+    uint32_t resets;           /* divergence resets */
+} est_counters_t;
+
+typedef struct {
+    float tdoa_std;            /* m, measurement noise */
+    float accel_noise;         /* m/s^2, per-sample-average process noise on velocity */
+    float gyro_noise;          /* rad/s, process noise on attitude */
+    float position_noise;      /* m/sqrt(s), random walk on position */
+    float velocity_noise;      /* m/s/sqrt(s), random walk on velocity */
+    float gate_m;              /* hard innovation gate (m) */
+    float gm_state_c2;         /* Geman-McClure scale (c^2) on the whitened prior error */
+    float gm_meas_c2;          /* Geman-McClure scale (c^2) on the whitened measurement error */
+    uint8_t robust;            /* 1: M-estimation update; 0: plain EKF update */
+    uint8_t irls_iterations;   /* fixed IRLS iterations (2 on the board) */
+    uint8_t use_bias_net;      /* subtract the network's bias prediction */
+    uint8_t thrust_only;       /* use only the z specific force (x/y read drag + vibration in flight) */
+} est_params_t;
+
+typedef struct {
+    float pos[3];
+    float quat[4];             /* x, y, z, w: anchor -> world */
+    float rot[3][3];           /* same rotation as a matrix */
+    uint8_t valid;
+} est_anchor_t;
+
+typedef struct {
+    uint32_t t_us;
+    float pos[3];
+    float vel[3];
+    float quat[4];             /* x, y, z, w: body -> world */
+    float cov_diag[EST_STATE_DIM];
+    est_counters_t counters;
+} est_output_t;
+
+typedef struct {
+    float value;               /* measured distance difference (m) */
+    uint8_t id_a, id_b;
+} est_tdoa_t;
+
+typedef struct {
+    est_params_t params;
+    /* nominal state */
+    float pos[3];
+    float vel[3];
+    float quat[4];             /* x, y, z, w */
+    float rot[3][3];           /* body -> world, kept in sync with quat */
+    float P[EST_STATE_DIM][EST_STATE_DIM];
+    /* IMU accumulation over the current window */
+    float acc_sum[3];
+    float gyro_sum[3];
+    uint16_t acc_n;
+    uint16_t gyro_n;
+    float acc_last[3];         /* last window's averages, held over IMU gaps */
+    float gyro_last[3];
+    uint32_t t_step_us;        /* time of the last STEP (prediction) */
+    uint8_t started;
+    /* TDOA queue of the current window */
+    est_tdoa_t queue[EST_TDOA_QUEUE];
+    uint8_t queue_n;
+    est_anchor_t anchors[EST_MAX_ANCHORS];
+    const bias_net_t *net;
+    est_counters_t counters;
+    float last_bias;           /* bias subtracted from the last TDOA (diagnostics) */
+    float last_weight;         /* robust weight of the last TDOA (diagnostics) */
+} estimator_t;
+
+void est_default_params(est_params_t *params);
+void est_init(estimator_t *est, const est_params_t *params);
+int est_set_anchor(estimator_t *est, uint8_t id, const float pos[3], const float quat[4]);
+void est_set_bias_net(estimator_t *est, const bias_net_t *net);
+/* Start (or restart) at a pose: quat may be NULL for level, yaw 0. */
+void est_reset(estimator_t *est, uint32_t t_us, const float pos[3], const float quat[4]);
+est_status_t est_handle_event(estimator_t *est, const est_event_t *ev, est_output_t *out);
+void est_get_output(const estimator_t *est, est_output_t *out);
+
+#endif
