@@ -1,0 +1,46 @@
+/* The 14 bias-network features of one TDOA measurement (paper Section III, Fig. 3),
+ * in the paper's order chi = [dp_A, dp_B, alpha, beta]:
+ *
+ *   0-2   a_A - p                       relative position of anchor A (world, m)
+ *   3-5   a_B - p                       relative position of anchor B (world, m)
+ *   6, 7  azimuth of the tag in anchor A's frame, in anchor B's frame
+ *   8, 9  azimuth of anchor A in the tag's body frame, of anchor B
+ *   10,11 elevation of the tag in anchor A's frame, in anchor B's frame
+ *   12,13 elevation of anchor A in the tag's body frame, of anchor B
+ *
+ * azimuth = atan2(y, x), elevation = atan2(z, sqrt(x^2 + y^2)) of the direction
+ * expressed in the named frame (radians). The Python dataset builder calls this
+ * very function through the native library, so training and flight agree. */
+#include <math.h>
+
+#include "bias_net.h"
+
+/* Direction v (world) expressed in the frame whose rotation (frame -> world) is r: r^T v. */
+static void azimuth_elevation(const float r[3][3], const float v[3], float *azimuth, float *elevation)
+{
+    const float x = r[0][0] * v[0] + r[1][0] * v[1] + r[2][0] * v[2];
+    const float y = r[0][1] * v[0] + r[1][1] * v[1] + r[2][1] * v[2];
+    const float z = r[0][2] * v[0] + r[1][2] * v[1] + r[2][2] * v[2];
+    *azimuth = atan2f(y, x);
+    *elevation = atan2f(z, sqrtf(x * x + y * y));
+}
+
+void bn_features(const float tag_pos[3], const float tag_rot[3][3],
+                 const float anchor_a_pos[3], const float anchor_a_rot[3][3],
+                 const float anchor_b_pos[3], const float anchor_b_rot[3][3],
+                 float f[BN_INPUTS])
+{
+    float to_a[3], to_b[3], from_a[3], from_b[3];
+    for (int i = 0; i < 3; i++) {
+        to_a[i] = anchor_a_pos[i] - tag_pos[i];
+        to_b[i] = anchor_b_pos[i] - tag_pos[i];
+        from_a[i] = -to_a[i];
+        from_b[i] = -to_b[i];
+        f[i] = to_a[i];
+        f[3 + i] = to_b[i];
+    }
+    azimuth_elevation(anchor_a_rot, from_a, &f[6], &f[10]);
+    azimuth_elevation(anchor_b_rot, from_b, &f[7], &f[11]);
+    azimuth_elevation(tag_rot, to_a, &f[8], &f[12]);
+    azimuth_elevation(tag_rot, to_b, &f[9], &f[13]);
+}
