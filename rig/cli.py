@@ -138,6 +138,27 @@ def _print_accuracy(result: dict) -> None:
           f"p95 {result['p95_3d']:.3f} m, max {result['max_3d']:.3f} m over {result['n_scored']} estimates")
 
 
+# ----------------------------------------------------------------------------- evaluate
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    from rig.evaluate import evaluate
+    from rig.recording import read_recording
+
+    rec = read_recording(args.recording)
+    result = evaluate(rec, robust=not args.no_robust, use_nn=not args.no_nn, model_path=args.model)
+    result["recording"] = str(args.recording)
+    config = ("robust" if not args.no_robust else "plain") + (" + bias network" if result["config"]["bias_net"] else "")
+    print(f"{args.recording}: C estimator ({config}), {result['flight_seconds']:.1f} s replayed in "
+          f"{result['estimator_seconds'] * 1e3:.1f} ms of estimator time")
+    _print_accuracy(result)
+    reasons = ", ".join(f"{k} {v}" for k, v in result["rejected_by_reason"].items() if v)
+    print(f"TDOA: {result['tdoa_accepted']} accepted, {result['tdoa_downweighted']} down-weighted, "
+          f"{result['tdoa_rejected']} rejected{' (' + reasons + ')' if reasons else ''}; "
+          f"resets {result['resets']}; diverged: {'yes' if result['diverged'] else 'no'}")
+    _write_json(args.json, result)
+    return EXIT_FAILED if result["diverged"] else EXIT_OK
+
+
 # ----------------------------------------------------------------------------- demo (main job)
 
 def cmd_demo(args: argparse.Namespace) -> int:
@@ -211,6 +232,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plot", type=Path, help="write a PNG of trajectory and error here")
     _add_segment_options(p)
     p.set_defaults(func=cmd_metrics)
+
+    p = sub.add_parser("evaluate", help="replay a recording through the C estimator (in-process) and score it",
+                       description="Run the real C estimator (native library) over a recording from take-off: "
+                                   "IMU-driven error-state EKF, TDOA updates, bias network, robust update. "
+                                   "Writes rmse_3d, rmse_xyz, diverged and measurement counts. Exit status 1 "
+                                   "when the estimate diverged.")
+    p.add_argument("recording", type=Path, nargs="?", default=paths.default_recording(),
+                   help="MCAP recording (default: the shipped default recording)")
+    p.add_argument("--no-nn", action="store_true", help="no bias-network correction")
+    p.add_argument("--no-robust", action="store_true", help="plain EKF update instead of M-estimation")
+    p.add_argument("--model", type=Path, help="bias network JSON (default: the shipped model)")
+    p.add_argument("--json", type=Path, help="write the metrics here")
+    p.set_defaults(func=cmd_evaluate)
 
     p = sub.add_parser("demo", help="the main job on the shipped default recording",
                        description="Read the default recording, estimate, score and plot.")

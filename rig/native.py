@@ -115,6 +115,7 @@ def _load(path: Path) -> ctypes.CDLL:
     lib.est_reset.argtypes = [ctypes.c_void_p, ctypes.c_uint32, ctypes.c_void_p, ctypes.c_void_p]
     lib.est_replay.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_size_t, ctypes.c_void_p, ctypes.c_size_t]
     lib.est_replay.restype = ctypes.c_size_t
+    lib.est_copy_covariance.argtypes = [ctypes.c_void_p, ctypes.c_void_p]
     lib.bn_features.argtypes = [ctypes.c_void_p] * 7
     lib.bn_predict.argtypes = [ctypes.c_void_p, ctypes.c_void_p]
     lib.bn_predict.restype = ctypes.c_float
@@ -158,6 +159,11 @@ class Estimator:
         quat = _ptr(_f32(quaternion, 4)) if quaternion is not None else None
         pos = _f32(position, 3)
         self.lib.est_reset(self.handle, int(t_us), _ptr(pos), quat)
+
+    def covariance(self) -> np.ndarray:
+        out = np.zeros((STATE_DIM, STATE_DIM), np.float32)
+        self.lib.est_copy_covariance(self.handle, _ptr(out))
+        return out
 
     def replay(self, events: np.ndarray) -> np.ndarray:
         """Run an EVENT_DTYPE array; returns the OUTPUT_DTYPE array (one row per STEP)."""

@@ -107,6 +107,7 @@ typedef struct {
 } est_output_t;
 
 typedef struct {
+    uint32_t t_us;             /* measurement time */
     float value;               /* measured distance difference (m) */
     uint8_t id_a, id_b;
 } est_tdoa_t;

@@ -137,6 +137,7 @@ static est_status_t queue_tdoa(estimator_t *est, const est_event_t *ev)
     if (fabsf(ev->v[0]) > sqrtf(dx * dx + dy * dy + dz * dz)) return reject(est, EST_REJ_EXCEEDS_BASELINE);
     if (est->queue_n >= EST_TDOA_QUEUE) return reject(est, EST_REJ_QUEUE_FULL);
     est_tdoa_t *m = &est->queue[est->queue_n++];
+    m->t_us = ev->t_us;
     m->value = ev->v[0];
     m->id_a = ev->id_a;
     m->id_b = ev->id_b;

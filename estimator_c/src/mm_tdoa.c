@@ -52,13 +52,18 @@ void tdoa_update(estimator_t *est, const est_tdoa_t *m)
 {
     const est_anchor_t *a = &est->anchors[m->id_a];
     const est_anchor_t *b = &est->anchors[m->id_b];
+    /* The measurement was taken up to one window before this STEP: compare it with the
+     * position back then, p - v * age (a centimetre at flight speed, not negligible). */
+    const float age = (float)(uint32_t)(est->t_step_us - m->t_us) * 1e-6f;
+    float pos_then[3];
+    for (int i = 0; i < 3; i++) pos_then[i] = est->pos[i] - est->vel[i] * age;
     float grad[3];
-    const float predicted = tdoa_predict(est->pos, a->pos, b->pos, grad);
+    const float predicted = tdoa_predict(pos_then, a->pos, b->pos, grad);
     float measured = m->value;
     est->last_bias = 0.0f;
     if (est->params.use_bias_net && est->net) {
         float features[BN_INPUTS];
-        bn_features(est->pos, est->rot, a->pos, a->rot, b->pos, b->rot, features);
+        bn_features(pos_then, est->rot, a->pos, a->rot, b->pos, b->rot, features);
         est->last_bias = bn_predict(est->net, features);
         measured -= est->last_bias;
     }
