@@ -148,7 +148,8 @@ class Estimator:
         self._net: np.ndarray | None = None  # keeps the weights alive while C points at them
 
     def set_anchor(self, anchor_id: int, position, quaternion) -> None:
-        if self.lib.est_set_anchor(self.handle, anchor_id, _ptr(_f32(position, 3)), _ptr(_f32(quaternion, 4))):
+        pos, quat = _f32(position, 3), _f32(quaternion, 4)  # named: alive during the call
+        if self.lib.est_set_anchor(self.handle, anchor_id, _ptr(pos), _ptr(quat)):
             raise ValueError(f"anchor {anchor_id} rejected by the estimator (id range or non-finite pose)")
 
     def set_bias_net(self, packed: np.ndarray | None) -> None:
@@ -156,9 +157,9 @@ class Estimator:
         self.lib.est_set_bias_net(self.handle, _ptr(packed) if packed is not None else None)
 
     def reset(self, t_us: int, position, quaternion=None) -> None:
-        quat = _ptr(_f32(quaternion, 4)) if quaternion is not None else None
         pos = _f32(position, 3)
-        self.lib.est_reset(self.handle, int(t_us), _ptr(pos), quat)
+        quat = _f32(quaternion, 4) if quaternion is not None else None
+        self.lib.est_reset(self.handle, int(t_us), _ptr(pos), _ptr(quat) if quat is not None else None)
 
     def covariance(self) -> np.ndarray:
         out = np.zeros((STATE_DIM, STATE_DIM), np.float32)
@@ -179,14 +180,18 @@ def features(tag_pos, tag_quat, a_pos, a_quat, b_pos, b_quat) -> np.ndarray:
 
     lib = library()
     out = np.zeros(14, np.float32)
+    # Every array is held by a name for the duration of the call (a bare temporary's
+    # memory could be freed before C reads it).
     mats = [_f32(Rotation.from_quat(q).as_matrix(), (3, 3)) for q in (tag_quat, a_quat, b_quat)]
-    lib.bn_features(_ptr(_f32(tag_pos, 3)), _ptr(mats[0]), _ptr(_f32(a_pos, 3)), _ptr(mats[1]),
-                    _ptr(_f32(b_pos, 3)), _ptr(mats[2]), _ptr(out))
+    points = [_f32(p, 3) for p in (tag_pos, a_pos, b_pos)]
+    lib.bn_features(_ptr(points[0]), _ptr(mats[0]), _ptr(points[1]), _ptr(mats[1]), _ptr(points[2]),
+                    _ptr(mats[2]), _ptr(out))
     return out
 
 
 def predict_bias(packed: np.ndarray, feature_vector) -> float:
-    return float(library().bn_predict(_ptr(packed), _ptr(_f32(feature_vector, 14))))
+    features32 = _f32(feature_vector, 14)
+    return float(library().bn_predict(_ptr(packed), _ptr(features32)))
 
 
 def params_with(**overrides) -> EstimatorParams:

@@ -49,16 +49,15 @@ void ekf_grow_uncertainty(estimator_t *est, float dt)
     }
 }
 
-/* P <- F P F^T with the error-state transition
+/* The error-state transition
  *   F = [ I  I*dt  0        ]
  *       [ 0  I    -R[a]x dt ]
  *       [ 0  0     I-[w]x dt]
- * written out block-wise (F is sparse; a dense 9x9x9 product would waste the budget). */
-static void propagate_covariance(estimator_t *est, const float acc[3], const float gyro[3], float dt)
+ * as its two nontrivial blocks A = -R[a]x dt and W = I - [w]x dt (tested against
+ * finite differences of the nominal propagation in tests/test_core.c). */
+void ekf_transition_blocks(const estimator_t *est, const float acc[3], const float gyro[3], float dt,
+                           float A[3][3], float W[3][3])
 {
-    float (*P)[EST_STATE_DIM] = est->P;
-    float A[3][3];   /* -R [a]x dt */
-    float W[3][3];   /* I - [w]x dt */
     const float ax[3][3] = {{0, -acc[2], acc[1]}, {acc[2], 0, -acc[0]}, {-acc[1], acc[0], 0}};
     for (int i = 0; i < 3; i++) {
         for (int j = 0; j < 3; j++) {
@@ -71,6 +70,16 @@ static void propagate_covariance(estimator_t *est, const float acc[3], const flo
     W[0][0] = 1;        W[0][1] = wdt[2];  W[0][2] = -wdt[1];
     W[1][0] = -wdt[2];  W[1][1] = 1;       W[1][2] = wdt[0];
     W[2][0] = wdt[1];   W[2][1] = -wdt[0]; W[2][2] = 1;
+}
+
+/* P <- F P F^T, written out block-wise (F is sparse; a dense 9x9x9 product would
+ * waste the budget). */
+static void propagate_covariance(estimator_t *est, const float acc[3], const float gyro[3], float dt)
+{
+    float (*P)[EST_STATE_DIM] = est->P;
+    float A[3][3];   /* -R [a]x dt */
+    float W[3][3];   /* I - [w]x dt */
+    ekf_transition_blocks(est, acc, gyro, dt, A, W);
 
     /* T = F P (row blocks), then P = T F^T (column blocks). */
     float T[EST_STATE_DIM][EST_STATE_DIM];

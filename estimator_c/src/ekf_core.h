@@ -19,6 +19,8 @@
 
 /* ekf_core.c */
 void ekf_predict(estimator_t *est, const float acc[3], const float gyro[3], float dt);
+void ekf_transition_blocks(const estimator_t *est, const float acc[3], const float gyro[3], float dt,
+                           float A[3][3], float W[3][3]);
 void ekf_grow_uncertainty(estimator_t *est, float dt);
 void ekf_condition_covariance(estimator_t *est);
 void ekf_apply_error(estimator_t *est, const float dx[EST_STATE_DIM]);

@@ -1,0 +1,75 @@
+"""C derivative checks, and the C bias features / network against hand-computed values."""
+
+from __future__ import annotations
+
+import subprocess
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from rig import native
+from rig.bias_model import BiasNet, HIDDEN, INPUTS, identity_probe_net
+from rig.native import ESTIMATOR_DIR
+
+LEVEL = [0.0, 0.0, 0.0, 1.0]
+UPSIDE_DOWN = Rotation.from_euler("x", 180, degrees=True).as_quat()
+
+
+def test_c_jacobians_and_weights_match_finite_differences() -> None:
+    proc = subprocess.run(["make", "-s", "-C", str(ESTIMATOR_DIR), "check"], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "ok: 0 failure(s)" in proc.stdout
+
+
+def test_features_of_an_anchor_straight_above() -> None:
+    f = native.features([0, 0, 1], LEVEL, [0, 0, 3], LEVEL, [2, 0, 1], LEVEL)
+    np.testing.assert_allclose(f[:6], [0, 0, 2, 2, 0, 0], atol=1e-6)
+    assert f[10] == pytest.approx(-np.pi / 2, abs=1e-6)   # tag seen straight below anchor A
+    assert f[12] == pytest.approx(np.pi / 2, abs=1e-6)    # anchor A seen straight above the tag
+    assert f[9] == pytest.approx(0.0, abs=1e-6) and f[13] == pytest.approx(0.0, abs=1e-6)  # B ahead, level
+
+
+def test_features_of_an_anchor_behind_the_tag() -> None:
+    f = native.features([0, 0, 1], LEVEL, [-2, 0, 1], LEVEL, [0, 2, 1], LEVEL)
+    assert abs(f[8]) == pytest.approx(np.pi, abs=1e-6)   # anchor A behind: azimuth ±180°
+    assert f[12] == pytest.approx(0.0, abs=1e-6)
+    assert f[9] == pytest.approx(np.pi / 2, abs=1e-6)    # anchor B to the left
+    assert f[6] == pytest.approx(0.0, abs=1e-6)           # tag in front of anchor A (its +x)
+
+
+def test_features_of_an_upside_down_anchor() -> None:
+    # A ceiling anchor mounted upside down sees a tag below it as "above" in its own frame.
+    f = native.features([0, 0, 1], LEVEL, [0, 0, 3], UPSIDE_DOWN, [2, 0, 1], LEVEL)
+    assert f[10] == pytest.approx(np.pi / 2, abs=1e-6)
+
+
+def test_features_follow_the_tag_attitude() -> None:
+    yawed = Rotation.from_euler("z", 90, degrees=True).as_quat()
+    f = native.features([0, 0, 1], yawed, [2, 0, 1], LEVEL, [0, 2, 1], LEVEL)
+    assert f[8] == pytest.approx(-np.pi / 2, abs=1e-6)  # +x world is the body's right after a left yaw
+
+
+def test_probe_network_output_is_computable_by_hand() -> None:
+    net = identity_probe_net(feature=2, gain=0.5, offset=0.01)
+    packed = net.pack()
+    for z in (-1.0, 0.0, 0.3, 2.0):
+        features = np.zeros(INPUTS)
+        features[2] = z
+        assert native.predict_bias(packed, features) == pytest.approx(0.5 * max(z, 0.0) + 0.01, abs=1e-6)
+
+
+def test_c_and_python_inference_agree_to_float32_precision() -> None:
+    rng = np.random.default_rng(0)
+    shapes = [(HIDDEN, INPUTS), (HIDDEN, HIDDEN), (HIDDEN, HIDDEN), (1, HIDDEN)]
+    net = BiasNet([rng.normal(0, 0.4, s) for s in shapes], [rng.normal(0, 0.1, s[0]) for s in shapes],
+                  rng.normal(0, 1, INPUTS), rng.uniform(0.5, 2, INPUTS), 0.2, -0.01)
+    reference = net.quantized()
+    packed = net.pack()
+    x = rng.normal(0, 2, (200, INPUTS))
+    c_out = np.array([native.predict_bias(packed, row) for row in x])
+    py_out = reference.predict(x.astype(np.float32).astype(float))
+    np.testing.assert_allclose(c_out, py_out, rtol=1e-4, atol=1e-5)
+    # and the int8 quantisation itself stays close to the float network (RMS within 2 %)
+    exact = net.predict(x)
+    assert np.sqrt(np.mean((exact - py_out) ** 2)) < 0.02 * np.std(exact)
