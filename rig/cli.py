@@ -159,6 +159,22 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     return EXIT_FAILED if result["diverged"] else EXIT_OK
 
 
+# ----------------------------------------------------------------------------- size
+
+def cmd_size(args: argparse.Namespace) -> int:
+    from rig.footprint import measure
+
+    result = measure()
+    est = result["estimator"]
+    budget = est["budget"]
+    print(f"estimator (Cortex-M4F, -Os): flash {est['flash']} B of {budget['flash']} B budget; "
+          f"RAM {est['ram']} B of {budget['ram']} B (static {est['static_ram']} B + stack {est['stack']} B "
+          f"via {' > '.join(est['stack_chain'])})")
+    _write_json(args.json, result)
+    within = est["flash"] <= budget["flash"] and est["ram"] <= budget["ram"]
+    return EXIT_OK if within else EXIT_FAILED
+
+
 # ----------------------------------------------------------------------------- demo (main job)
 
 def cmd_demo(args: argparse.Namespace) -> int:
@@ -245,6 +261,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--model", type=Path, help="bias network JSON (default: the shipped model)")
     p.add_argument("--json", type=Path, help="write the metrics here")
     p.set_defaults(func=cmd_evaluate)
+
+    p = sub.add_parser("size", help="flash, RAM and stack of the estimator for the STM32F405",
+                       description="Build the estimator for Cortex-M4F and report flash and RAM (static + worst "
+                                   "stack) from arm-none-eabi-size and -fstack-usage. Exit status 1 when over "
+                                   "the budget (13 kB flash, 12 kB RAM).")
+    p.add_argument("--json", type=Path, help="write the figures here")
+    p.set_defaults(func=cmd_size)
 
     p = sub.add_parser("demo", help="the main job on the shipped default recording",
                        description="Read the default recording, estimate, score and plot.")

@@ -15,14 +15,30 @@
 
 #include "bias_net.h"
 
+/* atan2 to within 1e-5 rad (Abramowitz & Stegun 4.4.49 on [-1, 1], folded by octant),
+ * instead of libm's atan2f, whose code and tables would cost the firmware kilobytes.
+ * Training computes its features with this very function, so the network never sees
+ * a different angle from the one it gets in flight. */
+static float fast_atan2f(float y, float x)
+{
+    const float ax = fabsf(x), ay = fabsf(y);
+    if (ax == 0.0f && ay == 0.0f) return 0.0f;
+    const int swap = ay > ax;
+    const float z = swap ? ax / ay : ay / ax, z2 = z * z;
+    float a = z * (0.9998660f + z2 * (-0.3302995f + z2 * (0.1801410f + z2 * (-0.0851330f + z2 * 0.0208351f))));
+    if (swap) a = 1.57079632679f - a;
+    if (x < 0.0f) a = 3.14159265359f - a;
+    return y < 0.0f ? -a : a;
+}
+
 /* Direction v (world) expressed in the frame whose rotation (frame -> world) is r: r^T v. */
 static void azimuth_elevation(const float r[3][3], const float v[3], float *azimuth, float *elevation)
 {
     const float x = r[0][0] * v[0] + r[1][0] * v[1] + r[2][0] * v[2];
     const float y = r[0][1] * v[0] + r[1][1] * v[1] + r[2][1] * v[2];
     const float z = r[0][2] * v[0] + r[1][2] * v[1] + r[2][2] * v[2];
-    *azimuth = atan2f(y, x);
-    *elevation = atan2f(z, sqrtf(x * x + y * y));
+    *azimuth = fast_atan2f(y, x);
+    *elevation = fast_atan2f(z, sqrtf(x * x + y * y));
 }
 
 void bn_features(const float tag_pos[3], const float tag_rot[3][3],

@@ -14,24 +14,27 @@ void quat_to_rot(const float q[4], float r[3][3])
     r[2][0] = 2 * (x * z - y * w);     r[2][1] = 2 * (y * z + x * w);     r[2][2] = 1 - 2 * (x * x + y * y);
 }
 
-/* q <- q * exp(theta/2): rotate the body frame by the body-frame rotation vector theta. */
+/* q <- q * exp(theta/2): rotate the body frame by the body-frame rotation vector theta.
+ * sin and cos come from their Taylor series (exact to float precision for angles up
+ * to 1 rad; larger rotations are applied in pieces), which keeps libm's sinf/cosf
+ * and their kilobytes of reduction tables out of the firmware. */
 static void quat_rotate_body(float q[4], const float theta[3])
 {
     const float angle = sqrtf(theta[0] * theta[0] + theta[1] * theta[1] + theta[2] * theta[2]);
-    float s, c;
-    if (angle < 1e-6f) {
-        s = 0.5f;      /* sin(a/2)/a -> 1/2 */
-        c = 1.0f;
-    } else {
-        s = sinf(0.5f * angle) / angle;
-        c = cosf(0.5f * angle);
+    const int pieces = angle > 1.0f ? (int)ceilf(angle) : 1;
+    const float h = 0.5f * angle / (float)pieces, h2 = h * h;   /* half angle of one piece */
+    const float c = 1.0f - h2 / 2 * (1.0f - h2 / 12 * (1.0f - h2 / 30 * (1.0f - h2 / 56)));
+    /* sin(h)/angle_piece = (sin(h)/h) / 2 */
+    const float s = 0.5f * (1.0f - h2 / 6 * (1.0f - h2 / 20 * (1.0f - h2 / 42 * (1.0f - h2 / 72))));
+    const float dx = theta[0] * s / (float)pieces, dy = theta[1] * s / (float)pieces,
+                dz = theta[2] * s / (float)pieces;
+    for (int k = 0; k < pieces; k++) {
+        const float x = q[0], y = q[1], z = q[2], w = q[3];
+        q[0] = w * dx + x * c + y * dz - z * dy;
+        q[1] = w * dy - x * dz + y * c + z * dx;
+        q[2] = w * dz + x * dy - y * dx + z * c;
+        q[3] = w * c - x * dx - y * dy - z * dz;
     }
-    const float dx = theta[0] * s, dy = theta[1] * s, dz = theta[2] * s;
-    const float x = q[0], y = q[1], z = q[2], w = q[3];
-    q[0] = w * dx + x * c + y * dz - z * dy;
-    q[1] = w * dy - x * dz + y * c + z * dx;
-    q[2] = w * dz + x * dy - y * dx + z * c;
-    q[3] = w * c - x * dx - y * dy - z * dz;
     const float n = 1.0f / sqrtf(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
     for (int i = 0; i < 4; i++) q[i] *= n;
 }
