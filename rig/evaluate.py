@@ -139,7 +139,9 @@ def evaluate(rec: Recording, *, robust: bool = True, use_nn: bool = True, model_
     """Replay and score; the dict is what `rig evaluate --json` writes."""
     model = load_model(model_path) if use_nn else None
     if use_nn and model is None:
-        raise FileNotFoundError(f"no bias network at {model_path or DEFAULT_MODEL}; train one or pass --no-nn")
+        if model_path is not None:
+            raise FileNotFoundError(f"no bias network at {model_path}")
+        log.warning("no bias network shipped yet (%s): evaluating without bias correction", DEFAULT_MODEL)
     params = native.params_with(robust=int(robust), use_bias_net=int(model is not None), **param_overrides)
     run = replay(rec, params, model)
     finite = np.all(np.isfinite(run.position), axis=1)
