@@ -88,34 +88,36 @@ def _vec3(value, name: str) -> np.ndarray:
     return v
 
 
-class ImuAccelBias(Effect):
-    """measured = true + bias (body frame, m/s²)."""
+class _ImuConstantBias(Effect):
+    """measured = true + bias on one IMU stream (body frame)."""
 
-    name, stage = "imu_accel_bias", SIGNAL
+    stage = SIGNAL
+    stream: ClassVar[str] = ""   # "accel" or "gyro"
+    param: ClassVar[str] = ""    # the catalog's parameter name
 
-    def __init__(self, bias_mps2=(0.0, 0.0, 0.0)):
-        self.bias = _vec3(bias_mps2, "bias_mps2")
-
-    def params(self) -> dict:
-        return {"bias_mps2": self.bias.tolist()}
-
-    def apply_imu(self, imu: ImuBatch, rng: np.random.Generator) -> None:
-        imu.accel += self.bias
-
-
-class ImuGyroBias(Effect):
-    """measured = true + bias (body frame, rad/s)."""
-
-    name, stage = "imu_gyro_bias", SIGNAL
-
-    def __init__(self, bias_rps=(0.0, 0.0, 0.0)):
-        self.bias = _vec3(bias_rps, "bias_rps")
+    def __init__(self, **params):
+        unknown = set(params) - {self.param}
+        if unknown:
+            raise TypeError(f"unexpected parameter(s) {sorted(unknown)}")
+        self.bias = _vec3(params.get(self.param, (0.0, 0.0, 0.0)), self.param)
 
     def params(self) -> dict:
-        return {"bias_rps": self.bias.tolist()}
+        return {self.param: self.bias.tolist()}
 
     def apply_imu(self, imu: ImuBatch, rng: np.random.Generator) -> None:
-        imu.gyro += self.bias
+        getattr(imu, self.stream)[:] += self.bias
+
+
+class ImuAccelBias(_ImuConstantBias):
+    """Accelerometer bias (m/s²)."""
+
+    name, stream, param = "imu_accel_bias", "accel", "bias_mps2"
+
+
+class ImuGyroBias(_ImuConstantBias):
+    """Gyroscope bias (rad/s)."""
+
+    name, stream, param = "imu_gyro_bias", "gyro", "bias_rps"
 
 
 class ImuNoise(Effect):

@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 import logging
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Callable, Iterable, Iterator
 
@@ -91,26 +91,32 @@ SCHEMAS: dict[str, dict] = {
 }
 
 
+class _Columns:
+    """Shared behaviour of the column-array series: length and row selection."""
+
+    t: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    def select(self, mask: np.ndarray):
+        return type(self)(*(getattr(self, f.name)[mask] for f in fields(self)))
+
+
 @dataclass
-class Vec3Series:
+class Vec3Series(_Columns):
     """Time-stamped 3-vectors (IMU axes)."""
 
     t: np.ndarray
     xyz: np.ndarray
 
-    def __len__(self) -> int:
-        return len(self.t)
-
     @classmethod
     def empty(cls) -> "Vec3Series":
         return cls(np.zeros(0), np.zeros((0, 3)))
 
-    def select(self, mask: np.ndarray) -> "Vec3Series":
-        return Vec3Series(self.t[mask], self.xyz[mask])
-
 
 @dataclass
-class TdoaSeries:
+class TdoaSeries(_Columns):
     """TDOA measurements: distance_diff = |p - a_B| - |p - a_A| (+ errors)."""
 
     t: np.ndarray
@@ -118,34 +124,23 @@ class TdoaSeries:
     id_b: np.ndarray
     distance_diff: np.ndarray
 
-    def __len__(self) -> int:
-        return len(self.t)
-
     @classmethod
     def empty(cls) -> "TdoaSeries":
         return cls(np.zeros(0), np.zeros(0, int), np.zeros(0, int), np.zeros(0))
 
-    def select(self, mask: np.ndarray) -> "TdoaSeries":
-        return TdoaSeries(self.t[mask], self.id_a[mask], self.id_b[mask], self.distance_diff[mask])
-
 
 @dataclass
-class PoseSeries:
+class PoseSeries(_Columns):
     """Ground-truth poses: position (m) and quaternion x,y,z,w body→world."""
 
     t: np.ndarray
     position: np.ndarray
     quaternion: np.ndarray
 
-    def __len__(self) -> int:
-        return len(self.t)
-
     @classmethod
     def empty(cls) -> "PoseSeries":
         return cls(np.zeros(0), np.zeros((0, 3)), np.zeros((0, 4)))
 
-    def select(self, mask: np.ndarray) -> "PoseSeries":
-        return PoseSeries(self.t[mask], self.position[mask], self.quaternion[mask])
 
 
 @dataclass
