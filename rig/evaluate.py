@@ -48,11 +48,7 @@ class Replay:
 
 
 def start_time(rec: Recording, rule: metrics.SegmentRule = metrics.SegmentRule()) -> float:
-    airborne = rec.truth.position[:, 2] > rule.min_height
-    if not airborne.any():
-        raise metrics.MetricsError("ground truth never leaves the ground: nothing to replay from take-off")
-    takeoff = rec.truth.t[np.argmax(airborne)]
-    return float(max(takeoff - START_BEFORE_TAKEOFF, rec.truth.t[0]))
+    return float(max(metrics.takeoff_time(rec.truth, rule) - START_BEFORE_TAKEOFF, rec.truth.t[0]))
 
 
 def truth_pose_at(rec: Recording, t: float) -> tuple[np.ndarray, np.ndarray]:
@@ -144,11 +140,11 @@ def evaluate(rec: Recording, *, robust: bool = True, use_nn: bool = True, model_
         log.warning("no bias network shipped yet (%s): evaluating without bias correction", DEFAULT_MODEL)
     params = native.params_with(robust=int(robust), use_bias_net=int(model is not None), **param_overrides)
     run = replay(rec, params, model)
-    finite = np.all(np.isfinite(run.position), axis=1)
-    result = metrics.score(run.t, run.position, rec.truth)
+    position = run.position
+    result = metrics.score(run.t, position, rec.truth)
     counters = counter_summary(run.counters)
     result.update(counters)
-    result["diverged"] = bool(not finite.all() or counters["resets"] > 0 or result["rmse_3d"] > DIVERGED_RMSE_M)
+    result["diverged"] = bool(not np.isfinite(position).all() or counters["resets"] > 0 or result["rmse_3d"] > DIVERGED_RMSE_M)
     result["estimator_seconds"] = run.estimator_seconds
     result["flight_seconds"] = float(run.t[-1] - run.t[0]) if len(run.t) else 0.0
     result["config"] = {"robust": robust, "bias_net": model is not None, "params": params.as_dict(),

@@ -11,7 +11,7 @@ from __future__ import annotations
 import subprocess
 from pathlib import Path
 
-from rig.native import ESTIMATOR_DIR, NativeBuildError
+from rig.native import ESTIMATOR_DIR, make
 
 BUILD = ESTIMATOR_DIR / "build" / "arm"
 
@@ -38,12 +38,6 @@ CALL_GRAPH = {
 ENTRY = "est_handle_event"
 
 
-def _make(*targets: str) -> None:
-    proc = subprocess.run(["make", "-s", "-C", str(ESTIMATOR_DIR), *targets], capture_output=True, text=True)
-    if proc.returncode != 0:
-        raise NativeBuildError(f"arm build failed:\n{proc.stdout}{proc.stderr}")
-
-
 def _size(elf: Path) -> dict[str, int]:
     out = subprocess.run(["arm-none-eabi-size", str(elf)], capture_output=True, text=True, check=True).stdout
     text, data, bss = (int(v) for v in out.splitlines()[1].split()[:3])
@@ -58,7 +52,8 @@ def stack_frames() -> dict[str, int]:
             continue
         for line in su.read_text().splitlines():
             location, size, _ = line.split("\t")
-            frames[location.rsplit(":", 1)[-1]] = max(frames.get(location.rsplit(":", 1)[-1], 0), int(size))
+            function = location.rsplit(":", 1)[-1]
+            frames[function] = max(frames.get(function, 0), int(size))
     return frames
 
 
@@ -73,7 +68,7 @@ def worst_stack(frames: dict[str, int], entry: str = ENTRY) -> tuple[int, list[s
 
 
 def measure() -> dict:
-    _make("footprint", "arm")
+    make("footprint", "arm")
     with_est = _size(BUILD / "footprint_with.elf")
     without = _size(BUILD / "footprint_without.elf")
     frames = stack_frames()

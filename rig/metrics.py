@@ -28,11 +28,21 @@ class MetricsError(Exception):
     """Not enough overlap between estimates and ground truth to score anything."""
 
 
-def flight_window(truth: PoseSeries, rule: SegmentRule) -> tuple[float, float]:
-    """Start and end time of the scored segment."""
+def _airborne(truth: PoseSeries, rule: SegmentRule) -> np.ndarray:
     airborne = truth.position[:, 2] > rule.min_height
     if not airborne.any():
         raise MetricsError(f"ground truth never rises above {rule.min_height} m: no flight to score")
+    return airborne
+
+
+def takeoff_time(truth: PoseSeries, rule: SegmentRule = SegmentRule()) -> float:
+    """The first ground-truth time above `rule.min_height`."""
+    return float(truth.t[np.argmax(_airborne(truth, rule))])
+
+
+def flight_window(truth: PoseSeries, rule: SegmentRule) -> tuple[float, float]:
+    """Start and end time of the scored segment."""
+    airborne = _airborne(truth, rule)
     takeoff = truth.t[np.argmax(airborne)]
     landing = truth.t[len(airborne) - 1 - np.argmax(airborne[::-1])]
     start = takeoff + rule.skip_after_takeoff

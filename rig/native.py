@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from rig.bias_model import NET_DTYPE
 from rig.paths import PROJECT_ROOT
 
 log = logging.getLogger(__name__)
@@ -73,15 +74,20 @@ def _sources() -> list[Path]:
     return [p for p in ESTIMATOR_DIR.rglob("*") if p.suffix in (".c", ".h") or p.name == "Makefile"]
 
 
+def make(*targets: str) -> None:
+    """Run the estimator's Makefile for `targets`; a failure carries the compiler output."""
+    proc = subprocess.run(["make", "-s", "-C", str(ESTIMATOR_DIR), *targets], capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise NativeBuildError(f"building {' '.join(targets)} failed:\n{proc.stdout}{proc.stderr}")
+
+
 def build(target: str = "native") -> Path:
     """Build (if stale) and return the path of the host library."""
     name = {"native": "libestimator.so", "sanitize": "libestimator-asan.so"}[target]
     lib = ESTIMATOR_DIR / "build" / name
     newest = max(p.stat().st_mtime for p in _sources())
     if not lib.exists() or lib.stat().st_mtime < newest:
-        proc = subprocess.run(["make", "-s", "-C", str(ESTIMATOR_DIR), target], capture_output=True, text=True)
-        if proc.returncode != 0:
-            raise NativeBuildError(f"building the estimator failed:\n{proc.stdout}{proc.stderr}")
+        make(target)
     return lib
 
 
@@ -99,10 +105,7 @@ def _load(path: Path) -> ctypes.CDLL:
     for name in ("estimator", "event", "output", "params", "bias_net"):
         getattr(lib, f"est_sizeof_{name}").restype = ctypes.c_size_t
     expected = {"event": EVENT_DTYPE.itemsize, "output": OUTPUT_DTYPE.itemsize,
-                "params": ctypes.sizeof(EstimatorParams)}
-    from rig.bias_model import NET_DTYPE
-
-    expected["bias_net"] = NET_DTYPE.itemsize
+                "params": ctypes.sizeof(EstimatorParams), "bias_net": NET_DTYPE.itemsize}
     for name, size in expected.items():
         actual = getattr(lib, f"est_sizeof_{name}")()
         if actual != size:

@@ -24,6 +24,18 @@ TDOA = EventType(9, "estTDOA", ("idA", "idB", "distanceDiff"), "BBf")
 TYPES = [ACC, GYRO, POSE, TDOA]
 
 
+# Simulator output resolution off: values exactly as computed (no sensor LSB rounding).
+FULL_PRECISION = {k: 0.0 for k in ("time", "accel", "gyro", "tdoa", "position", "quaternion")}
+
+
+def simulate_exact(survey: Path, trajectory: str = "circle-sine", effects: list[dict] | None = None, **kw):
+    """A simulated flight at full precision (no effects unless given)."""
+    from rig.simulate import SimConfig, simulate
+
+    return simulate(SimConfig(trajectory=trajectory, survey=str(survey), effects=effects or [],
+                              resolution=dict(FULL_PRECISION), **kw))
+
+
 @pytest.fixture(scope="session")
 def data_dir() -> Path:
     path = paths.data_dir()

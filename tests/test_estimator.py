@@ -10,21 +10,15 @@ import sys
 from pathlib import Path
 
 import numpy as np
-import pytest
 
-from conftest import ROOT
+from conftest import ROOT, simulate_exact
 from rig import native
 from rig.evaluate import build_events, evaluate, make_estimator, start_time, truth_pose_at
 from rig.importer import import_log
 from rig.recording import Recording
-from rig.simulate import SimConfig, simulate
-
-FULL_PRECISION = {k: 0.0 for k in ("time", "accel", "gyro", "tdoa", "position", "quaternion")}
-
 
 def _sim(survey: Path, effects: list[dict], duration: float = 20.0, **kw) -> Recording:
-    return simulate(SimConfig(trajectory="circle-sine", duration=duration, survey=str(survey), effects=effects,
-                              resolution=dict(FULL_PRECISION), **kw))
+    return simulate_exact(survey, effects=effects, duration=duration, **kw)
 
 
 def _start(rec: Recording, params=None) -> tuple[native.Estimator, np.ndarray, float]:

@@ -8,18 +8,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from conftest import ROOT, run_rig
+from conftest import FULL_PRECISION, ROOT, run_rig, simulate_exact
 from rig.recording import Recording, read_recording, write_recording
 from rig.simulate import SimConfig, simulate
 from rig.trajectory import GRAVITY
-
-FULL_PRECISION = {k: 0.0 for k in ("time", "accel", "gyro", "tdoa", "position", "quaternion")}
-
-
-def _noiseless(survey: Path, trajectory: str, **kw) -> Recording:
-    cfg = SimConfig(trajectory=trajectory, survey=str(survey), effects=[], resolution=dict(FULL_PRECISION), **kw)
-    return simulate(cfg)
-
 
 def _strapdown(rec: Recording) -> np.ndarray:
     """Integrate the IMU from the true initial state (midpoint rule). Returns positions at IMU times."""
@@ -43,7 +35,7 @@ def _strapdown(rec: Recording) -> np.ndarray:
 
 @pytest.mark.parametrize("trajectory", ["circle", "circle-sine", "smooth-random"])
 def test_integrating_noiseless_imu_reproduces_the_trajectory(survey_0425: Path, trajectory: str) -> None:
-    rec = _noiseless(survey_0425, trajectory, duration=15.0)
+    rec = simulate_exact(survey_0425, trajectory, duration=15.0)
     dead_reckoned = _strapdown(rec)
     truth = np.column_stack([np.interp(rec.accel.t, rec.truth.t, rec.truth.position[:, i]) for i in range(3)])
     drift = np.linalg.norm(dead_reckoned - truth, axis=1)
@@ -51,7 +43,7 @@ def test_integrating_noiseless_imu_reproduces_the_trajectory(survey_0425: Path, 
 
 
 def test_specific_force_at_rest_is_plus_g_on_z(survey_0425: Path) -> None:
-    rec = _noiseless(survey_0425, "circle", duration=5.0)
+    rec = simulate_exact(survey_0425, "circle", duration=5.0)
     on_ground = rec.accel.t < 1.5
     np.testing.assert_allclose(rec.accel.xyz[on_ground], [[0.0, 0.0, GRAVITY]] * on_ground.sum(), atol=1e-6)
     np.testing.assert_allclose(rec.gyro.xyz[on_ground], 0.0, atol=1e-9)
@@ -59,7 +51,7 @@ def test_specific_force_at_rest_is_plus_g_on_z(survey_0425: Path) -> None:
 
 @pytest.mark.parametrize("mode", ["TDOA2", "TDOA3"])
 def test_noiseless_tdoa_equals_the_geometry_exactly(survey_0425: Path, mode: str) -> None:
-    rec = _noiseless(survey_0425, "circle-sine", duration=5.0, uwb_mode=mode)
+    rec = simulate_exact(survey_0425, "circle-sine", duration=5.0, uwb_mode=mode)
     anchors = rec.anchor_map()
     # The truth is sampled at other times, so evaluate the trajectory itself at the TDOA times.
     from rig.trajectory import parametric

@@ -135,8 +135,6 @@ typedef struct {
     est_anchor_t anchors[EST_MAX_ANCHORS];
     const bias_net_t *net;
     est_counters_t counters;
-    float last_bias;           /* bias subtracted from the last TDOA (diagnostics) */
-    float last_weight;         /* robust weight of the last TDOA (diagnostics) */
 } estimator_t;
 
 void est_default_params(est_params_t *params);

@@ -16,6 +16,7 @@
 #define EST_INIT_ATT_STD 0.05f
 #define EST_WEIGHT_ACCEPTED 0.5f    /* robust weight at or above which a TDOA counts as accepted */
 #define EST_WEIGHT_REJECTED 0.05f   /* below it, as rejected */
+#define EST_GATE_SIGMAS 5.0f        /* hard gate: innovation beyond gate_m and this many sigmas */
 
 /* ekf_core.c */
 void ekf_predict(estimator_t *est, const float acc[3], const float gyro[3], float dt);

@@ -20,6 +20,15 @@ float tdoa_predict(const float pos[3], const float a[3], const float b[3], float
     return rb - ra;
 }
 
+/* G P G^T + sigma^2 for a Jacobian G nonzero on position only. */
+static float innovation_variance(const estimator_t *est, const float grad[3])
+{
+    float s = est->params.tdoa_std * est->params.tdoa_std;
+    for (int i = 0; i < 3; i++)
+        s += grad[i] * (est->P[i][0] * grad[0] + est->P[i][1] * grad[1] + est->P[i][2] * grad[2]);
+    return s;
+}
+
 /* Plain EKF update with a scalar measurement whose Jacobian is nonzero on position only. */
 void tdoa_update_plain(estimator_t *est, float innovation, const float grad[3])
 {
@@ -35,7 +44,6 @@ void tdoa_update_plain(estimator_t *est, float innovation, const float grad[3])
     for (int i = 0; i < EST_STATE_DIM; i++)
         for (int j = 0; j < EST_STATE_DIM; j++) est->P[i][j] -= PG[i] * PG[j] * inv_s;
     ekf_apply_error(est, dx);
-    est->last_weight = 1.0f;
 }
 
 static void count_weight(estimator_t *est, float weight)
@@ -60,25 +68,19 @@ void tdoa_update(estimator_t *est, const est_tdoa_t *m)
     float grad[3];
     const float predicted = tdoa_predict(pos_then, a->pos, b->pos, grad);
     float measured = m->value;
-    est->last_bias = 0.0f;
     if (est->params.use_bias_net && est->net) {
         float features[BN_INPUTS];
         bn_features(pos_then, est->rot, a->pos, a->rot, b->pos, b->rot, features);
-        est->last_bias = bn_predict(est->net, features);
-        measured -= est->last_bias;
+        measured -= bn_predict(est->net, features);
     }
     const float innovation = measured - predicted;
 
     /* Hard gate: an innovation both large in metres and many sigmas out is not this
      * flight's geometry (multipath far beyond what the robust cost should even see). */
-    const float s = grad[0] * (est->P[0][0] * grad[0] + est->P[0][1] * grad[1] + est->P[0][2] * grad[2])
-                  + grad[1] * (est->P[1][0] * grad[0] + est->P[1][1] * grad[1] + est->P[1][2] * grad[2])
-                  + grad[2] * (est->P[2][0] * grad[0] + est->P[2][1] * grad[1] + est->P[2][2] * grad[2])
-                  + est->params.tdoa_std * est->params.tdoa_std;
-    if (fabsf(innovation) > est->params.gate_m && innovation * innovation > 25.0f * s) {
+    if (fabsf(innovation) > est->params.gate_m
+        && innovation * innovation > EST_GATE_SIGMAS * EST_GATE_SIGMAS * innovation_variance(est, grad)) {
         est->counters.rejected[EST_REJ_GATE]++;
         est->counters.tdoa_rejected++;
-        est->last_weight = 0.0f;
         return;
     }
     if (est->params.robust) {

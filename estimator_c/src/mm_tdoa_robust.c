@@ -87,6 +87,5 @@ float tdoa_update_robust(estimator_t *est, float innovation, const float grad[3]
         }
     }
     ekf_apply_error(est, dx);
-    est->last_weight = w_d;
     return w_d;
 }
