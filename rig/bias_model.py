@@ -15,13 +15,14 @@ from pathlib import Path
 import numpy as np
 
 INPUTS, HIDDEN = 14, 30
+LANES = 32  # C storage width of a layer (BN_LANES): two zero neurons of padding
 
 NET_DTYPE = np.dtype([
     ("in_mean", "<f4", INPUTS), ("in_scale", "<f4", INPUTS), ("out_scale", "<f4"), ("out_offset", "<f4"),
-    ("w1", "i1", (INPUTS, HIDDEN)), ("w2", "i1", (HIDDEN, HIDDEN)), ("w3", "i1", (HIDDEN, HIDDEN)),
+    ("w1", "i1", (INPUTS, LANES)), ("w2", "i1", (HIDDEN, LANES)), ("w3", "i1", (HIDDEN, LANES)),
     ("w4", "i1", HIDDEN),
-    ("s1", "<f4", HIDDEN), ("s2", "<f4", HIDDEN), ("s3", "<f4", HIDDEN), ("s4", "<f4"),
-    ("b1", "<f4", HIDDEN), ("b2", "<f4", HIDDEN), ("b3", "<f4", HIDDEN), ("b4", "<f4"),
+    ("s1", "<f4", LANES), ("s2", "<f4", LANES), ("s3", "<f4", LANES), ("s4", "<f4"),
+    ("b1", "<f4", LANES), ("b2", "<f4", LANES), ("b3", "<f4", LANES), ("b4", "<f4"),
 ], align=True)
 
 
@@ -61,9 +62,12 @@ class BiasNet:
         rec["out_scale"], rec["out_offset"] = self.out_scale, self.out_offset
         for k, (w, b) in enumerate(zip(self.weights, self.biases), start=1):
             q, scale = _quantize_rows(w)
-            rec[f"w{k}"] = q.T if k < 4 else q[0]  # C stores input-major
-            rec[f"s{k}"] = scale if k < 4 else scale[0]
-            rec[f"b{k}"] = b if k < 4 else b[0]
+            if k < 4:  # C stores input-major, HIDDEN neurons in LANES slots (padding stays zero)
+                rec[f"w{k}"][:, :HIDDEN] = q.T
+                rec[f"s{k}"][:HIDDEN] = scale
+                rec[f"b{k}"][:HIDDEN] = b
+            else:
+                rec[f"w{k}"], rec[f"s{k}"], rec[f"b{k}"] = q[0], scale[0], b[0]
         return np.ascontiguousarray(rec.reshape(1))
 
     def to_json(self) -> dict:

@@ -87,3 +87,14 @@ def import_log(log_path: Path, survey_path: Path, *, salvage: bool = False, uwb_
         anchors=anchors,
         metadata=metadata,
     )
+
+
+def load_any(path: Path) -> Recording:
+    """An MCAP recording, or a shared flight log imported with its day's survey."""
+    from rig.paths import survey_for
+    from rig.recording import read_recording
+
+    path = Path(path)
+    if path.suffix == ".mcap":
+        return read_recording(path)
+    return import_log(path, survey_for(path))
