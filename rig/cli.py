@@ -19,6 +19,7 @@ from rig import paths
 log = logging.getLogger("rig")
 
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT = 0, 1, 2
+TRAIN_MAX_EPOCHS = 60
 
 
 class CliError(Exception):
@@ -142,9 +143,9 @@ def _print_accuracy(result: dict) -> None:
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
     from rig.evaluate import evaluate
-    from rig.recording import read_recording
+    from rig.importer import load_any
 
-    rec = read_recording(args.recording)
+    rec = load_any(args.recording)
     result = evaluate(rec, robust=not args.no_robust, use_nn=not args.no_nn, model_path=args.model)
     result["recording"] = str(args.recording)
     config = ("robust" if not args.no_robust else "plain") + (" + bias network" if result["config"]["bias_net"] else "")
@@ -157,6 +158,33 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
           f"resets {result['resets']}; diverged: {'yes' if result['diverged'] else 'no'}")
     _write_json(args.json, result)
     return EXIT_FAILED if result["diverged"] else EXIT_OK
+
+
+# ----------------------------------------------------------------------------- train
+
+def cmd_train(args: argparse.Namespace) -> int:
+    from rig.train import FEATURE_SETS, TrainConfig, provenance_path, run_training
+
+    flights = [f for f in paths.flights() if any(f.name.startswith(p) for p in args.flights)] \
+        if args.flights else paths.flights()
+    if not flights:
+        raise CliError(f"no flight in {paths.data_dir() / 'flights'} matches {args.flights}")
+    config = TrainConfig(seed=args.seed, max_epochs=args.max_epochs, features=FEATURE_SETS[args.features])
+    anchors = [int(a) for a in args.exclude_anchors.split(",")] if args.exclude_anchors else []
+    prov = run_training(flights, args.out, test_prefixes=args.test, exclude_anchors=anchors, config=config,
+                        dataset_cache=args.dataset_cache, command=["rig", *sys.argv[1:]],
+                        progress=_progress(desc="training", total=None))
+    t = prov["training"]
+    print(f"trained on {len(prov['split']['train'])} flights ({prov['samples']['train']} samples), "
+          f"{t['epochs']} epochs in {t['seconds']:.0f} s (best {t['best_epoch']})")
+    for part in ("validation", "test"):
+        stats = prov[part]
+        if stats:
+            print(f"{part}: TDOA error mean {stats['before']['mean']:+.3f} -> {stats['after']['mean']:+.3f} m, "
+                  f"std {stats['before']['std']:.3f} -> {stats['after']['std']:.3f} m "
+                  f"(int8 {stats['after_int8']['std']:.3f} m)")
+    print(f"wrote {args.out} and {provenance_path(args.out)}")
+    return EXIT_OK
 
 
 # ----------------------------------------------------------------------------- size
@@ -255,12 +283,29 @@ def build_parser() -> argparse.ArgumentParser:
                                    "Writes rmse_3d, rmse_xyz, diverged and measurement counts. Exit status 1 "
                                    "when the estimate diverged.")
     p.add_argument("recording", type=Path, nargs="?", default=paths.default_recording(),
-                   help="MCAP recording (default: the shipped default recording)")
+                   help="MCAP recording or shared flight log (default: the shipped default recording)")
     p.add_argument("--no-nn", action="store_true", help="no bias-network correction")
     p.add_argument("--no-robust", action="store_true", help="plain EKF update instead of M-estimation")
     p.add_argument("--model", type=Path, help="bias network JSON (default: the shipped model)")
     p.add_argument("--json", type=Path, help="write the metrics here")
     p.set_defaults(func=cmd_evaluate)
+
+    p = sub.add_parser("train", help="train the TDOA bias network on the shared flights (torch, CPU)",
+                       description="Build the dataset (14 features from the C feature code, label = measured - "
+                                   "true TDOA, |error| <= 1 m, in flight), split by flight 70/15/15, train the "
+                                   "14-30-30-30-1 network with early stopping and write the model JSON and a "
+                                   "provenance file. Seeded and reproducible.")
+    p.add_argument("--flights", nargs="+", metavar="PREFIX", help="use flights whose names start with these")
+    p.add_argument("--test", nargs="+", metavar="PREFIX",
+                   help="these flights are the test set (default: a seeded 15%% of the flights)")
+    p.add_argument("--exclude-anchors", metavar="K,K", help="leave these anchors out of training; test on them")
+    p.add_argument("--features", choices=("14", "10"), default="14",
+                   help="10 drops the anchors' orientation (the tag's angles in each anchor's frame)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--max-epochs", type=int, default=TRAIN_MAX_EPOCHS)
+    p.add_argument("--out", type=Path, default=paths.PROJECT_ROOT / "rig" / "models" / "bias_net.json")
+    p.add_argument("--dataset-cache", type=Path, help="reuse (or write) the dataset here (.npz)")
+    p.set_defaults(func=cmd_train)
 
     p = sub.add_parser("size", help="flash, RAM and stack of the estimator for the STM32F405",
                        description="Build the estimator for Cortex-M4F and report flash and RAM (static + worst "

@@ -120,6 +120,7 @@ def _load(path: Path) -> ctypes.CDLL:
     lib.est_replay.restype = ctypes.c_size_t
     lib.est_copy_covariance.argtypes = [ctypes.c_void_p, ctypes.c_void_p]
     lib.bn_features.argtypes = [ctypes.c_void_p] * 7
+    lib.bn_features_batch.argtypes = [ctypes.c_size_t] + [ctypes.c_void_p] * 7
     lib.bn_predict.argtypes = [ctypes.c_void_p, ctypes.c_void_p]
     lib.bn_predict.restype = ctypes.c_float
     return lib
@@ -189,6 +190,18 @@ def features(tag_pos, tag_quat, a_pos, a_quat, b_pos, b_quat) -> np.ndarray:
     points = [_f32(p, 3) for p in (tag_pos, a_pos, b_pos)]
     lib.bn_features(_ptr(points[0]), _ptr(mats[0]), _ptr(points[1]), _ptr(mats[1]), _ptr(points[2]),
                     _ptr(mats[2]), _ptr(out))
+    return out
+
+
+def features_batch(tag_pos, tag_rot, a_pos, a_rot, b_pos, b_rot) -> np.ndarray:
+    """The C feature function over n measurements: positions (n, 3), rotation matrices (n, 3, 3)."""
+    arrays = [_f32(x, (-1, 3)) if k % 2 == 0 else _f32(x, (-1, 3, 3))
+              for k, x in enumerate((tag_pos, tag_rot, a_pos, a_rot, b_pos, b_rot))]
+    n = len(arrays[0])
+    if any(len(a) != n for a in arrays):
+        raise ValueError("features_batch: all inputs need the same number of rows")
+    out = np.zeros((n, 14), np.float32)
+    library().bn_features_batch(n, *(_ptr(a) for a in arrays), _ptr(out))
     return out
 
 

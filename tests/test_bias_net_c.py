@@ -44,10 +44,25 @@ def test_features_of_an_upside_down_anchor() -> None:
     assert f[10] == pytest.approx(np.pi / 2, abs=2e-5)
 
 
-def test_features_follow_the_tag_attitude() -> None:
+def test_features_follow_the_tag_tilt_but_not_its_heading() -> None:
+    # Heading is unobservable for the estimator, so it must not change a feature ...
     yawed = Rotation.from_euler("z", 90, degrees=True).as_quat()
-    f = native.features([0, 0, 1], yawed, [2, 0, 1], LEVEL, [0, 2, 1], LEVEL)
-    assert f[8] == pytest.approx(-np.pi / 2, abs=2e-5)  # +x world is the body's right after a left yaw
+    level = native.features([0, 0, 1], LEVEL, [2, 0, 1], LEVEL, [0, 2, 1], LEVEL)
+    assert native.features([0, 0, 1], yawed, [2, 0, 1], LEVEL, [0, 2, 1], LEVEL) == pytest.approx(level, abs=1e-6)
+    # ... while tilt does: pitched nose-down by 30 degrees, an anchor ahead at the tag's
+    # height appears 30 degrees above the body's x-y plane (and straight ahead).
+    pitched = Rotation.from_euler("y", 30, degrees=True).as_quat()
+    f = native.features([0, 0, 1], pitched, [2, 0, 1], LEVEL, [0, 2, 1], LEVEL)
+    assert f[12] == pytest.approx(np.radians(30), abs=2e-5)
+    assert f[8] == pytest.approx(0.0, abs=2e-5)
+    # A tilt about a yawed axis is the same tilt: yaw then pitch equals pitch alone in the features.
+    yaw_then_pitch = (Rotation.from_euler("z", 40, degrees=True) * Rotation.from_euler("y", 30, degrees=True))
+    g = native.features([0, 0, 1], yaw_then_pitch.as_quat(), [2, 0, 1], LEVEL, [0, 2, 1], LEVEL)
+    tilt_only = Rotation.from_rotvec(np.cross([0, 0, 1], yaw_then_pitch.as_matrix()[:, 2]) /
+                                     np.linalg.norm(np.cross([0, 0, 1], yaw_then_pitch.as_matrix()[:, 2]))
+                                     * np.radians(30))
+    h = native.features([0, 0, 1], tilt_only.as_quat(), [2, 0, 1], LEVEL, [0, 2, 1], LEVEL)
+    assert g == pytest.approx(h, abs=1e-5)
 
 
 def test_probe_network_output_is_computable_by_hand() -> None:

@@ -4,9 +4,15 @@
  *   0-2   a_A - p                       relative position of anchor A (world, m)
  *   3-5   a_B - p                       relative position of anchor B (world, m)
  *   6, 7  azimuth of the tag in anchor A's frame, in anchor B's frame
- *   8, 9  azimuth of anchor A in the tag's body frame, of anchor B
+ *   8, 9  azimuth of anchor A in the tag's (heading-free) body frame, of anchor B
  *   10,11 elevation of the tag in anchor A's frame, in anchor B's frame
- *   12,13 elevation of anchor A in the tag's body frame, of anchor B
+ *   12,13 elevation of anchor A in the tag's (heading-free) body frame, of anchor B
+ *
+ * The tag's frame keeps its tilt but not its heading: the estimator cannot observe yaw
+ * (it uses only the thrust axis of the accelerometer and has no magnetometer; on the
+ * shared flights its yaw drifts 20-30 degrees while the drone holds its heading), so a
+ * feature depending on the estimated yaw would differ between training and flight.
+ * The heading-free frame is the smallest rotation taking world z onto the body z axis.
  *
  * azimuth = atan2(y, x), elevation = atan2(z, sqrt(x^2 + y^2)) of the direction
  * expressed in the named frame (radians). The Python dataset builder calls this
@@ -41,6 +47,25 @@ static void azimuth_elevation(const float r[3][3], const float v[3], float *azim
     *elevation = fast_atan2f(z, sqrtf(x * x + y * y));
 }
 
+/* Tilt of r without its heading: the rotation about the axis e3 x b3 by the angle between
+ * e3 and b3 (b3 = body z in world, the third column of r):
+ * T = I + [k]x + [k]x^2 / (1 + c), k = e3 x b3, c = e3 . b3 (Rodrigues). */
+static void heading_free(const float r[3][3], float t[3][3])
+{
+    const float k[3] = {-r[1][2], r[0][2], 0.0f};
+    float c = r[2][2];
+    if (c < -0.999f) c = -0.999f; /* upside down: any heading is as good; keep it finite */
+    const float kx[3][3] = {{0, -k[2], k[1]}, {k[2], 0, -k[0]}, {-k[1], k[0], 0}};
+    const float inv = 1.0f / (1.0f + c);
+    for (int i = 0; i < 3; i++) {
+        for (int j = 0; j < 3; j++) {
+            float sq = 0.0f;
+            for (int m = 0; m < 3; m++) sq += kx[i][m] * kx[m][j];
+            t[i][j] = (i == j ? 1.0f : 0.0f) + kx[i][j] + sq * inv;
+        }
+    }
+}
+
 void bn_features(const float tag_pos[3], const float tag_rot[3][3],
                  const float anchor_a_pos[3], const float anchor_a_rot[3][3],
                  const float anchor_b_pos[3], const float anchor_b_rot[3][3],
@@ -57,6 +82,8 @@ void bn_features(const float tag_pos[3], const float tag_rot[3][3],
     }
     azimuth_elevation(anchor_a_rot, from_a, &f[6], &f[10]);
     azimuth_elevation(anchor_b_rot, from_b, &f[7], &f[11]);
-    azimuth_elevation(tag_rot, to_a, &f[8], &f[12]);
-    azimuth_elevation(tag_rot, to_b, &f[9], &f[13]);
+    float tilt[3][3];
+    heading_free(tag_rot, tilt);
+    azimuth_elevation(tilt, to_a, &f[8], &f[12]);
+    azimuth_elevation(tilt, to_b, &f[9], &f[13]);
 }

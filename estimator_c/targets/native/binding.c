@@ -16,3 +16,13 @@ void est_copy_covariance(const estimator_t *est, float out[EST_STATE_DIM * EST_S
     for (int i = 0; i < EST_STATE_DIM; i++)
         for (int j = 0; j < EST_STATE_DIM; j++) out[i * EST_STATE_DIM + j] = est->P[i][j];
 }
+
+/* bn_features over n measurements (row-major arrays), so the training set is
+ * computed by exactly the code the estimator runs, without a ctypes call per row. */
+void bn_features_batch(size_t n, const float (*tag_pos)[3], const float (*tag_rot)[3][3],
+                       const float (*a_pos)[3], const float (*a_rot)[3][3],
+                       const float (*b_pos)[3], const float (*b_rot)[3][3], float (*out)[BN_INPUTS])
+{
+    for (size_t k = 0; k < n; k++)
+        bn_features(tag_pos[k], tag_rot[k], a_pos[k], a_rot[k], b_pos[k], b_rot[k], out[k]);
+}

@@ -1,0 +1,125 @@
+"""Bias-network ablations on the shared flights; regenerates docs/bias.md.
+
+    .venv/bin/python benchmarks/bias_ablation.py [--json out/bias_ablation.json]
+
+(a) the 14 features, (b) without the anchors' orientation (10 features), each on
+the default seeded 70/15/15 flight split; (c) leave-anchors-out: no measurement
+involving anchors {k} in training, tested on the test flights' measurements that
+involve them, with 14 and 10 features; (d) trained on 0425 + 0422, tested on
+0426: TDOA error statistics and histograms, and the robust estimator's 3D RMSE on
+every 0426 flight with and without the correction. Takes about ten minutes."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from rig import paths  # noqa: E402
+from rig.bias_dataset import Samples  # noqa: E402
+from rig.bias_model import BiasNet  # noqa: E402
+from rig.evaluate import evaluate  # noqa: E402
+from rig.importer import load_any  # noqa: E402
+from rig.train import FEATURE_SETS, TrainConfig, run_training  # noqa: E402
+
+OUT = ROOT / "out" / "ablation"
+CACHE = ROOT / "out" / "cache" / "all.npz"
+LEAVE_OUT = [[0], [3], [1, 6]]
+TEST_DAY = "0426"
+
+
+def train(name: str, features: str, **kwargs) -> dict:
+    out = OUT / name / "bias_net.json"
+    prov = run_training(paths.flights(), out, config=TrainConfig(features=FEATURE_SETS[features]),
+                        dataset_cache=CACHE, **kwargs)
+    prov["path"] = str(out)
+    print(f"{name}: test std {prov['test']['before']['std']:.3f} -> {prov['test']['after']['std']:.3f} m", flush=True)
+    return prov
+
+
+def end_to_end(model: Path) -> list[dict]:
+    rows = []
+    for flight in [f for f in paths.flights() if f.name.startswith(TEST_DAY)]:
+        rec = load_any(flight)
+        without = evaluate(rec, use_nn=False)
+        with_nn = evaluate(rec, model_path=model)
+        rows.append({"flight": flight.name, "without": without["rmse_3d"], "with": with_nn["rmse_3d"],
+                     "diverged": without["diverged"] or with_nn["diverged"]})
+        print(f"  {flight.name}: {without['rmse_3d']:.3f} -> {with_nn['rmse_3d']:.3f} m", flush=True)
+    return rows
+
+
+def histogram(samples: Samples, models: dict[str, Path], png: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4))
+    bins = np.linspace(-1, 1, 101)
+    ax.hist(samples.label, bins, density=True, color="0.6", label=f"before (σ {samples.label.std():.3f} m)")
+    for (name, path), colour in zip(models.items(), ("tab:red", "teal")):
+        residual = samples.label - BiasNet.load(path).predict(samples.features)
+        ax.hist(residual, bins, density=True, histtype="step", lw=1.8, color=colour,
+                label=f"{name} (σ {residual.std():.3f} m)")
+    ax.set_xlabel("TDOA error (m)")
+    ax.set_ylabel("density")
+    ax.set_title(f"{TEST_DAY} flights, network trained on the other days")
+    ax.legend()
+    fig.tight_layout()
+    png.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(png, dpi=110)
+    plt.close(fig)
+
+
+def stats_cells(stats: dict) -> str:
+    b, a = stats["before"], stats["after"]
+    return f"{b['mean']:+.3f} / {b['std']:.3f} | {a['mean']:+.3f} / {a['std']:.3f} | {b['n']}"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--json", type=Path, default=ROOT / "out" / "bias_ablation.json")
+    parser.add_argument("--doc", type=Path, default=ROOT / "docs" / "bias.md")
+    args = parser.parse_args()
+    runs = {"(a) 14 features": train("a14", "14"), "(b) 10 features": train("b10", "10")}
+    for anchors in LEAVE_OUT:
+        key = ",".join(map(str, anchors))
+        for features in ("14", "10"):
+            runs[f"(c) without anchors {key}, {features} features"] = train(
+                f"c{key.replace(',', '_')}-{features}", features, exclude_anchors=anchors)
+    for features in ("14", "10"):
+        runs[f"(d) {TEST_DAY} held out, {features} features"] = train(f"d{features}", features, test_prefixes=[TEST_DAY])
+    e2e = {features: end_to_end(Path(runs[f"(d) {TEST_DAY} held out, {features} features"]["path"]))
+           for features in ("14", "10")}
+    samples = Samples.load(CACHE)
+    test = samples.select(np.char.startswith(samples.flight.astype(str), TEST_DAY))
+    histogram(test, {"14 features": Path(runs[f"(d) {TEST_DAY} held out, 14 features"]["path"]),
+                     "10 features": Path(runs[f"(d) {TEST_DAY} held out, 10 features"]["path"])},
+              ROOT / "docs" / "img" / "bias_histogram.png")
+    table = ["| ablation | test: mean / std before (m) | after (m) | samples |", "|---|---|---|---|"]
+    table += [f"| {name} | {stats_cells(r['test'])} |" for name, r in runs.items()]
+    e2e_table = ["| flight | robust EKF | + network (14) | + network (10) |", "|---|---|---|---|"]
+    for r14, r10 in zip(e2e["14"], e2e["10"]):
+        e2e_table.append(f"| {r14['flight']} | {r14['without']:.3f} | {r14['with']:.3f} | {r10['with']:.3f} |")
+    means = {k: float(np.mean([r["with"] for r in rows])) for k, rows in e2e.items()}
+    base = float(np.mean([r["without"] for r in e2e["14"]]))
+    e2e_table.append(f"| **mean** | **{base:.3f}** | **{means['14']:.3f}** ({1 - means['14'] / base:+.0%}) | "
+                     f"**{means['10']:.3f}** ({1 - means['10'] / base:+.0%}) |")
+    text = (ROOT / "docs" / "bias.md.in").read_text()
+    args.doc.write_text(text.replace("{{ABLATIONS}}", "\n".join(table)).replace("{{END_TO_END}}", "\n".join(e2e_table)))
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps({"runs": {k: {kk: v for kk, v in r.items() if kk != "history"}
+                                              for k, r in runs.items()},
+                                     "end_to_end": e2e, "mean_rmse": {"without": base, **means}}, indent=2) + "\n")
+    print(f"wrote {args.doc} and {args.json}")
+
+
+if __name__ == "__main__":
+    main()

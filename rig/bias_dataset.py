@@ -1,0 +1,160 @@
+"""Training data for the TDOA bias network: features and labels of every in-flight
+TDOA measurement of real flights.
+
+Features are computed by the C estimator's own `bn_features` (through the native
+library), from ground truth and the surveyed anchor poses, so training and the
+onboard inference share one definition. The label is measured − true TDOA.
+
+The ground truth (`estPose`, the motion-capture pose radioed to the drone) is
+stamped with the drone's clock on arrival, so it lags the true motion. The lag is
+estimated per flight as the shift of the ground truth that makes the TDOA errors
+most consistent (smallest robust spread after removing each anchor pair's median);
+labels use the shifted ground truth.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, fields
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
+
+from rig import metrics, native
+from rig.recording import PoseSeries, Recording
+
+log = logging.getLogger(__name__)
+
+MAX_ABS_ERROR_M = 1.0      # larger errors are outliers: the robust update's job, not the network's
+LATENCY_GRID_S = np.arange(-0.2, 0.2001, 0.005)
+FLIGHT_RULE = metrics.SegmentRule(min_height=0.3, skip_after_takeoff=0.0)
+
+
+@dataclass
+class Samples:
+    """One row per TDOA measurement."""
+
+    features: np.ndarray   # (n, 14) float32, from the C feature code
+    label: np.ndarray      # (n,) measured - true TDOA (m)
+    flight: np.ndarray     # (n,) flight name
+    id_a: np.ndarray
+    id_b: np.ndarray
+    t: np.ndarray          # measurement time on the recording's clock (s)
+
+    def __len__(self) -> int:
+        return len(self.label)
+
+    def select(self, mask: np.ndarray) -> "Samples":
+        return Samples(*(getattr(self, f.name)[mask] for f in fields(self)))
+
+    @classmethod
+    def concatenate(cls, parts: list["Samples"]) -> "Samples":
+        return cls(*(np.concatenate([getattr(p, f.name) for p in parts]) for f in fields(cls)))
+
+    def save(self, path: Path) -> None:
+        np.savez_compressed(path, **{f.name: getattr(self, f.name) for f in fields(self)})
+
+    @classmethod
+    def load(cls, path: Path) -> "Samples":
+        with np.load(path) as data:
+            return cls(*(data[f.name] for f in fields(cls)))
+
+
+def true_tdoa(position: np.ndarray, a_pos: np.ndarray, b_pos: np.ndarray) -> np.ndarray:
+    return np.linalg.norm(position - b_pos, axis=1) - np.linalg.norm(position - a_pos, axis=1)
+
+
+def _known_pairs(rec: Recording) -> np.ndarray:
+    ids = set(rec.anchor_map())
+    return np.array([a in ids and b in ids and a != b for a, b in zip(rec.tdoa.id_a, rec.tdoa.id_b)], bool)
+
+
+def _airborne_tdoa(rec: Recording) -> np.ndarray:
+    start, end = metrics.flight_window(rec.truth, FLIGHT_RULE)
+    t = rec.tdoa.t
+    return (t >= start) & (t <= end) & _known_pairs(rec) & np.isfinite(rec.tdoa.distance_diff)
+
+
+def _anchor_arrays(rec: Recording, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    amap = rec.anchor_map()
+    pos = np.array([amap[int(i)].position for i in ids]).reshape(-1, 3)
+    rot = np.array([Rotation.from_quat(amap[int(i)].quaternion).as_matrix() for i in ids]).reshape(-1, 3, 3)
+    return pos, rot
+
+
+def _errors(rec: Recording, sel: np.ndarray, latency: float, a_pos: np.ndarray, b_pos: np.ndarray) -> np.ndarray:
+    position = metrics.interpolate_positions(rec.truth, rec.tdoa.t[sel] + latency)
+    return rec.tdoa.distance_diff[sel] - true_tdoa(position, a_pos, b_pos)
+
+
+def _consistency(err: np.ndarray, pair: np.ndarray) -> float:
+    """Robust spread of the errors after removing each pair's median (outliers excluded)."""
+    keep = np.abs(err) < MAX_ABS_ERROR_M
+    err, pair = err[keep], pair[keep]
+    centred = np.empty_like(err)
+    for p in np.unique(pair):
+        m = pair == p
+        centred[m] = err[m] - np.median(err[m])
+    return float(np.median(np.abs(centred)))
+
+
+def truth_latency(rec: Recording, grid: np.ndarray = LATENCY_GRID_S) -> float:
+    """Seconds by which the ground truth lags the drone's clock (best on `grid`)."""
+    sel = _airborne_tdoa(rec)
+    if sel.sum() < 100:
+        return 0.0
+    a_pos, _ = _anchor_arrays(rec, rec.tdoa.id_a[sel])
+    b_pos, _ = _anchor_arrays(rec, rec.tdoa.id_b[sel])
+    pair = rec.tdoa.id_a[sel] * 256 + rec.tdoa.id_b[sel]
+    spread = [_consistency(_errors(rec, sel, lag, a_pos, b_pos), pair) for lag in grid]
+    return float(grid[int(np.argmin(spread))])
+
+
+def tag_rotations(truth: PoseSeries, t: np.ndarray) -> np.ndarray:
+    times, keep = np.unique(truth.t, return_index=True)
+    slerp = Slerp(times, Rotation.from_quat(truth.quaternion[keep]))
+    return slerp(np.clip(t, times[0], times[-1])).as_matrix()
+
+
+def flight_samples(rec: Recording, name: str, latency: float | None = None) -> Samples:
+    """Every in-flight TDOA measurement of `rec` with |error| <= MAX_ABS_ERROR_M."""
+    if latency is None:
+        latency = truth_latency(rec)
+    sel = _airborne_tdoa(rec)
+    id_a, id_b = rec.tdoa.id_a[sel], rec.tdoa.id_b[sel]
+    a_pos, a_rot = _anchor_arrays(rec, id_a)
+    b_pos, b_rot = _anchor_arrays(rec, id_b)
+    t = rec.tdoa.t[sel]
+    tag_pos = metrics.interpolate_positions(rec.truth, t + latency)
+    label = rec.tdoa.distance_diff[sel] - true_tdoa(tag_pos, a_pos, b_pos)
+    feats = native.features_batch(tag_pos, tag_rotations(rec.truth, t + latency), a_pos, a_rot, b_pos, b_rot)
+    keep = np.abs(label) <= MAX_ABS_ERROR_M
+    log.info("%s: %d samples (%d outliers dropped), ground-truth latency %.0f ms", name, keep.sum(),
+             (~keep).sum(), latency * 1e3)
+    return Samples(feats, label, np.full(len(label), name), id_a, id_b, t).select(keep)
+
+
+def shared_flight_samples(flight: Path) -> tuple[Samples, float]:
+    """Samples of one shared flight log, and its estimated ground-truth latency."""
+    from rig.importer import load_any
+
+    rec = load_any(flight)
+    latency = truth_latency(rec)
+    return flight_samples(rec, Path(flight).name, latency), latency
+
+
+def _flight_job(flight: Path) -> tuple[Samples, float]:
+    return shared_flight_samples(flight)
+
+
+def build_dataset(flights: list[Path], workers: int = 2, progress=None) -> tuple[Samples, dict[str, float]]:
+    """Samples of all `flights` (in parallel) and each flight's ground-truth latency."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    flights = sorted(Path(f) for f in flights)
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        results = pool.map(_flight_job, flights)
+        results = list(progress(results) if progress else results)
+    latency = {f.name: lat for f, (_, lat) in zip(flights, results)}
+    return Samples.concatenate([s for s, _ in results]), latency
