@@ -187,6 +187,47 @@ def cmd_train(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+# ----------------------------------------------------------------------------- replay
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    from rig import native, replay, transport
+    from rig.evaluate import load_model
+    from rig.importer import load_any
+
+    rec = load_any(args.recording)
+    model = None if args.no_nn else load_model(args.model)
+    params = native.params_with(robust=int(not args.no_robust), use_bias_net=int(model is not None))
+    args.out.mkdir(parents=True, exist_ok=True)
+    link = transport.open_target(args.target)
+    try:
+        session = replay.run(link, rec, params, model, start=args.start, duration=args.duration,
+                             progress=_progress(desc=f"replay {args.target}", total=None))
+    except transport.LinkError as exc:
+        raise CliError(str(exc)) from exc
+    finally:
+        link.close()
+    result = replay.score(session, rec)
+    result.update({"recording": str(args.recording), "target": args.target, "bytes_sent": link.bytes_sent,
+                   "bias_net": model is not None, "robust": not args.no_robust})
+    _write_json(args.out / "metrics.json", result)
+    timing = result["timing"]
+    print(f"{args.recording} -> {args.target}: {result['n_estimates']} estimates")
+    _print_accuracy(result)
+    print(f"timing ({timing['unit']}): window p50 {timing['window_p50']:.0f}, p99 {timing['window_p99']:.0f}, "
+          f"max {timing['window_max']:.0f} = {timing['window_max_fraction_of_budget']:.1%} of the "
+          f"{timing['budget']:.0f} budget; overruns {timing['overruns']}")
+    print(f"wrote {args.out / 'metrics.json'}")
+    failed = []
+    if args.assert_rmse is not None and not result["rmse_3d"] <= args.assert_rmse:
+        failed.append(f"rmse_3d {result['rmse_3d']:.3f} m > {args.assert_rmse} m")
+    if args.assert_budget is not None and not timing["window_max_fraction_of_budget"] <= args.assert_budget:
+        failed.append(f"worst window {timing['window_max_fraction_of_budget']:.1%} of the budget > "
+                      f"{args.assert_budget:.1%}")
+    for reason in failed:
+        print(f"rig replay: assertion failed: {reason}", file=sys.stderr)
+    return EXIT_FAILED if failed else EXIT_OK
+
+
 # ----------------------------------------------------------------------------- size
 
 def cmd_size(args: argparse.Namespace) -> int:
@@ -198,6 +239,9 @@ def cmd_size(args: argparse.Namespace) -> int:
     print(f"estimator (Cortex-M4F, -Os): flash {est['flash']} B of {budget['flash']} B budget; "
           f"RAM {est['ram']} B of {budget['ram']} B (static {est['static_ram']} B + stack {est['stack']} B "
           f"via {' > '.join(est['stack_chain'])})")
+    fw = result["firmware"]
+    print(f"firmware image (-O2, static): flash {fw['flash']} B, RAM {fw['ram']} B (text {fw['text']}, "
+          f"data {fw['data']}, bss {fw['bss']})")
     _write_json(args.json, result)
     within = est["flash"] <= budget["flash"] and est["ram"] <= budget["ram"]
     return EXIT_OK if within else EXIT_FAILED
@@ -306,6 +350,25 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, default=paths.PROJECT_ROOT / "rig" / "models" / "bias_net.json")
     p.add_argument("--dataset-cache", type=Path, help="reuse (or write) the dataset here (.npz)")
     p.set_defaults(func=cmd_train)
+
+    p = sub.add_parser("replay", help="replay a recording into a board (native, QEMU or serial) in lock-step",
+                       description="Build what the target needs, start it (native program on a pty, firmware in "
+                                   "QEMU netduinoplus2) or open the port (serial:URL, any pyserial URL), "
+                                   "handshake, configure, then stream IMU and TDOA one 10 ms window at a time, "
+                                   "waiting for each estimate. Writes DIR/metrics.json (accuracy, timing).")
+    p.add_argument("recording", type=Path, nargs="?", default=paths.default_recording(),
+                   help="MCAP recording or shared flight log (default: the shipped default recording)")
+    p.add_argument("--target", default="native", help="native, qemu or serial:URL (default native)")
+    p.add_argument("--out", type=Path, required=True, help="output directory")
+    p.add_argument("--start", type=float, help="start time on the recording's clock (default 1 s before take-off)")
+    p.add_argument("--duration", type=float, help="seconds to replay (default: to the end)")
+    p.add_argument("--no-nn", action="store_true", help="no bias-network correction")
+    p.add_argument("--no-robust", action="store_true", help="plain EKF update instead of M-estimation")
+    p.add_argument("--model", type=Path, help="bias network JSON (default: the shipped model)")
+    p.add_argument("--assert-rmse", type=float, metavar="M", help="exit 1 when rmse_3d exceeds M metres")
+    p.add_argument("--assert-budget", type=float, metavar="FRACTION",
+                   help="exit 1 when the worst window exceeds FRACTION of the 10 ms budget")
+    p.set_defaults(func=cmd_replay)
 
     p = sub.add_parser("size", help="flash, RAM and stack of the estimator for the STM32F405",
                        description="Build the estimator for Cortex-M4F and report flash and RAM (static + worst "

@@ -67,6 +67,21 @@ def worst_stack(frames: dict[str, int], entry: str = ENTRY) -> tuple[int, list[s
     return frames.get(entry, 0) + best, [entry, *path]
 
 
+FIRMWARE = BUILD.parent / "stm32f405" / "firmware.elf"
+FIRMWARE_RAM = 128 * 1024
+FIRMWARE_FLASH = 1024 * 1024
+
+
+def firmware() -> dict:
+    """The whole STM32F405 firmware image (-O2): estimator, service, protocol, board glue."""
+    make("firmware")
+    size = _size(FIRMWARE)
+    return {"flash": size["text"] + size["data"], "ram": size["data"] + size["bss"], **size,
+            "image": str(FIRMWARE.relative_to(BUILD.parent.parent)),
+            "compiler_flags": "-mcpu=cortex-m4 -mfpu=fpv4-sp-d16 -mfloat-abi=hard -O2",
+            "device": {"flash": FIRMWARE_FLASH, "ram": FIRMWARE_RAM}}
+
+
 def measure() -> dict:
     make("footprint", "arm")
     with_est = _size(BUILD / "footprint_with.elf")
@@ -87,4 +102,5 @@ def measure() -> dict:
             "compiler_flags": "-mcpu=cortex-m4 -mfpu=fpv4-sp-d16 -mfloat-abi=hard -Os",
             "budget": {"flash": 13 * 1024, "ram": 12 * 1024},
         },
+        "firmware": firmware(),
     }

@@ -112,6 +112,16 @@ typedef struct {
     uint8_t id_a, id_b;
 } est_tdoa_t;
 
+/* Optional cost measurement of the last STEP's calls, in the ticks of a board clock
+ * (cycles, instructions or nanoseconds); filled only when est_set_clock gave a clock. */
+typedef uint32_t (*est_clock_t)(void);
+typedef struct {
+    uint32_t predict;          /* the prediction */
+    uint32_t tdoa_total;       /* all TDOA updates of the window */
+    uint32_t tdoa_max;         /* the most expensive single TDOA update */
+    uint8_t n_tdoa;
+} est_step_cost_t;
+
 typedef struct {
     est_params_t params;
     /* nominal state */
@@ -135,12 +145,15 @@ typedef struct {
     est_anchor_t anchors[EST_MAX_ANCHORS];
     const bias_net_t *net;
     est_counters_t counters;
+    est_clock_t clock;
+    est_step_cost_t cost;
 } estimator_t;
 
 void est_default_params(est_params_t *params);
 void est_init(estimator_t *est, const est_params_t *params);
 int est_set_anchor(estimator_t *est, uint8_t id, const float pos[3], const float quat[4]);
 void est_set_bias_net(estimator_t *est, const bias_net_t *net);
+void est_set_clock(estimator_t *est, est_clock_t clock);
 /* Start (or restart) at a pose: quat may be NULL for level, yaw 0. */
 void est_reset(estimator_t *est, uint32_t t_us, const float pos[3], const float quat[4]);
 est_status_t est_handle_event(estimator_t *est, const est_event_t *ev, est_output_t *out);

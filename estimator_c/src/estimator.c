@@ -167,8 +167,33 @@ static void window_average(float sum[3], uint16_t *n, float last[3])
     *n = 0;
 }
 
+void est_set_clock(estimator_t *est, est_clock_t clock)
+{
+    est->clock = clock;
+}
+
+static uint32_t ticks(const estimator_t *est)
+{
+    return est->clock ? est->clock() : 0u;
+}
+
+static void apply_queued_tdoa(estimator_t *est)
+{
+    est->cost.tdoa_total = est->cost.tdoa_max = 0;
+    est->cost.n_tdoa = est->queue_n;
+    for (int k = 0; k < est->queue_n; k++) {
+        const uint32_t t0 = ticks(est);
+        tdoa_update(est, &est->queue[k]);
+        const uint32_t cost = ticks(est) - t0;
+        est->cost.tdoa_total += cost;
+        if (cost > est->cost.tdoa_max) est->cost.tdoa_max = cost;
+    }
+    est->queue_n = 0;
+}
+
 static void step(estimator_t *est, uint32_t t_us)
 {
+    const uint32_t t_predict = ticks(est);
     float dt = (float)(uint32_t)(t_us - est->t_step_us) * 1e-6f;
     est->t_step_us = t_us;
     if (est->acc_n == 0 || est->gyro_n == 0) est->counters.imu_gaps++;
@@ -183,8 +208,8 @@ static void step(estimator_t *est, uint32_t t_us)
         if (est->params.thrust_only) acc[0] = acc[1] = 0.0f;
         ekf_predict(est, acc, est->gyro_last, dt);
     }
-    for (int k = 0; k < est->queue_n; k++) tdoa_update(est, &est->queue[k]);
-    est->queue_n = 0;
+    est->cost.predict = ticks(est) - t_predict;
+    apply_queued_tdoa(est);
     est->counters.steps++;
     if (ekf_is_diverged(est)) reset_after_divergence(est);
 }

@@ -1,0 +1,22 @@
+/* Board glue for the STM32F405 (registers from the reference manual RM0090). */
+#ifndef UWB_RIG_BOARD_H
+#define UWB_RIG_BOARD_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#define BOARD_CPU_HZ 168000000u
+#define BOARD_BAUD 921600u
+#define BOARD_RX_RING 1024u     /* power of two */
+#define BOARD_TX_RING 512u      /* power of two */
+
+void board_init(void);
+/* The cost clock: DWT cycles on hardware; TIM2 (one count per instruction under QEMU
+ * -icount shift=0) where the DWT counter does not run. Time spent in the USART
+ * interrupt is excluded (see board.c). */
+uint32_t board_clock(void);
+uint8_t board_clock_unit(void);       /* proto_timer_unit_t of board_clock */
+size_t board_read(uint8_t *dst, size_t max);
+void board_write(const uint8_t *data, size_t n);
+
+#endif

@@ -1,0 +1,224 @@
+"""Lock-step replay of a recording into a board over the wire protocol.
+
+The recording is cut into 10 ms windows exactly as `rig evaluate` does (same start,
+same initial pose, same events). Each window goes out as IMU messages (accelerometer
+and gyroscope samples paired, two per message), TDOA messages and a STEP; the host
+then waits for the board's estimate, attitude, counters and timing before sending the
+next window, so results do not depend on link speed.
+
+`wire_events` rebuilds the event stream exactly as the board decodes it (quantised
+IMU, paired samples), so the in-process library can be compared with any board to
+float32 precision.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from rig import metrics, native, protocol
+from rig.bias_model import BiasNet
+from rig.evaluate import build_events, start_time, truth_pose_at
+from rig.recording import Recording
+from rig.transport import Link, LinkError
+
+log = logging.getLogger(__name__)
+
+BUDGET_SECONDS = 0.010        # one 10 ms window
+CPU_HZ = 168_000_000          # STM32F405
+REPLY_TIMEOUT_S = 5.0
+
+
+@dataclass
+class Window:
+    t_us: int                                  # the STEP time
+    imu: list = field(default_factory=list)    # (dt_us, accel[3], gyro[3])
+    tdoa: list = field(default_factory=list)   # (dt_us, id_a, id_b, value)
+
+
+def windows(events: np.ndarray) -> list[Window]:
+    """Group an EVENT_DTYPE stream (as from build_events) into STEP windows; times relative
+    to the previous STEP (0 for the first window, the reset time)."""
+    out, acc, gyro, current, prev = [], [], [], Window(0), 0
+    for ev in events:
+        kind, t = int(ev["kind"]), int(ev["t_us"])
+        if kind == native.EV_ACCEL:
+            acc.append((t - prev, ev["v"].copy()))
+        elif kind == native.EV_GYRO:
+            gyro.append(ev["v"].copy())
+        elif kind == native.EV_TDOA:
+            current.tdoa.append((t - prev, int(ev["id_a"]), int(ev["id_b"]), float(ev["v"][0])))
+        elif kind == native.EV_STEP:
+            # pair the k-th accelerometer with the k-th gyroscope sample of the window
+            current.imu = [(dt, a, g) for (dt, a), g in zip(acc, gyro)]
+            current.t_us = t
+            out.append(current)
+            acc, gyro, current, prev = [], [], Window(0), t
+    return out
+
+
+def window_messages(w: Window) -> list[bytes]:
+    msgs = [protocol.imu(w.imu[k:k + 2]) for k in range(0, len(w.imu), 2)]
+    msgs += [protocol.tdoa(dt, a, b, v) for dt, a, b, v in w.tdoa]
+    msgs.append(protocol.step(w.t_us))
+    return msgs
+
+
+def wire_events(ws: list[Window]) -> np.ndarray:
+    """The events a board reconstructs from `ws` (quantised IMU), for the in-process library."""
+    rows, prev = [], 0
+    for w in ws:
+        for dt, a, g in w.imu:
+            qa = protocol.quantize(a, protocol.ACCEL_LSB).astype(np.float32) * protocol.ACCEL_LSB
+            qg = protocol.quantize(g, protocol.GYRO_LSB).astype(np.float32) * protocol.GYRO_LSB
+            rows.append((prev + dt, native.EV_ACCEL, 0, 0, 0, qa))
+            rows.append((prev + dt, native.EV_GYRO, 0, 0, 0, qg))
+        for dt, a, b, v in w.tdoa:
+            rows.append((prev + dt, native.EV_TDOA, a, b, 0, np.array([v, 0, 0], np.float32)))
+        rows.append((w.t_us, native.EV_STEP, 0, 0, 0, np.zeros(3, np.float32)))
+        prev = w.t_us
+    return np.array(rows, dtype=native.EVENT_DTYPE)
+
+
+@dataclass
+class Session:
+    """What a replay produced."""
+
+    t0: float
+    unit: str = "ns"
+    timer_hz: int = 0
+    estimates: list = field(default_factory=list)   # (t_us, pos, vel, quat, cov_diag)
+    timing: list = field(default_factory=list)      # protocol.Timing
+    counters: protocol.Counters | None = None
+    statuses: list = field(default_factory=list)
+    windows_sent: int = 0
+
+
+def _expect(link: Link, kind: type, what: str, timeout: float = REPLY_TIMEOUT_S, session: Session | None = None):
+    """Wait for one message of `kind`; other messages are kept in the session (status) or logged."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        msg = link.next_message(min(0.5, max(0.01, deadline - time.monotonic())))
+        if isinstance(msg, kind):
+            return msg
+        if msg is not None:
+            _note(link, msg, session)
+    raise LinkError(f"{link.name}: no answer to {what} within {timeout:.0f} s (target stopped answering)")
+
+
+def _note(link: Link, msg, session: Session | None) -> None:
+    if isinstance(msg, protocol.Status):
+        if session is not None:
+            session.statuses.append(msg)
+            if msg.code == protocol.STATUS_BOOT:
+                raise LinkError(f"{link.name}: the board reset during the replay (window {session.windows_sent})")
+        if msg.code != protocol.STATUS_BOOT:
+            log.warning("%s: status %d (frames ok %d, bad %d)", link.name, msg.code, msg.frames_ok, msg.frames_bad)
+    elif isinstance(msg, protocol.Ack) and msg.status != 0:
+        raise LinkError(f"{link.name}: message 0x{msg.acked:02x} refused with status {msg.status}")
+
+
+def handshake(link: Link, attempts: int = 10) -> protocol.HelloReply:
+    """Say hello until the board answers (a board still booting drops what it receives)."""
+    for attempt in range(attempts):
+        link.send([protocol.hello()])
+        try:
+            reply = _expect(link, protocol.HelloReply, "hello", timeout=1.0)
+            break
+        except LinkError:
+            if attempt == attempts - 1:
+                raise LinkError(f"{link.name}: no answer to hello after {attempts} attempts") from None
+    if reply.version != protocol.VERSION:
+        raise LinkError(f"{link.name}: protocol version {reply.version}, the rig speaks {protocol.VERSION}")
+    return reply
+
+
+def _acked(link: Link, payloads: list[bytes], what: str) -> None:
+    for payload in payloads:
+        link.send([payload])
+        ack = _expect(link, protocol.Ack, what)
+        if ack.status != 0:
+            raise LinkError(f"{link.name}: {what} refused (status {ack.status})")
+
+
+def configure(link: Link, rec: Recording, params: native.EstimatorParams, model: BiasNet | None,
+              hello: protocol.HelloReply) -> None:
+    _acked(link, [protocol.param(k, float(getattr(params, name))) for k, name in enumerate(protocol.PARAM_ORDER)],
+           "parameters")
+    anchors = [a for a in rec.anchors if 0 <= a.id < hello.max_anchors]
+    _acked(link, [protocol.anchor(a.id, a.position, a.quaternion) for a in anchors], "anchors")
+    if model is not None and params.use_bias_net:
+        image = model.pack().tobytes()
+        if len(image) != hello.net_size:
+            raise LinkError(f"{link.name}: the board's network is {hello.net_size} bytes, the model {len(image)}")
+        _acked(link, protocol.net_chunks(image) + [protocol.net_commit(len(image))], "bias network")
+
+
+def run(link: Link, rec: Recording, params: native.EstimatorParams, model: BiasNet | None = None,
+        start: float | None = None, duration: float | None = None, progress=None) -> Session:
+    """Handshake, configure, reset at the start pose, then lock-step every window."""
+    t0 = start_time(rec) if start is None else start
+    t_end = None if duration is None else t0 + duration
+    hello = handshake(link)
+    configure(link, rec, params, model, hello)
+    pos, quat = truth_pose_at(rec, t0)
+    _acked(link, [protocol.reset(0, pos, quat)], "reset")
+    session = Session(t0, hello.unit, hello.timer_hz)
+    ws = windows(build_events(rec, t0, t_end))
+    for w in progress(ws) if progress else ws:
+        link.send(window_messages(w))
+        session.windows_sent += 1
+        est = _expect(link, protocol.Estimate, f"window at {w.t_us} us", session=session)
+        att = _expect(link, protocol.Attitude, "attitude", session=session)
+        session.counters = _expect(link, protocol.Counters, "counters", session=session)
+        session.timing.append(_expect(link, protocol.Timing, "timing", session=session))
+        session.estimates.append((est.t_us, est.pos, est.vel, att.quat, att.cov_diag))
+    return session
+
+
+def budget(unit: str, timer_hz: int) -> float:
+    """One 10 ms window in the target's unit (instructions are counted as cycles at 168 MHz)."""
+    if unit == "ns":
+        return BUDGET_SECONDS * 1e9
+    if unit in ("cycles", "instructions"):
+        return BUDGET_SECONDS * CPU_HZ
+    return BUDGET_SECONDS * timer_hz
+
+
+def timing_summary(session: Session) -> dict:
+    window = np.array([t.window for t in session.timing], float)
+    predict = np.array([t.predict for t in session.timing], float)
+    n_tdoa = np.array([t.n_tdoa for t in session.timing], float)
+    total = np.array([t.tdoa_total for t in session.timing], float)
+    tdoa_max = np.array([t.tdoa_max for t in session.timing], float)
+    limit = budget(session.unit, session.timer_hz)
+    if not len(window):
+        return {"unit": session.unit, "budget": limit, "windows": 0}
+    per_tdoa = total[n_tdoa > 0] / n_tdoa[n_tdoa > 0]
+    return {
+        "unit": session.unit, "budget": limit, "windows": int(len(window)),
+        "window_p50": float(np.percentile(window, 50)), "window_p99": float(np.percentile(window, 99)),
+        "window_max": float(window.max()), "window_max_fraction_of_budget": float(window.max() / limit),
+        "overruns": int((window > limit).sum()),
+        "per_call": {
+            "predict": {"p50": float(np.median(predict)), "max": float(predict.max())},
+            "tdoa_update": {"mean": float(per_tdoa.mean()) if len(per_tdoa) else 0.0,
+                            "max": float(tdoa_max.max()), "calls": int(n_tdoa.sum())},
+        },
+    }
+
+
+def score(session: Session, rec: Recording) -> dict:
+    t = session.t0 + np.array([e[0] for e in session.estimates], float) * 1e-6
+    pos = np.array([e[1] for e in session.estimates], float).reshape(-1, 3)
+    result = metrics.score(t, pos, rec.truth)
+    result["n_estimates"] = len(session.estimates)
+    result["timing"] = timing_summary(session)
+    if session.counters is not None:
+        c = session.counters
+        result.update({"tdoa_accepted": c.accepted, "tdoa_downweighted": c.downweighted,
+                       "tdoa_rejected": c.rejected, "resets": c.resets})
+    return result
