@@ -110,8 +110,8 @@ def main() -> None:
         e2e_table.append(f"| {r14['flight']} | {r14['without']:.3f} | {r14['with']:.3f} | {r10['with']:.3f} |")
     means = {k: float(np.mean([r["with"] for r in rows])) for k, rows in e2e.items()}
     base = float(np.mean([r["without"] for r in e2e["14"]]))
-    e2e_table.append(f"| **mean** | **{base:.3f}** | **{means['14']:.3f}** ({1 - means['14'] / base:+.0%}) | "
-                     f"**{means['10']:.3f}** ({1 - means['10'] / base:+.0%}) |")
+    e2e_table.append(f"| **mean** | **{base:.3f}** | **{means['14']:.3f}** ({1 - means['14'] / base:.0%} lower) | "
+                     f"**{means['10']:.3f}** ({1 - means['10'] / base:.0%} lower) |")
     text = (ROOT / "docs" / "bias.md.in").read_text()
     args.doc.write_text(text.replace("{{ABLATIONS}}", "\n".join(table)).replace("{{END_TO_END}}", "\n".join(e2e_table)))
     args.json.parent.mkdir(parents=True, exist_ok=True)

@@ -189,40 +189,54 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 # ----------------------------------------------------------------------------- replay
 
-def cmd_replay(args: argparse.Namespace) -> int:
+def _replay(recording: Path, target: str, out: Path, *, use_nn: bool = True, robust: bool = True,
+            model_path: Path | None = None, start: float | None = None, duration: float | None = None) -> dict:
+    """Replay into one target and write OUT/metrics.json; returns the metrics."""
     from rig import native, replay, transport
     from rig.evaluate import load_model
     from rig.importer import load_any
 
-    rec = load_any(args.recording)
-    model = None if args.no_nn else load_model(args.model)
-    params = native.params_with(robust=int(not args.no_robust), use_bias_net=int(model is not None))
-    args.out.mkdir(parents=True, exist_ok=True)
-    link = transport.open_target(args.target)
+    rec = load_any(recording)
+    model = load_model(model_path) if use_nn else None
+    params = native.params_with(robust=int(robust), use_bias_net=int(model is not None))
+    out.mkdir(parents=True, exist_ok=True)
     try:
-        session = replay.run(link, rec, params, model, start=args.start, duration=args.duration,
-                             progress=_progress(desc=f"replay {args.target}", total=None))
+        link = transport.open_target(target)
+        try:
+            session = replay.run(link, rec, params, model, start=start, duration=duration,
+                                 progress=_progress(desc=f"replay {target}", total=None))
+        finally:
+            link.close()
     except transport.LinkError as exc:
         raise CliError(str(exc)) from exc
-    finally:
-        link.close()
     result = replay.score(session, rec)
-    result.update({"recording": str(args.recording), "target": args.target, "bytes_sent": link.bytes_sent,
-                   "bias_net": model is not None, "robust": not args.no_robust})
-    _write_json(args.out / "metrics.json", result)
+    result.update({"recording": str(recording), "target": target, "bytes_sent": link.bytes_sent,
+                   "bias_net": model is not None, "robust": robust})
+    _write_json(out / "metrics.json", result)
     timing = result["timing"]
-    print(f"{args.recording} -> {args.target}: {result['n_estimates']} estimates")
+    print(f"{recording} -> {target}: {result['n_estimates']} estimates")
     _print_accuracy(result)
     print(f"timing ({timing['unit']}): window p50 {timing['window_p50']:.0f}, p99 {timing['window_p99']:.0f}, "
           f"max {timing['window_max']:.0f} = {timing['window_max_fraction_of_budget']:.1%} of the "
           f"{timing['budget']:.0f} budget; overruns {timing['overruns']}")
-    print(f"wrote {args.out / 'metrics.json'}")
+    print(f"wrote {out / 'metrics.json'}")
+    return result
+
+
+def _assertions(result: dict, max_rmse: float | None, max_budget: float | None) -> list[str]:
     failed = []
-    if args.assert_rmse is not None and not result["rmse_3d"] <= args.assert_rmse:
-        failed.append(f"rmse_3d {result['rmse_3d']:.3f} m > {args.assert_rmse} m")
-    if args.assert_budget is not None and not timing["window_max_fraction_of_budget"] <= args.assert_budget:
-        failed.append(f"worst window {timing['window_max_fraction_of_budget']:.1%} of the budget > "
-                      f"{args.assert_budget:.1%}")
+    if max_rmse is not None and not result["rmse_3d"] <= max_rmse:
+        failed.append(f"rmse_3d {result['rmse_3d']:.3f} m > {max_rmse} m")
+    fraction = result["timing"]["window_max_fraction_of_budget"]
+    if max_budget is not None and not fraction <= max_budget:
+        failed.append(f"worst window {fraction:.1%} of the budget > {max_budget:.1%}")
+    return failed
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    result = _replay(args.recording, args.target, args.out, use_nn=not args.no_nn, robust=not args.no_robust,
+                     model_path=args.model, start=args.start, duration=args.duration)
+    failed = _assertions(result, args.assert_rmse, args.assert_budget)
     for reason in failed:
         print(f"rig replay: assertion failed: {reason}", file=sys.stderr)
     return EXIT_FAILED if failed else EXIT_OK
@@ -249,26 +263,26 @@ def cmd_size(args: argparse.Namespace) -> int:
 
 # ----------------------------------------------------------------------------- demo (main job)
 
-def cmd_demo(args: argparse.Namespace) -> int:
-    """The README's main job on the shipped default recording."""
-    from rig import metrics
-    from rig.multilateration import multilaterate
-    from rig.recording import read_recording
+DEMO_TARGETS = ("native", "qemu")
+DEMO_MAX_RMSE_M = 0.30
+DEMO_MAX_BUDGET = 0.20
+DEMO_AGREEMENT_M = 0.002
 
-    rec = read_recording(args.recording)
-    args.out.mkdir(parents=True, exist_ok=True)
-    t, pos = multilaterate(rec)
-    result = metrics.score(t, pos, rec.truth)
-    result["estimator"] = "multilateration (UWB only, reference)"
-    result["recording"] = str(args.recording)
-    print(f"{args.recording}: {len(rec.accel)} IMU, {len(rec.tdoa)} TDOA, {len(rec.truth)} poses, "
-          f"{len(rec.anchors)} anchors")
-    print("multilateration reference:", end=" ")
-    _print_accuracy(result)
-    _write_json(args.out / "metrics.json", result)
-    png = metrics.plot(t, pos, rec.truth, args.out / "trajectory.png", title=f"{args.recording.name}: multilateration")
-    print(f"wrote {args.out / 'metrics.json'} and {png}")
-    return EXIT_OK
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    """The README's main job: the default recording into the native program and the QEMU
+    firmware in lock-step, accuracy and timing asserted, the two targets compared."""
+    results, failed = {}, []
+    for target in DEMO_TARGETS:
+        results[target] = _replay(args.recording, target, args.out / target, use_nn=args.nn)
+        failed += [f"{target}: {r}" for r in _assertions(results[target], DEMO_MAX_RMSE_M, DEMO_MAX_BUDGET)]
+    gap = abs(results["native"]["rmse_3d"] - results["qemu"]["rmse_3d"])
+    print(f"native and QEMU RMSE differ by {gap * 1e3:.2f} mm")
+    if gap > DEMO_AGREEMENT_M:
+        failed.append(f"native and QEMU disagree by {gap * 1e3:.1f} mm")
+    for reason in failed:
+        print(f"rig demo: check failed: {reason}", file=sys.stderr)
+    return EXIT_FAILED if failed else EXIT_OK
 
 
 # ----------------------------------------------------------------------------- parser
@@ -377,10 +391,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", type=Path, help="write the figures here")
     p.set_defaults(func=cmd_size)
 
-    p = sub.add_parser("demo", help="the main job on the shipped default recording",
-                       description="Read the default recording, estimate, score and plot.")
+    p = sub.add_parser("demo", help="the main job: the default recording into the native and QEMU targets",
+                       description="Replay the default recording into the native program and the STM32F405 "
+                                   "firmware in QEMU in lock-step; assert RMSE <= 0.30 m, the worst 10 ms window "
+                                   "<= 20%% of the budget and native/QEMU agreement within 2 mm; write "
+                                   "OUT/<target>/metrics.json. The default recording is simulated without the "
+                                   "real anchors' biases, so the bias network is off unless --nn.")
     p.add_argument("--recording", type=Path, default=paths.default_recording())
     p.add_argument("--out", type=Path, default=Path("out/demo"))
+    p.add_argument("--nn", action="store_true", help="use the shipped bias network")
     p.set_defaults(func=cmd_demo)
     return parser
 

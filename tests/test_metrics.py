@@ -87,9 +87,12 @@ def test_cli_metrics_and_plot(tmp_path: Path) -> None:
 
 def test_cli_demo_runs_the_main_job(tmp_path: Path) -> None:
     proc = run_rig("demo", "--out", str(tmp_path), check=True)
-    result = json.loads((tmp_path / "metrics.json").read_text())
-    assert 0.0 < result["rmse_3d"] < 0.3, "UWB-only reference must track the default flight"
-    assert (tmp_path / "trajectory.png").exists() and "RMSE 3D" in proc.stdout
+    native = json.loads((tmp_path / "native" / "metrics.json").read_text())
+    qemu = json.loads((tmp_path / "qemu" / "metrics.json").read_text())
+    assert 0.0 < native["rmse_3d"] < 0.3, "the estimator must track the default flight"
+    assert abs(native["rmse_3d"] - qemu["rmse_3d"]) < 0.002
+    assert native["timing"]["unit"] == "ns" and qemu["timing"]["unit"] == "instructions"
+    assert "native and QEMU RMSE differ" in proc.stdout
 
 
 def test_cli_help_explains_every_command() -> None:
