@@ -132,7 +132,7 @@ def test_estimator_under_sanitizers() -> None:
     assert "passed" in proc.stdout and "ERROR: AddressSanitizer" not in proc.stderr
 
 
-def test_no_shared_flight_diverges_and_robust_averages_under_30_cm(data_dir: Path) -> None:
+def test_no_shared_flight_diverges_in_any_configuration_and_robust_averages_under_30_cm(data_dir: Path) -> None:
     from concurrent.futures import ProcessPoolExecutor
 
     from rig import paths
@@ -145,8 +145,11 @@ def test_no_shared_flight_diverges_and_robust_averages_under_30_cm(data_dir: Pat
 
 
 def _both_configs(flight: Path) -> tuple[str, dict]:
+    """Every configuration, with and without the shipped bias network."""
     from rig import paths
 
     rec = import_log(flight, paths.survey_for(flight))
     return flight.name, {"robust": evaluate(rec, robust=True, use_nn=False),
-                         "plain": evaluate(rec, robust=False, use_nn=False)}
+                         "plain": evaluate(rec, robust=False, use_nn=False),
+                         "robust+nn": evaluate(rec, robust=True, use_nn=True),
+                         "plain+nn": evaluate(rec, robust=False, use_nn=True)}
