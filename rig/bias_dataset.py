@@ -77,10 +77,14 @@ def _airborne_tdoa(rec: Recording) -> np.ndarray:
 
 
 def _anchor_arrays(rec: Recording, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Position and rotation matrix of anchor ids[k] for every k (each anchor converted once)."""
+    if len(ids) == 0:
+        return np.zeros((0, 3)), np.zeros((0, 3, 3))
     amap = rec.anchor_map()
-    pos = np.array([amap[int(i)].position for i in ids]).reshape(-1, 3)
-    rot = np.array([Rotation.from_quat(amap[int(i)].quaternion).as_matrix() for i in ids]).reshape(-1, 3, 3)
-    return pos, rot
+    unique, index = np.unique(ids, return_inverse=True)
+    pos = np.array([amap[int(i)].position for i in unique], float).reshape(-1, 3)
+    rot = Rotation.from_quat([amap[int(i)].quaternion for i in unique]).as_matrix().reshape(-1, 3, 3)
+    return pos[index.ravel()], rot[index.ravel()]
 
 
 def _errors(rec: Recording, sel: np.ndarray, latency: float, a_pos: np.ndarray, b_pos: np.ndarray) -> np.ndarray:

@@ -19,7 +19,6 @@ from rig import paths
 log = logging.getLogger("rig")
 
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT = 0, 1, 2
-TRAIN_MAX_EPOCHS = 60
 
 
 class CliError(Exception):
@@ -192,13 +191,12 @@ def cmd_train(args: argparse.Namespace) -> int:
 def _replay(recording: Path, target: str, out: Path, *, use_nn: bool = True, robust: bool = True,
             model_path: Path | None = None, start: float | None = None, duration: float | None = None) -> dict:
     """Replay into one target and write OUT/metrics.json; returns the metrics."""
-    from rig import native, replay, transport
-    from rig.evaluate import load_model
+    from rig import replay, transport
+    from rig.evaluate import estimator_config
     from rig.importer import load_any
 
     rec = load_any(recording)
-    model = load_model(model_path) if use_nn else None
-    params = native.params_with(robust=int(robust), use_bias_net=int(model is not None))
+    params, model = estimator_config(robust, use_nn, model_path)
     out.mkdir(parents=True, exist_ok=True)
     try:
         link = transport.open_target(target)
@@ -288,6 +286,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
 # ----------------------------------------------------------------------------- parser
 
 def build_parser() -> argparse.ArgumentParser:
+    from rig.train import TrainConfig
+
     parser = argparse.ArgumentParser(
         prog="rig",
         description="uwb-rig: replay UWB TDOA + IMU flights into the onboard estimator, "
@@ -340,11 +340,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "IMU-driven error-state EKF, TDOA updates, bias network, robust update. "
                                    "Writes rmse_3d, rmse_xyz, diverged and measurement counts. Exit status 1 "
                                    "when the estimate diverged.")
-    p.add_argument("recording", type=Path, nargs="?", default=paths.default_recording(),
-                   help="MCAP recording or shared flight log (default: the shipped default recording)")
-    p.add_argument("--no-nn", action="store_true", help="no bias-network correction")
-    p.add_argument("--no-robust", action="store_true", help="plain EKF update instead of M-estimation")
-    p.add_argument("--model", type=Path, help="bias network JSON (default: the shipped model)")
+    _add_estimator_options(p)
     p.add_argument("--json", type=Path, help="write the metrics here")
     p.set_defaults(func=cmd_evaluate)
 
@@ -360,7 +356,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--features", choices=("14", "10"), default="14",
                    help="10 drops the anchors' orientation (the tag's angles in each anchor's frame)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--max-epochs", type=int, default=TRAIN_MAX_EPOCHS)
+    p.add_argument("--max-epochs", type=int, default=TrainConfig().max_epochs)
     p.add_argument("--out", type=Path, default=paths.PROJECT_ROOT / "rig" / "models" / "bias_net.json")
     p.add_argument("--dataset-cache", type=Path, help="reuse (or write) the dataset here (.npz)")
     p.set_defaults(func=cmd_train)
@@ -370,15 +366,11 @@ def build_parser() -> argparse.ArgumentParser:
                                    "QEMU netduinoplus2) or open the port (serial:URL, any pyserial URL), "
                                    "handshake, configure, then stream IMU and TDOA one 10 ms window at a time, "
                                    "waiting for each estimate. Writes DIR/metrics.json (accuracy, timing).")
-    p.add_argument("recording", type=Path, nargs="?", default=paths.default_recording(),
-                   help="MCAP recording or shared flight log (default: the shipped default recording)")
+    _add_estimator_options(p)
     p.add_argument("--target", default="native", help="native, qemu or serial:URL (default native)")
     p.add_argument("--out", type=Path, required=True, help="output directory")
     p.add_argument("--start", type=float, help="start time on the recording's clock (default 1 s before take-off)")
     p.add_argument("--duration", type=float, help="seconds to replay (default: to the end)")
-    p.add_argument("--no-nn", action="store_true", help="no bias-network correction")
-    p.add_argument("--no-robust", action="store_true", help="plain EKF update instead of M-estimation")
-    p.add_argument("--model", type=Path, help="bias network JSON (default: the shipped model)")
     p.add_argument("--assert-rmse", type=float, metavar="M", help="exit 1 when rmse_3d exceeds M metres")
     p.add_argument("--assert-budget", type=float, metavar="FRACTION",
                    help="exit 1 when the worst window exceeds FRACTION of the 10 ms budget")
@@ -402,6 +394,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--nn", action="store_true", help="use the shipped bias network")
     p.set_defaults(func=cmd_demo)
     return parser
+
+
+def _add_estimator_options(p: argparse.ArgumentParser) -> None:
+    """The recording and the estimator configuration, shared by evaluate and replay."""
+    p.add_argument("recording", type=Path, nargs="?", default=paths.default_recording(),
+                   help="MCAP recording or shared flight log (default: the shipped default recording)")
+    p.add_argument("--no-nn", action="store_true", help="no bias-network correction")
+    p.add_argument("--no-robust", action="store_true", help="plain EKF update instead of M-estimation")
+    p.add_argument("--model", type=Path, help="bias network JSON (default: the shipped model)")
 
 
 def _add_segment_options(p: argparse.ArgumentParser) -> None:

@@ -11,7 +11,7 @@ from __future__ import annotations
 import subprocess
 from pathlib import Path
 
-from rig.native import ESTIMATOR_DIR, make
+from rig.native import ESTIMATOR_DIR, FIRMWARE_ELF, make
 
 BUILD = ESTIMATOR_DIR / "build" / "arm"
 
@@ -67,7 +67,6 @@ def worst_stack(frames: dict[str, int], entry: str = ENTRY) -> tuple[int, list[s
     return frames.get(entry, 0) + best, [entry, *path]
 
 
-FIRMWARE = BUILD.parent / "stm32f405" / "firmware.elf"
 FIRMWARE_RAM = 128 * 1024
 FIRMWARE_FLASH = 1024 * 1024
 
@@ -75,9 +74,9 @@ FIRMWARE_FLASH = 1024 * 1024
 def firmware() -> dict:
     """The whole STM32F405 firmware image (-O2): estimator, service, protocol, board glue."""
     make("firmware")
-    size = _size(FIRMWARE)
+    size = _size(FIRMWARE_ELF)
     return {"flash": size["text"] + size["data"], "ram": size["data"] + size["bss"], **size,
-            "image": str(FIRMWARE.relative_to(BUILD.parent.parent)),
+            "image": str(FIRMWARE_ELF.relative_to(ESTIMATOR_DIR)),
             "compiler_flags": "-mcpu=cortex-m4 -mfpu=fpv4-sp-d16 -mfloat-abi=hard -O2",
             "device": {"flash": FIRMWARE_FLASH, "ram": FIRMWARE_RAM}}
 

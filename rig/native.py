@@ -23,6 +23,9 @@ from rig.paths import PROJECT_ROOT
 log = logging.getLogger(__name__)
 
 ESTIMATOR_DIR = PROJECT_ROOT / "estimator_c"
+BUILD_DIR = ESTIMATOR_DIR / "build"
+NATIVE_PROGRAM = BUILD_DIR / "estimator_native"
+FIRMWARE_ELF = BUILD_DIR / "stm32f405" / "firmware.elf"
 LIBRARY_ENV = "UWB_RIG_ESTIMATOR_LIB"  # use this library instead (e.g. the sanitizer build)
 
 STATE_DIM = 9
@@ -81,14 +84,20 @@ def make(*targets: str) -> None:
         raise NativeBuildError(f"building {' '.join(targets)} failed:\n{proc.stdout}{proc.stderr}")
 
 
+def built(artifact: Path, make_target: str) -> Path:
+    """`artifact`, rebuilt with `make make_target` when missing or older than any source."""
+    newest = max(p.stat().st_mtime for p in _sources())
+    if not artifact.exists() or artifact.stat().st_mtime < newest:
+        make(make_target)
+    if not artifact.exists():
+        raise NativeBuildError(f"make {make_target} did not produce {artifact}")
+    return artifact
+
+
 def build(target: str = "native") -> Path:
     """Build (if stale) and return the path of the host library."""
     name = {"native": "libestimator.so", "sanitize": "libestimator-asan.so"}[target]
-    lib = ESTIMATOR_DIR / "build" / name
-    newest = max(p.stat().st_mtime for p in _sources())
-    if not lib.exists() or lib.stat().st_mtime < newest:
-        make(target)
-    return lib
+    return built(BUILD_DIR / name, target)
 
 
 def library() -> ctypes.CDLL:

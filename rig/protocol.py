@@ -22,8 +22,6 @@ HELLO_REPLY, ACK, ESTIMATE, ATTITUDE, COUNTERS, TIMING, STATUS = range(0x81, 0x8
 NET_CHUNK_BYTES = MAX_PAYLOAD - 3
 UNITS = {0: "ns", 1: "cycles", 2: "instructions"}
 STATUS_BOOT, STATUS_BAD_FRAME, STATUS_BAD_MESSAGE = 1, 2, 3
-PARAM_ORDER = ("tdoa_std", "accel_noise", "gyro_noise", "position_noise", "velocity_noise", "gate_m",
-               "gm_state_c2", "gm_meas_c2", "robust", "irls_iterations", "use_bias_net", "thrust_only")
 
 
 class ProtocolError(Exception):
@@ -136,6 +134,7 @@ def hello() -> bytes:
 
 
 def param(index: int, value: float) -> bytes:
+    """Parameter `index` in the field order of est_params_t (native.EstimatorParams)."""
     return struct.pack("<BBf", PARAM, index, value)
 
 

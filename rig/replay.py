@@ -146,8 +146,8 @@ def _acked(link: Link, payloads: list[bytes], what: str) -> None:
 
 def configure(link: Link, rec: Recording, params: native.EstimatorParams, model: BiasNet | None,
               hello: protocol.HelloReply) -> None:
-    _acked(link, [protocol.param(k, float(getattr(params, name))) for k, name in enumerate(protocol.PARAM_ORDER)],
-           "parameters")
+    _acked(link, [protocol.param(k, float(getattr(params, name)))
+                  for k, (name, _) in enumerate(native.EstimatorParams._fields_)], "parameters")
     anchors = [a for a in rec.anchors if 0 <= a.id < hello.max_anchors]
     _acked(link, [protocol.anchor(a.id, a.position, a.quaternion) for a in anchors], "anchors")
     if model is not None and params.use_bias_net:

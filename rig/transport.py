@@ -25,8 +25,6 @@ from rig import native, protocol
 
 log = logging.getLogger(__name__)
 
-FIRMWARE = native.ESTIMATOR_DIR / "build" / "stm32f405" / "firmware.elf"
-NATIVE_PROGRAM = native.ESTIMATOR_DIR / "build" / "estimator_native"
 QEMU = "qemu-system-arm"
 # -icount shift=0: one instruction per virtual nanosecond, so TIM2 counts instructions
 # deterministically; sleep=off: never wait for the host clock.
@@ -46,7 +44,6 @@ class Link:
     process: subprocess.Popen | None = None
     parser: protocol.Parser = field(default_factory=protocol.Parser)
     bytes_sent: int = 0
-    on_raw: list = field(default_factory=list)  # callbacks(bytes) for every byte received
     pending: deque = field(default_factory=deque)
 
     def send(self, payloads: list[bytes]) -> None:
@@ -74,8 +71,6 @@ class Link:
             except (serial.SerialException, OSError) as exc:
                 raise LinkError(f"{self.name}: read failed (board gone?): {exc}") from exc
             if chunk:
-                for callback in self.on_raw:
-                    callback(chunk)
                 messages = []
                 for payload in self.parser.feed(chunk):
                     try:
@@ -113,7 +108,7 @@ def _free_port() -> int:
 
 
 def open_native(program: Path | None = None, read_timeout: float = 0.05) -> Link:
-    program = program or _built(NATIVE_PROGRAM, "program")
+    program = program or _build_for_target(native.NATIVE_PROGRAM, "program")
     proc = subprocess.Popen([str(program), "--pty"], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     line = proc.stdout.readline().decode().strip()
     if not line.startswith("PTY "):
@@ -126,7 +121,7 @@ def open_native(program: Path | None = None, read_timeout: float = 0.05) -> Link
 def open_qemu(firmware: Path | None = None, read_timeout: float = 0.05, connect_timeout: float = 10.0) -> Link:
     if shutil.which(QEMU) is None:
         raise LinkError(f"{QEMU} is not installed (run scripts/setup.sh)")
-    firmware = firmware or _built(FIRMWARE, "firmware")
+    firmware = firmware or _build_for_target(native.FIRMWARE_ELF, "firmware")
     port_number = _free_port()
     serial_arg = f"tcp:127.0.0.1:{port_number},server=on,wait=on,nodelay=on"
     proc = subprocess.Popen([QEMU, *QEMU_ARGS, "-kernel", str(firmware), "-serial", serial_arg],
@@ -162,11 +157,8 @@ def open_target(target: str) -> Link:
     raise LinkError(f"unknown target {target!r} (native, qemu or serial:URL)")
 
 
-def _built(path: Path, make_target: str) -> Path:
-    newest = max(p.stat().st_mtime for p in native._sources())
-    if not path.exists() or path.stat().st_mtime < newest:
-        native.make(make_target)
-    if not path.exists():
-        raise LinkError(f"building {make_target} did not produce {path}")
-    return path
-
+def _build_for_target(artifact: Path, make_target: str) -> Path:
+    try:
+        return native.built(artifact, make_target)
+    except native.NativeBuildError as exc:
+        raise LinkError(str(exc)) from exc
