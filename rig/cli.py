@@ -189,8 +189,11 @@ def cmd_train(args: argparse.Namespace) -> int:
 # ----------------------------------------------------------------------------- replay
 
 def _replay(recording: Path, target: str, out: Path, *, use_nn: bool = True, robust: bool = True,
-            model_path: Path | None = None, start: float | None = None, duration: float | None = None) -> dict:
+            model_path: Path | None = None, start: float | None = None, duration: float | None = None,
+            lookahead: int = 0) -> dict:
     """Replay into one target and write OUT/metrics.json; returns the metrics."""
+    import time
+
     from rig import replay, transport
     from rig.evaluate import estimator_config
     from rig.importer import load_any
@@ -201,18 +204,22 @@ def _replay(recording: Path, target: str, out: Path, *, use_nn: bool = True, rob
     try:
         link = transport.open_target(target)
         try:
-            session = replay.run(link, rec, params, model, start=start, duration=duration,
+            began = time.monotonic()
+            session = replay.run(link, rec, params, model, start=start, duration=duration, lookahead=lookahead,
                                  progress=_progress(desc=f"replay {target}", total=None))
+            wall = time.monotonic() - began
         finally:
             link.close()
     except transport.LinkError as exc:
         raise CliError(str(exc)) from exc
     result = replay.score(session, rec)
     result.update({"recording": str(recording), "target": target, "bytes_sent": link.bytes_sent,
-                   "bias_net": model is not None, "robust": robust})
+                   "bias_net": model is not None, "robust": robust, "lookahead": lookahead,
+                   "wall_seconds": wall, "speed": len(session.estimates) * replay.BUDGET_SECONDS / wall})
     _write_json(out / "metrics.json", result)
     timing = result["timing"]
-    print(f"{recording} -> {target}: {result['n_estimates']} estimates")
+    print(f"{recording} -> {target}: {result['n_estimates']} estimates in {wall:.1f} s "
+          f"({result['speed']:.2f}x real time, {link.bytes_sent / max(1, len(session.estimates)):.0f} B a window)")
     _print_accuracy(result)
     print(f"timing ({timing['unit']}): window p50 {timing['window_p50']:.0f}, p99 {timing['window_p99']:.0f}, "
           f"max {timing['window_max']:.0f} = {timing['window_max_fraction_of_budget']:.1%} of the "
@@ -233,7 +240,7 @@ def _assertions(result: dict, max_rmse: float | None, max_budget: float | None) 
 
 def cmd_replay(args: argparse.Namespace) -> int:
     result = _replay(args.recording, args.target, args.out, use_nn=not args.no_nn, robust=not args.no_robust,
-                     model_path=args.model, start=args.start, duration=args.duration)
+                     model_path=args.model, start=args.start, duration=args.duration, lookahead=args.lookahead)
     failed = _assertions(result, args.assert_rmse, args.assert_budget)
     for reason in failed:
         print(f"rig replay: assertion failed: {reason}", file=sys.stderr)
@@ -257,6 +264,53 @@ def cmd_size(args: argparse.Namespace) -> int:
     _write_json(args.json, result)
     within = est["flash"] <= budget["flash"] and est["ram"] <= budget["ram"]
     return EXIT_OK if within else EXIT_FAILED
+
+
+# ----------------------------------------------------------------------------- bench
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    from rig import bench
+    from rig.importer import load_any
+
+    rec = load_any(args.recording)
+    baseline = None if args.update_baseline else bench.load_baseline(args.baseline)
+    start, duration = (args.start, args.duration) if baseline is None else bench.run_settings(baseline)
+    binaries = {"native": args.program, "qemu": args.firmware}
+    current = []
+    for target in args.targets.split(","):
+        try:
+            current.append(bench.measure(target, rec, start, duration, binaries.get(target)))
+        except transport_error() as exc:
+            raise CliError(str(exc)) from exc
+    document = bench.baseline_document(current, str(args.recording), start, duration)
+    if baseline is None:
+        _write_json(args.baseline, document)
+        for f in current:
+            print(f"{f.target} ({f.unit}): " + ", ".join(f"{k} {v:.0f}" for k, v in f.values.items()))
+        print(f"wrote baseline {args.baseline}")
+        return EXIT_OK
+    thresholds = dict(bench.THRESHOLDS)
+    if args.threshold is not None:
+        thresholds = {unit: args.threshold for unit in thresholds}
+    rows = bench.compare(current, baseline, thresholds)
+    print(f"{'target':7} {'figure':17} {'unit':12} {'baseline':>10} {'current':>10} {'ratio':>7}")
+    for r in rows:
+        flag = "  REGRESSED" if r["regressed"] else ("" if r["compared"] else "  (not compared)")
+        print(f"{r['target']:7} {r['figure']:17} {r['unit']:12} {r['baseline']:10.0f} {r['current']:10.0f} "
+              f"{r['ratio']:7.3f}{flag}")
+    regressed = [r for r in rows if r["regressed"]]
+    _write_json(args.json, {**document, "baseline": str(args.baseline), "comparison": rows,
+                            "regressions": len(regressed)})
+    for r in regressed:
+        print(f"rig bench: {r['target']} {r['figure']} regressed by {r['ratio'] - 1:.1%} "
+              f"(threshold {r['threshold']:.0%})", file=sys.stderr)
+    return EXIT_FAILED if regressed else EXIT_OK
+
+
+def transport_error() -> type[Exception]:
+    from rig.transport import LinkError
+
+    return LinkError
 
 
 # ----------------------------------------------------------------------------- demo (main job)
@@ -361,16 +415,41 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--dataset-cache", type=Path, help="reuse (or write) the dataset here (.npz)")
     p.set_defaults(func=cmd_train)
 
+    p = sub.add_parser("bench", help="per-call and per-window cost on native and QEMU against a baseline",
+                       description="Replay a fixed segment in strict lock-step into the native program (ns) and "
+                                   "the QEMU firmware (instructions, deterministic), print per-call and per-window "
+                                   "figures and compare them with the committed baseline; exit 1 when a figure "
+                                   "grew by more than its threshold (instructions 5%%, ns 50%%).")
+    p.add_argument("recording", type=Path, nargs="?", default=paths.default_recording(),
+                   help="recording (default: the shipped default recording)")
+    p.add_argument("--targets", default="native,qemu", help="comma-separated: native, qemu (default both)")
+    p.add_argument("--baseline", type=Path, default=Path("benchmarks/baseline.json"), help="baseline file")
+    p.add_argument("--update-baseline", action="store_true", help="measure and write the baseline instead")
+    p.add_argument("--start", type=float, help="segment start when writing a baseline (default: take-off)")
+    p.add_argument("--duration", type=float, default=20.0, help="segment length when writing a baseline")
+    p.add_argument("--threshold", type=float, metavar="FRACTION", help="one threshold for every unit")
+    p.add_argument("--json", type=Path, default=Path("out/bench.json"), help="figures and comparison")
+    p.add_argument("--program", type=Path, help="native program to measure (default: build it)")
+    p.add_argument("--firmware", type=Path, help="firmware ELF to measure (default: build it)")
+    p.set_defaults(func=cmd_bench)
+
     p = sub.add_parser("replay", help="replay a recording into a board (native, QEMU or serial) in lock-step",
                        description="Build what the target needs, start it (native program on a pty, firmware in "
                                    "QEMU netduinoplus2) or open the port (serial:URL, any pyserial URL), "
                                    "handshake, configure, then stream IMU and TDOA one 10 ms window at a time, "
                                    "waiting for each estimate. Writes DIR/metrics.json (accuracy, timing).")
     _add_estimator_options(p)
-    p.add_argument("--target", default="native", help="native, qemu or serial:URL (default native)")
+    p.add_argument("--target", default="native",
+                   help="native (program on a pty), native-udp (its UDP endpoint through cflib's udp:// driver), "
+                        "qemu, serial:URL (any pyserial URL) or crazyflie:URI (cflib radio://, usb://, udp://); "
+                        "default native")
     p.add_argument("--out", type=Path, required=True, help="output directory")
     p.add_argument("--start", type=float, help="start time on the recording's clock (default 1 s before take-off)")
     p.add_argument("--duration", type=float, help="seconds to replay (default: to the end)")
+    p.add_argument("--lookahead", type=int, default=0, metavar="N",
+                   help="windows sent ahead of the awaited estimate (default 0: strict lock-step). Estimates "
+                        "are identical; the link's idle time shrinks, but receive interrupts then land inside "
+                        "measured calls (a few instructions each)")
     p.add_argument("--assert-rmse", type=float, metavar="M", help="exit 1 when rmse_3d exceeds M metres")
     p.add_argument("--assert-budget", type=float, metavar="FRACTION",
                    help="exit 1 when the worst window exceeds FRACTION of the 10 ms budget")

@@ -6,20 +6,28 @@ type byte and little-endian fields, at most 30 bytes (one CRTP app-channel packe
 
 from __future__ import annotations
 
+import math
 import struct
 from dataclasses import dataclass, field
 
 import numpy as np
 
-VERSION = 1
+VERSION = 2
 MAX_PAYLOAD = 30
 ACCEL_LSB = np.float32(0.005)
 GYRO_LSB = np.float32(0.001)
 QUAT_LSB = np.float32(1.0 / 32767.0)
+TDOA_LSB = np.float32(0.001)
 
-HELLO, PARAM, ANCHOR, NET_CHUNK, NET_COMMIT, RESET, IMU, TDOA, STEP = range(0x01, 0x0A)
+HELLO, PARAM, ANCHOR, NET_CHUNK, NET_COMMIT, RESET, IMU, TDOA, STEP, IMU_DELTA, TDOA_PACK = range(0x01, 0x0C)
 HELLO_REPLY, ACK, ESTIMATE, ATTITUDE, COUNTERS, TIMING, STATUS = range(0x81, 0x88)
 NET_CHUNK_BYTES = MAX_PAYLOAD - 3
+IMU_AXES = 6
+IMU_KEY_MAX_DELTAS = 2
+IMU_DELTA_HEADER = 5          # type, seq, 24-bit layout
+IMU_DELTA_MAX = 8             # samples in one packed delta message (3-bit count)
+TDOA_PACK_MAX = 5
+PACKED_ID_LIMIT = 16          # anchor ids that fit a nibble
 UNITS = {0: "ns", 1: "cycles", 2: "instructions"}
 STATUS_BOOT, STATUS_BAD_FRAME, STATUS_BAD_MESSAGE = 1, 2, 3
 
@@ -155,21 +163,188 @@ def reset(t_us: int, position, quaternion) -> bytes:
     return struct.pack("<BI3f4h", RESET, t_us, *map(float, position), *quantize(quaternion, QUAT_LSB).tolist())
 
 
-def imu(samples: list[tuple[int, np.ndarray, np.ndarray]]) -> bytes:
-    """One or two samples (dt_us since the last STEP, accel m/s^2, gyro rad/s)."""
-    if not 1 <= len(samples) <= 2:
-        raise ProtocolError("an IMU message carries one or two samples")
-    body = b"".join(struct.pack("<H3h3h", dt, *quantize(a, ACCEL_LSB).tolist(), *quantize(g, GYRO_LSB).tolist())
-                    for dt, a, g in samples)
-    return bytes([IMU]) + body
+def imu_counts(accel, gyro) -> np.ndarray:
+    """IMU samples (n x 3 accel m/s^2, n x 3 gyro rad/s) as the int16 counts on the wire (n x 6)."""
+    return np.hstack([quantize(accel, ACCEL_LSB), quantize(gyro, GYRO_LSB)]).reshape(-1, IMU_AXES)
+
+
+def imu_values(counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """What the board makes of int16 counts: float32 accel and gyro (n x 3 each)."""
+    c = np.asarray(counts).reshape(-1, IMU_AXES).astype(np.float32)
+    return c[:, :3] * ACCEL_LSB, c[:, 3:] * GYRO_LSB
+
+
+@dataclass
+class ImuStream:
+    """Host side of the delta-coded IMU stream: a key message (absolute int16 sample) now
+    and then, bit-packed differences in between. A key goes out at the start, whenever a
+    difference does not fit int8, and every `key_every` messages, so a lost frame costs
+    at most that many messages of IMU (the board counts them as lost)."""
+
+    key_every: int = 50
+    seq: int = 0
+    last: np.ndarray | None = None
+    since_key: int = 0
+
+    def encode(self, counts: np.ndarray) -> list[bytes]:
+        counts = np.asarray(counts, np.int32).reshape(-1, IMU_AXES)
+        msgs, i = [], 0
+        while i < len(counts):
+            if self.last is None or self.since_key >= self.key_every or not _fits(counts[i] - self.last):
+                n = 1 + _run_of_small_deltas(counts[i:], IMU_KEY_MAX_DELTAS)
+                deltas = np.diff(counts[i:i + n], axis=0)
+                msgs.append(struct.pack("<BB6h", IMU, self.seq, *counts[i].tolist()) + deltas.astype(np.int8).tobytes())
+                self.since_key = 0
+            else:
+                deltas = np.diff(np.vstack([self.last, counts[i:]]), axis=0)
+                n, payload = _packed_deltas(deltas[:_run_of_small_deltas(np.vstack([self.last, counts[i:]]),
+                                                                          IMU_DELTA_MAX)])
+                msgs.append(bytes([IMU_DELTA, self.seq]) + payload)
+                self.since_key += 1
+            self.seq = (self.seq + 1) & 0xFF
+            self.last = counts[i + n - 1]
+            i += n
+        return msgs
+
+
+def _fits(delta: np.ndarray) -> bool:
+    return bool(np.all(np.abs(delta) <= 127))
+
+
+def _run_of_small_deltas(counts: np.ndarray, limit: int) -> int:
+    """How many samples after the first differ from their predecessor by int8 (<= limit)."""
+    small = np.all(np.abs(np.diff(counts[:limit + 1], axis=0)) <= 127, axis=1)
+    return int(np.argmin(small)) if not small.all() else len(small)
+
+
+def _width(values: np.ndarray) -> np.ndarray:
+    """Two's-complement bits needed per column (1..8)."""
+    hi = np.maximum(values.max(axis=0), -values.min(axis=0) - 1)
+    return np.maximum(1, np.ceil(np.log2(hi + 1)).astype(int) + 1)
+
+
+def _packed_deltas(deltas: np.ndarray) -> tuple[int, bytes]:
+    """The longest prefix of `deltas` (at least one) whose packed form fits one message."""
+    for n in range(len(deltas), 0, -1):
+        width = _width(deltas[:n])
+        if IMU_DELTA_HEADER + (n * int(width.sum()) + 7) // 8 <= MAX_PAYLOAD:
+            break
+    layout = sum(int(w - 1) << (3 * i) for i, w in enumerate(width)) | (n - 1) << 18
+    bits, nbits = 0, 0
+    for row in deltas[:n]:
+        for value, w in zip(row.tolist(), width.tolist()):
+            bits |= (value & ((1 << w) - 1)) << nbits
+            nbits += w
+    return n, layout.to_bytes(3, "little") + bits.to_bytes((nbits + 7) // 8, "little")
 
 
 def tdoa(dt_us: int, id_a: int, id_b: int, value: float) -> bytes:
+    """Any TDOA, with a float32 value (also NaN or huge ones, which the board rejects and counts)."""
     return struct.pack("<BHBBf", TDOA, dt_us, id_a, id_b, value)
 
 
-def step(t_us: int) -> bytes:
-    return struct.pack("<BI", STEP, t_us)
+def tdoa_item(dt_us: int, id_a: int, id_b: int, value: float) -> bytes | None:
+    """A packed TDOA item (5 bytes), or None when the ids or the value do not fit it."""
+    q = float(value) / float(TDOA_LSB)
+    if not (math.isfinite(q) and abs(q) < 32767.0 and 0 <= id_a < PACKED_ID_LIMIT and 0 <= id_b < PACKED_ID_LIMIT
+            and 0 <= dt_us <= 0xFFFF):
+        return None
+    return struct.pack("<HBh", dt_us, id_a << 4 | id_b, int(quantize(value, TDOA_LSB)))
+
+
+def tdoa_pack(items: list[bytes]) -> bytes:
+    if not 1 <= len(items) <= TDOA_PACK_MAX:
+        raise ProtocolError(f"a TDOA pack carries 1..{TDOA_PACK_MAX} items")
+    return bytes([TDOA_PACK]) + b"".join(items)
+
+
+def step(t_us: int, items: list[bytes] = ()) -> bytes:
+    """End of a window, carrying the window's last (up to five) packed TDOA items."""
+    if len(items) > TDOA_PACK_MAX:
+        raise ProtocolError(f"a STEP carries at most {TDOA_PACK_MAX} TDOA items")
+    return struct.pack("<BI", STEP, t_us) + b"".join(items)
+
+
+def tdoa_messages(tdoas: list[tuple[int, int, int, float]], t_step_us: int) -> list[bytes]:
+    """A window's TDOAs and its STEP: unpackable ones as TDOA, the rest packed, the last
+    five of them riding on the STEP."""
+    items, full = [], []
+    for dt, a, b, v in tdoas:
+        item = tdoa_item(dt, a, b, v)
+        items.append(item) if item is not None else full.append(tdoa(dt, a, b, v))
+    split = max(0, len(items) - TDOA_PACK_MAX)
+    packs = [tdoa_pack(items[k:min(k + TDOA_PACK_MAX, split)]) for k in range(0, split, TDOA_PACK_MAX)]
+    return full + packs + [step(t_step_us, items[split:])]
+
+
+@dataclass
+class BoardView:
+    """What the board's service makes of host messages (targets/common/service.c): the
+    estimator events it generates, as (t_us, kind, id_a, id_b, value[3]) rows with kind
+    'accel', 'gyro', 'tdoa' or 'step'. The twin the in-process library is compared with."""
+
+    t_step: int = 0
+    last: np.ndarray = field(default_factory=lambda: np.zeros(IMU_AXES, np.int32))
+    next_seq: int = 0
+    valid: bool = False
+    lost: int = 0
+
+    def events(self, payload: bytes) -> list[tuple]:
+        kind = payload[0]
+        if kind == IMU:
+            self.last = np.array(struct.unpack_from("<6h", payload, 2), np.int32)
+            self.valid, self.next_seq = True, (payload[1] + 1) & 0xFF
+            return self._imu([self.last]) + self._deltas(payload[14:])
+        if kind == IMU_DELTA:
+            if not self.valid or payload[1] != self.next_seq:
+                self.valid, self.lost = False, self.lost + 1
+                return []
+            self.next_seq = (self.next_seq + 1) & 0xFF
+            return self._imu(self._unpack(payload))
+        if kind == TDOA:
+            dt, a, b, v = struct.unpack("<HBBf", payload[1:])
+            return [(self.t_step + dt, "tdoa", a, b, (v, 0.0, 0.0))]
+        if kind == TDOA_PACK:
+            return self._packed(payload[1:])
+        if kind == STEP:
+            out = self._packed(payload[5:])
+            self.t_step = struct.unpack_from("<I", payload, 1)[0]
+            return out + [(self.t_step, "step", 0, 0, (0.0, 0.0, 0.0))]
+        return []
+
+    def _unpack(self, payload: bytes) -> list[np.ndarray]:
+        layout = int.from_bytes(payload[2:5], "little")
+        width = [(layout >> (3 * i) & 7) + 1 for i in range(IMU_AXES)]
+        bits, pos, samples = int.from_bytes(payload[IMU_DELTA_HEADER:], "little"), 0, []
+        for _ in range((layout >> 18 & 7) + 1):
+            for i, w in enumerate(width):
+                v = bits >> pos & ((1 << w) - 1)
+                self.last = self.last.copy()
+                self.last[i] += v - (1 << w) if v >> (w - 1) else v
+                pos += w
+            samples.append(self.last)
+        return samples
+
+    def _deltas(self, data: bytes) -> list[tuple]:
+        samples = []
+        for k in range(0, len(data), IMU_AXES):
+            self.last = self.last + np.frombuffer(data[k:k + IMU_AXES], np.int8)
+            samples.append(self.last)
+        return self._imu(samples)
+
+    def _imu(self, samples) -> list[tuple]:
+        acc, gyro = imu_values(np.array(samples))
+        rows = []
+        for a, g in zip(acc, gyro):
+            rows += [(self.t_step, "accel", 0, 0, a), (self.t_step, "gyro", 0, 0, g)]
+        return rows
+
+    def _packed(self, data: bytes) -> list[tuple]:
+        rows = []
+        for k in range(0, len(data), 5):
+            dt, ids, q = struct.unpack_from("<HBh", data, k)
+            rows.append((self.t_step + dt, "tdoa", ids >> 4, ids & 0x0F, (np.float32(q) * TDOA_LSB, 0.0, 0.0)))
+        return rows
 
 
 # ----------------------------------------------------------------------------- board -> host
@@ -213,6 +388,7 @@ class Counters:
     resets: int
     imu_gaps: int
     gated: int
+    imu_lost: int
 
 
 @dataclass
@@ -238,7 +414,7 @@ _DECODERS = {
     ACK: ("<Bb", lambda v: Ack(*v)),
     ESTIMATE: ("<I3f3f", lambda v: Estimate(v[0], v[1:4], v[4:7])),
     ATTITUDE: ("<4h9e", lambda v: Attitude(tuple(float(np.float32(q) * QUAT_LSB) for q in v[:4]), v[4:])),
-    COUNTERS: ("<IIIIHHH", lambda v: Counters(*v)),
+    COUNTERS: ("<IIIIHHHH", lambda v: Counters(*v)),
     TIMING: ("<IIIIIB", lambda v: Timing(*v)),
     STATUS: ("<BIII", lambda v: Status(*v)),
 }

@@ -1,14 +1,14 @@
 """Lock-step replay of a recording into a board over the wire protocol.
 
 The recording is cut into 10 ms windows exactly as `rig evaluate` does (same start,
-same initial pose, same events). Each window goes out as IMU messages (accelerometer
-and gyroscope samples paired, two per message), TDOA messages and a STEP; the host
+same initial pose, same events). Each window goes out as delta-coded IMU messages
+(accelerometer and gyroscope samples paired), packed TDOA items and a STEP; the host
 then waits for the board's estimate, attitude, counters and timing before sending the
 next window, so results do not depend on link speed.
 
 `wire_events` rebuilds the event stream exactly as the board decodes it (quantised
-IMU, paired samples), so the in-process library can be compared with any board to
-float32 precision.
+IMU and TDOA, paired samples), so the in-process library can be compared with any
+board to float32 precision.
 """
 
 from __future__ import annotations
@@ -23,13 +23,14 @@ from rig import metrics, native, protocol
 from rig.bias_model import BiasNet
 from rig.evaluate import build_events, start_time, truth_pose_at
 from rig.recording import Recording
-from rig.transport import Link, LinkError
+from rig.transport import BoardLink, LinkError
 
 log = logging.getLogger(__name__)
 
 BUDGET_SECONDS = 0.010        # one 10 ms window
 CPU_HZ = 168_000_000          # STM32F405
 REPLY_TIMEOUT_S = 5.0
+LOOKAHEAD = 0                 # strict lock-step; more windows in flight need the board RX ring (1 kB)
 
 
 @dataclass
@@ -60,26 +61,26 @@ def windows(events: np.ndarray) -> list[Window]:
     return out
 
 
-def window_messages(w: Window) -> list[bytes]:
-    msgs = [protocol.imu(w.imu[k:k + 2]) for k in range(0, len(w.imu), 2)]
-    msgs += [protocol.tdoa(dt, a, b, v) for dt, a, b, v in w.tdoa]
-    msgs.append(protocol.step(w.t_us))
-    return msgs
+def window_messages(w: Window, imu: protocol.ImuStream) -> list[bytes]:
+    """A window on the wire: its IMU samples (delta-coded), its TDOAs and the STEP."""
+    msgs = []
+    if w.imu:
+        msgs += imu.encode(protocol.imu_counts([a for _, a, _ in w.imu], [g for _, _, g in w.imu]))
+    return msgs + protocol.tdoa_messages(w.tdoa, w.t_us)
+
+
+_EVENT_KINDS = {"accel": native.EV_ACCEL, "gyro": native.EV_GYRO, "tdoa": native.EV_TDOA, "step": native.EV_STEP}
 
 
 def wire_events(ws: list[Window]) -> np.ndarray:
-    """The events a board reconstructs from `ws` (quantised IMU), for the in-process library."""
-    rows, prev = [], 0
+    """The events a board makes of `ws` on the wire (quantised IMU stamped at the window
+    start, packed TDOA), decoded by the Python twin of the board service, so the
+    in-process library can be compared with any board to float32 precision."""
+    board, imu, rows = protocol.BoardView(), protocol.ImuStream(), []
     for w in ws:
-        for dt, a, g in w.imu:
-            qa = protocol.quantize(a, protocol.ACCEL_LSB).astype(np.float32) * protocol.ACCEL_LSB
-            qg = protocol.quantize(g, protocol.GYRO_LSB).astype(np.float32) * protocol.GYRO_LSB
-            rows.append((prev + dt, native.EV_ACCEL, 0, 0, 0, qa))
-            rows.append((prev + dt, native.EV_GYRO, 0, 0, 0, qg))
-        for dt, a, b, v in w.tdoa:
-            rows.append((prev + dt, native.EV_TDOA, a, b, 0, np.array([v, 0, 0], np.float32)))
-        rows.append((w.t_us, native.EV_STEP, 0, 0, 0, np.zeros(3, np.float32)))
-        prev = w.t_us
+        for payload in window_messages(w, imu):
+            rows += [(t, _EVENT_KINDS[kind], a, b, 0, np.asarray(v, np.float32))
+                     for t, kind, a, b, v in board.events(payload)]
     return np.array(rows, dtype=native.EVENT_DTYPE)
 
 
@@ -97,7 +98,7 @@ class Session:
     windows_sent: int = 0
 
 
-def _expect(link: Link, kind: type, what: str, timeout: float = REPLY_TIMEOUT_S, session: Session | None = None):
+def _expect(link: BoardLink, kind: type, what: str, timeout: float = REPLY_TIMEOUT_S, session: Session | None = None):
     """Wait for one message of `kind`; other messages are kept in the session (status) or logged."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
@@ -109,7 +110,7 @@ def _expect(link: Link, kind: type, what: str, timeout: float = REPLY_TIMEOUT_S,
     raise LinkError(f"{link.name}: no answer to {what} within {timeout:.0f} s (target stopped answering)")
 
 
-def _note(link: Link, msg, session: Session | None) -> None:
+def _note(link: BoardLink, msg, session: Session | None) -> None:
     if isinstance(msg, protocol.Status):
         if session is not None:
             session.statuses.append(msg)
@@ -121,7 +122,7 @@ def _note(link: Link, msg, session: Session | None) -> None:
         raise LinkError(f"{link.name}: message 0x{msg.acked:02x} refused with status {msg.status}")
 
 
-def handshake(link: Link, attempts: int = 10) -> protocol.HelloReply:
+def handshake(link: BoardLink, attempts: int = 10) -> protocol.HelloReply:
     """Say hello until the board answers (a board still booting drops what it receives)."""
     for attempt in range(attempts):
         link.send([protocol.hello()])
@@ -136,7 +137,7 @@ def handshake(link: Link, attempts: int = 10) -> protocol.HelloReply:
     return reply
 
 
-def _acked(link: Link, payloads: list[bytes], what: str) -> None:
+def _acked(link: BoardLink, payloads: list[bytes], what: str) -> None:
     for payload in payloads:
         link.send([payload])
         ack = _expect(link, protocol.Ack, what)
@@ -144,7 +145,7 @@ def _acked(link: Link, payloads: list[bytes], what: str) -> None:
             raise LinkError(f"{link.name}: {what} refused (status {ack.status})")
 
 
-def configure(link: Link, rec: Recording, params: native.EstimatorParams, model: BiasNet | None,
+def configure(link: BoardLink, rec: Recording, params: native.EstimatorParams, model: BiasNet | None,
               hello: protocol.HelloReply) -> None:
     _acked(link, [protocol.param(k, float(getattr(params, name)))
                   for k, (name, _) in enumerate(native.EstimatorParams._fields_)], "parameters")
@@ -157,9 +158,11 @@ def configure(link: Link, rec: Recording, params: native.EstimatorParams, model:
         _acked(link, protocol.net_chunks(image) + [protocol.net_commit(len(image))], "bias network")
 
 
-def run(link: Link, rec: Recording, params: native.EstimatorParams, model: BiasNet | None = None,
-        start: float | None = None, duration: float | None = None, progress=None) -> Session:
-    """Handshake, configure, reset at the start pose, then lock-step every window."""
+def run(link: BoardLink, rec: Recording, params: native.EstimatorParams, model: BiasNet | None = None,
+        start: float | None = None, duration: float | None = None, progress=None,
+        lookahead: int = LOOKAHEAD) -> Session:
+    """Handshake, configure, reset at the start pose, then lock-step every window (with
+    `lookahead` further windows already on the wire; 0 is strict send-and-wait)."""
     t0 = start_time(rec) if start is None else start
     t_end = None if duration is None else t0 + duration
     hello = handshake(link)
@@ -168,10 +171,17 @@ def run(link: Link, rec: Recording, params: native.EstimatorParams, model: BiasN
     _acked(link, [protocol.reset(0, pos, quat)], "reset")
     session = Session(t0, hello.unit, hello.timer_hz)
     ws = windows(build_events(rec, t0, t_end))
-    for w in progress(ws) if progress else ws:
-        link.send(window_messages(w))
-        session.windows_sent += 1
-        est = _expect(link, protocol.Estimate, f"window at {w.t_us} us", session=session)
+    imu = protocol.ImuStream()
+    sent = 0
+    for k in progress(range(len(ws))) if progress else range(len(ws)):
+        # Keep `lookahead` windows in flight: the board still answers them strictly in
+        # order (results are those of strict lock-step), but its slow receive overlaps
+        # with the host's encoding and the previous answer.
+        while sent < len(ws) and sent <= k + lookahead:
+            link.send(window_messages(ws[sent], imu))
+            sent += 1
+        session.windows_sent = sent
+        est = _expect(link, protocol.Estimate, f"window at {ws[k].t_us} us", session=session)
         att = _expect(link, protocol.Attitude, "attitude", session=session)
         session.counters = _expect(link, protocol.Counters, "counters", session=session)
         session.timing.append(_expect(link, protocol.Timing, "timing", session=session))

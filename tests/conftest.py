@@ -44,6 +44,14 @@ def data_dir() -> Path:
 
 
 @pytest.fixture(scope="session")
+def default_rec():
+    """The shipped default recording."""
+    from rig.importer import load_any
+
+    return load_any(paths.default_recording())
+
+
+@pytest.fixture(scope="session")
 def survey_0425(data_dir: Path) -> Path:
     return data_dir / "surveys" / "anchor_0425.txt"
 

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import subprocess
 
+import numpy as np
+
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -56,10 +58,59 @@ def test_c_parser_survives_random_bytes_and_counts_bad_frames() -> None:
     assert max(s.frames_bad for s in statuses) > 10
 
 
-def test_every_message_fits_one_crtp_packet() -> None:
-    import numpy as np
+imu_counts = st.lists(st.lists(st.integers(-32767, 32767), min_size=6, max_size=6), min_size=1, max_size=40)
+small_steps = st.lists(st.lists(st.integers(-127, 127), min_size=6, max_size=6), min_size=1, max_size=40)
 
+
+def _board_imu(board: protocol.BoardView, msgs: list[bytes]) -> np.ndarray:
+    rows = [r for m in msgs for r in board.events(m)]
+    acc = np.array([r[4] for r in rows if r[1] == "accel"]).reshape(-1, 3)
+    gyro = np.array([r[4] for r in rows if r[1] == "gyro"]).reshape(-1, 3)
+    return np.hstack([np.rint(acc / protocol.ACCEL_LSB), np.rint(gyro / protocol.GYRO_LSB)])
+
+
+@settings(max_examples=200)
+@given(imu_counts, small_steps)
+def test_imu_stream_round_trips_any_samples(jumps: list, steps: list) -> None:
+    """Arbitrary jumps (keys) mixed with small steps (deltas) come out exactly as sent."""
+    counts = np.clip(np.cumsum(np.array(jumps + steps), axis=0), -32767, 32767)
+    stream, board = protocol.ImuStream(key_every=7), protocol.BoardView()
+    msgs = stream.encode(counts[: len(counts) // 2]) + stream.encode(counts[len(counts) // 2:])
+    assert all(len(m) <= protocol.MAX_PAYLOAD for m in msgs)
+    np.testing.assert_array_equal(_board_imu(board, msgs), counts)
+    assert board.lost == 0
+
+
+def test_a_lost_imu_frame_costs_only_until_the_next_key() -> None:
+    counts = np.cumsum(np.ones((200, 6), int), axis=0)
+    msgs = protocol.ImuStream(key_every=10).encode(counts)
+    board = protocol.BoardView()
+    received = _board_imu(board, msgs[:3] + msgs[4:])
+    # key, 10 deltas, key, ...: losing delta 3 loses deltas 4..10, and the key after them resyncs
+    assert board.lost == 7
+    assert len(received) < len(counts)
+    np.testing.assert_array_equal(received[-20:], counts[-20:])   # back in step after the key
+
+
+@settings(max_examples=200)
+@given(st.lists(st.tuples(st.integers(0, 65535), st.integers(0, 20), st.integers(0, 20),
+                          st.floats(allow_nan=True, allow_infinity=True, width=32)), max_size=14))
+def test_tdoa_messages_deliver_every_measurement(tdoas: list) -> None:
+    msgs = protocol.tdoa_messages(tdoas, 123456)
+    assert all(len(m) <= protocol.MAX_PAYLOAD for m in msgs)
+    board = protocol.BoardView(t_step=1000)
+    rows = [r for m in msgs for r in board.events(m)]
+    assert rows[-1][:2] == (123456, "step")
+    got = sorted((t - 1000, a, b) for t, kind, a, b, _ in rows if kind == "tdoa")
+    assert got == sorted((dt, a, b) for dt, a, b, _ in tdoas)
+    for t, kind, a, b, v in rows:
+        if kind == "tdoa":
+            sent = [x[3] for x in tdoas if (x[0], x[1], x[2]) == (t - 1000, a, b)]
+            assert any(v[0] == x or abs(v[0] - x) <= 0.0005 + 1e-6 * abs(x) or (np.isnan(x) and np.isnan(v[0])) for x in sent)
+
+
+def test_every_message_fits_one_crtp_packet() -> None:
     msgs = [protocol.anchor(1, [1, 2, 3], [0, 0, 0, 1]), protocol.reset(1, [0, 0, 0], [0, 0, 0, 1]),
-            protocol.imu([(1, np.ones(3), np.ones(3))] * 2), protocol.tdoa(1, 2, 3, 0.5), protocol.step(7),
-            *protocol.net_chunks(bytes(3296))]
+            *protocol.ImuStream().encode(np.arange(60).reshape(10, 6)), protocol.tdoa(1, 2, 3, 0.5),
+            *protocol.tdoa_messages([(1, 2, 3, 0.5)] * 12, 7), *protocol.net_chunks(bytes(3296))]
     assert max(len(m) for m in msgs) <= protocol.MAX_PAYLOAD

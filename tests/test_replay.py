@@ -14,14 +14,9 @@ import numpy as np
 import pytest
 
 from conftest import RIG
-from rig import native, paths, protocol, replay, transport
+from rig import native, protocol, replay, transport
 from rig.evaluate import build_events, load_model, make_estimator, start_time, truth_pose_at
 from rig.importer import load_any
-
-
-@pytest.fixture(scope="module")
-def default_rec():
-    return load_any(paths.default_recording())
 
 
 @pytest.fixture(scope="module")
@@ -58,6 +53,20 @@ def test_native_program_under_sanitizers_equals_the_library(default_rec) -> None
     assert len(session.estimates) == len(lib) >= 599
     np.testing.assert_array_equal(positions(session), lib["pos"])
     assert session.unit == "ns" and all(t.window > 0 for t in session.timing)
+
+
+def test_cflib_udp_link_to_the_native_program_equals_the_library(default_rec) -> None:
+    """The Crazyflie path: cflib's real udp:// link driver, CRTP app-channel packets, the
+    native program's UDP endpoint (under sanitizers)."""
+    native.make("program-asan")
+    params, model = native.params_with(), load_model()
+    link = transport.open_native_udp(native.ESTIMATOR_DIR / "build" / "estimator_native-asan")
+    assert isinstance(link, transport.CrtpLink) and link.name.startswith("crazyflie udp://127.0.0.1:")
+    session = run_target(link, default_rec, params, model, duration=4.0)
+    lib = library_estimates(default_rec, params, model, 4.0)
+    assert len(session.estimates) == len(lib) >= 399
+    np.testing.assert_array_equal(positions(session), lib["pos"])
+    assert session.counters.imu_lost == 0
 
 
 def test_qemu_firmware_matches_native_on_a_real_flight_and_counts_are_deterministic(real_rec) -> None:

@@ -14,15 +14,26 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#define PROTO_VERSION 1
+#define PROTO_VERSION 2
 #define PROTO_MAX_PAYLOAD 30
 #define PROTO_MAX_FRAME (PROTO_MAX_PAYLOAD + 2 + 2)   /* + CRC + COBS overhead byte + slack */
 #define PROTO_MAX_ENCODED (PROTO_MAX_FRAME + 1)      /* + the 0x00 delimiter */
 
-/* Scales of the compact IMU encoding (int16 per axis). */
+/* Scales of the compact encodings: IMU int16 per axis, packed TDOA int16. */
 #define PROTO_ACCEL_LSB 0.005f    /* m/s^2 per count: +-163 m/s^2 (16 g) */
 #define PROTO_GYRO_LSB 0.001f     /* rad/s per count: +-32.7 rad/s (1870 deg/s) */
 #define PROTO_QUAT_LSB (1.0f / 32767.0f)
+#define PROTO_TDOA_LSB 0.001f     /* m per count in packed TDOA items: +-32.767 m (others: MSG_TDOA) */
+
+/* IMU samples travel as int16 absolute values in a key message, then as differences from
+ * the previous sample, bit-packed with a width per axis (about 4.5 bytes a sample at
+ * 1 kHz): the compactness is what lets QEMU's emulated USART (~13 kB/s) keep up with
+ * real time. */
+#define PROTO_IMU_AXES 6
+#define PROTO_IMU_KEY_MAX_DELTAS 2     /* int8 delta samples after the absolute one in MSG_IMU */
+#define PROTO_IMU_DELTA_HEADER 5       /* type, seq, 24-bit layout (see MSG_IMU_DELTA) */
+#define PROTO_TDOA_ITEM 5              /* u16 dt_us, u8 id_a << 4 | id_b, i16 value */
+#define PROTO_TDOA_PACK_MAX 5          /* packed TDOA items in one MSG_TDOA_PACK or MSG_STEP */
 
 typedef enum {
     /* host -> board */
@@ -32,9 +43,15 @@ typedef enum {
     MSG_NET_CHUNK = 0x04,    /* u16 offset, u8 data[<= 27] of a bias_net_t image */
     MSG_NET_COMMIT = 0x05,   /* u16 total size: check and install the received network */
     MSG_RESET = 0x06,        /* u32 t_us, f32 pos[3], i16 quat[4] (PROTO_QUAT_LSB) */
-    MSG_IMU = 0x07,          /* 1 or 2 samples: u16 dt_us (since the last STEP), i16 acc[3], i16 gyro[3] */
-    MSG_TDOA = 0x08,         /* u16 dt_us, u8 id_a, u8 id_b, f32 distance difference (m) */
-    MSG_STEP = 0x09,         /* u32 t_us: end of a 10 ms window; answered by the estimate set */
+    MSG_IMU = 0x07,          /* key: u8 seq, i16 acc[3], i16 gyro[3], then 0..2 samples as i8 deltas[6];
+                                samples are stamped at the window start (the estimator averages them) */
+    MSG_TDOA = 0x08,         /* u16 dt_us, u8 id_a, u8 id_b, f32 distance difference (m): any value */
+    MSG_STEP = 0x09,         /* u32 t_us, then 0..5 packed TDOA items: end of a 10 ms window,
+                                answered by the estimate set */
+    MSG_IMU_DELTA = 0x0A,    /* u8 seq, u24 layout (bits 3i..3i+2: width of axis i minus 1, bits 18..20:
+                                samples minus 1), then the deltas from the previous sample, sample
+                                by sample and axis by axis, two's complement, packed LSB first */
+    MSG_TDOA_PACK = 0x0B,    /* 1..5 packed TDOA items (u16 dt_us, u8 ids, i16 value / PROTO_TDOA_LSB) */
     /* board -> host */
     MSG_HELLO_REPLY = 0x81,  /* u8 proto version, u8 api version, u8 timer unit, u8 max anchors,
                                 u32 timer hz, u16 sizeof(bias_net_t), u8 capabilities */
@@ -42,7 +59,7 @@ typedef enum {
     MSG_ESTIMATE = 0x83,     /* u32 t_us, f32 pos[3], f32 vel[3] */
     MSG_ATTITUDE = 0x84,     /* i16 quat[4] (x, y, z, w; PROTO_QUAT_LSB), f16 cov_diag[9]; follows ESTIMATE */
     MSG_COUNTERS = 0x85,     /* u32 steps, u32 accepted, u32 downweighted, u32 rejected, u16 resets,
-                                u16 imu_gaps, u16 gated */
+                                u16 imu_gaps, u16 gated, u16 imu messages lost (delta without reference) */
     MSG_TIMING = 0x86,       /* u32 t_us, u32 window, u32 predict, u32 tdoa_total, u32 tdoa_max, u8 n_tdoa
                                 (costs in the timer unit of the hello reply); ends a STEP's answer */
     MSG_STATUS = 0x87        /* u8 code, u32 frames_ok, u32 frames_bad, u32 bytes_dropped */

@@ -5,6 +5,10 @@
 
 static void send(service_t *s, const uint8_t *payload, size_t n)
 {
+    if (s->io.packet) {
+        s->io.packet(payload, n);
+        return;
+    }
     uint8_t frame[PROTO_MAX_ENCODED];
     const size_t len = proto_frame(payload, n, frame);
     if (len) s->io.write(frame, len);
@@ -48,7 +52,7 @@ static void send_estimate(service_t *s, const est_output_t *out)
     for (int i = 0; i < 4; i++) proto_put_u16(&c[1 + 2 * i], (uint16_t)proto_quantize(out->quat[i], PROTO_QUAT_LSB));
     for (int i = 0; i < EST_STATE_DIM; i++) proto_put_u16(&c[9 + 2 * i], proto_f16(out->cov_diag[i]));
     send(s, c, sizeof c);
-    uint8_t k[24] = {MSG_COUNTERS};
+    uint8_t k[25] = {MSG_COUNTERS};
     proto_put_u32(&k[1], out->counters.steps);
     proto_put_u32(&k[5], out->counters.tdoa_accepted);
     proto_put_u32(&k[9], out->counters.tdoa_downweighted);
@@ -56,7 +60,8 @@ static void send_estimate(service_t *s, const est_output_t *out)
     proto_put_u16(&k[17], (uint16_t)out->counters.resets);
     proto_put_u16(&k[19], (uint16_t)out->counters.imu_gaps);
     proto_put_u16(&k[21], (uint16_t)out->counters.rejected[EST_REJ_GATE]);
-    send(s, k, 23);
+    proto_put_u16(&k[23], s->imu.lost);
+    send(s, k, 25);
 }
 
 static void send_timing(service_t *s, uint32_t t_us)
@@ -81,17 +86,79 @@ static est_status_t handle(service_t *s, const est_event_t *ev, est_output_t *ou
     return status;
 }
 
-static void on_imu(service_t *s, const uint8_t *m, int n)
+/* One IMU sample (int16 counts) into the estimator, stamped at the window start. */
+static void imu_sample(service_t *s, const int16_t q[PROTO_IMU_AXES])
 {
-    for (int off = 1; off + 14 <= n; off += 14) {
-        est_event_t acc = {.t_us = s->est.t_step_us + proto_get_u16(&m[off]), .kind = EST_EV_ACCEL};
-        est_event_t gyro = {.t_us = acc.t_us, .kind = EST_EV_GYRO};
-        for (int i = 0; i < 3; i++) {
-            acc.v[i] = (float)(int16_t)proto_get_u16(&m[off + 2 + 2 * i]) * PROTO_ACCEL_LSB;
-            gyro.v[i] = (float)(int16_t)proto_get_u16(&m[off + 8 + 2 * i]) * PROTO_GYRO_LSB;
-        }
-        handle(s, &acc, NULL);
-        handle(s, &gyro, NULL);
+    est_event_t acc = {.t_us = s->est.t_step_us, .kind = EST_EV_ACCEL};
+    est_event_t gyro = {.t_us = s->est.t_step_us, .kind = EST_EV_GYRO};
+    for (int i = 0; i < 3; i++) {
+        acc.v[i] = (float)q[i] * PROTO_ACCEL_LSB;
+        gyro.v[i] = (float)q[3 + i] * PROTO_GYRO_LSB;
+    }
+    handle(s, &acc, NULL);
+    handle(s, &gyro, NULL);
+}
+
+/* Samples given as int8 differences, each from the one before. */
+static void imu_deltas(service_t *s, const uint8_t *d, int n_samples)
+{
+    for (int k = 0; k < n_samples; k++, d += PROTO_IMU_AXES) {
+        for (int i = 0; i < PROTO_IMU_AXES; i++) s->imu.last[i] = (int16_t)(s->imu.last[i] + (int8_t)d[i]);
+        imu_sample(s, s->imu.last);
+    }
+}
+
+static void on_imu_key(service_t *s, const uint8_t *m, int n)
+{
+    for (int i = 0; i < PROTO_IMU_AXES; i++) s->imu.last[i] = (int16_t)proto_get_u16(&m[2 + 2 * i]);
+    s->imu.valid = 1;
+    s->imu.next_seq = (uint8_t)(m[1] + 1);
+    imu_sample(s, s->imu.last);
+    imu_deltas(s, &m[14], (n - 14) / PROTO_IMU_AXES);
+}
+
+/* Bits [*bit, *bit + width) of `data`, LSB first, as a two's-complement number. */
+static int32_t take_bits(const uint8_t *data, uint32_t *bit, uint8_t width)
+{
+    uint32_t v = 0;
+    for (uint8_t k = 0; k < width; k++, (*bit)++) v |= (uint32_t)((data[*bit >> 3] >> (*bit & 7u)) & 1u) << k;
+    return (v & (1u << (width - 1))) ? (int32_t)v - (int32_t)(1u << width) : (int32_t)v;
+}
+
+/* Header of a packed delta message: widths of the six axes and the sample count. */
+static int delta_layout(const uint8_t *m, uint8_t width[PROTO_IMU_AXES], int *n_samples)
+{
+    const uint32_t h = (uint32_t)m[2] | ((uint32_t)m[3] << 8) | ((uint32_t)m[4] << 16);
+    int bits = 0;
+    for (int i = 0; i < PROTO_IMU_AXES; i++) {
+        width[i] = (uint8_t)(((h >> (3 * i)) & 7u) + 1u);
+        bits += width[i];
+    }
+    *n_samples = (int)((h >> 18) & 7u) + 1;
+    return PROTO_IMU_DELTA_HEADER + (*n_samples * bits + 7) / 8;
+}
+
+/* A delta message is only meaningful right after its predecessor: after a lost frame
+ * the stream waits for the next key message (the host sends one regularly). */
+static void on_imu_delta(service_t *s, const uint8_t *m, int n)
+{
+    uint8_t width[PROTO_IMU_AXES];
+    int n_samples;
+    if (delta_layout(m, width, &n_samples) != n) {
+        send_status(s, PROTO_STATUS_BAD_MESSAGE);
+        return;
+    }
+    if (!s->imu.valid || m[1] != s->imu.next_seq) {
+        s->imu.valid = 0;
+        s->imu.lost++;
+        return;
+    }
+    s->imu.next_seq++;
+    uint32_t bit = 0;
+    for (int k = 0; k < n_samples; k++) {
+        for (int i = 0; i < PROTO_IMU_AXES; i++)
+            s->imu.last[i] = (int16_t)(s->imu.last[i] + take_bits(&m[PROTO_IMU_DELTA_HEADER], &bit, width[i]));
+        imu_sample(s, s->imu.last);
     }
 }
 
@@ -103,8 +170,19 @@ static void on_tdoa(service_t *s, const uint8_t *m)
     handle(s, &ev, NULL);
 }
 
-static void on_step(service_t *s, const uint8_t *m)
+static void packed_tdoa(service_t *s, const uint8_t *item, int n_items)
 {
+    for (int k = 0; k < n_items; k++, item += PROTO_TDOA_ITEM) {
+        est_event_t ev = {.t_us = s->est.t_step_us + proto_get_u16(&item[0]), .kind = EST_EV_TDOA,
+                          .id_a = (uint8_t)(item[2] >> 4), .id_b = (uint8_t)(item[2] & 0x0Fu)};
+        ev.v[0] = (float)(int16_t)proto_get_u16(&item[3]) * PROTO_TDOA_LSB;
+        handle(s, &ev, NULL);
+    }
+}
+
+static void on_step(service_t *s, const uint8_t *m, int n)
+{
+    packed_tdoa(s, &m[5], (n - 5) / PROTO_TDOA_ITEM);
     est_event_t ev = {.t_us = proto_get_u32(&m[1]), .kind = EST_EV_STEP};
     est_output_t out;
     if (handle(s, &ev, &out) == EST_OUTPUT) {
@@ -153,10 +231,17 @@ static int8_t on_reset(service_t *s, const uint8_t *m)
     for (int i = 0; i < 4; i++) quat[i] = (float)(int16_t)proto_get_u16(&m[17 + 2 * i]) * PROTO_QUAT_LSB;
     est_reset(&s->est, proto_get_u32(&m[1]), pos, quat);
     s->window_cost = 0;
+    s->imu.valid = 0;   /* a new session starts with a key message */
     return 0;
 }
 
-/* Expected payload length of each host message (IMU: one or two samples). */
+static int whole(int n, int header, int item, int min_items, int max_items)
+{
+    const int body = n - header;
+    return body >= 0 && body % item == 0 && body / item >= min_items && body / item <= max_items;
+}
+
+/* Expected payload length of each host message. */
 static int length_ok(uint8_t type, int n)
 {
     switch (type) {
@@ -166,9 +251,11 @@ static int length_ok(uint8_t type, int n)
     case MSG_NET_CHUNK: return n > 3;
     case MSG_NET_COMMIT: return n == 3;
     case MSG_RESET: return n == 25;
-    case MSG_IMU: return n == 15 || n == 29;
+    case MSG_IMU: return whole(n, 14, PROTO_IMU_AXES, 0, PROTO_IMU_KEY_MAX_DELTAS);
+    case MSG_IMU_DELTA: return n > PROTO_IMU_DELTA_HEADER; /* exact length checked against its header */
     case MSG_TDOA: return n == 9;
-    case MSG_STEP: return n == 5;
+    case MSG_TDOA_PACK: return whole(n, 1, PROTO_TDOA_ITEM, 1, PROTO_TDOA_PACK_MAX);
+    case MSG_STEP: return whole(n, 5, PROTO_TDOA_ITEM, 0, PROTO_TDOA_PACK_MAX);
     default: return 0;
     }
 }
@@ -198,9 +285,11 @@ static void dispatch(service_t *s, const uint8_t *m, int n)
         break;
     }
     case MSG_RESET: send_ack(s, type, on_reset(s, m)); break;
-    case MSG_IMU: on_imu(s, m, n); break;
+    case MSG_IMU: on_imu_key(s, m, n); break;
+    case MSG_IMU_DELTA: on_imu_delta(s, m, n); break;
     case MSG_TDOA: on_tdoa(s, m); break;
-    case MSG_STEP: on_step(s, m); break;
+    case MSG_TDOA_PACK: packed_tdoa(s, &m[1], (n - 1) / PROTO_TDOA_ITEM); break;
+    case MSG_STEP: on_step(s, m, n); break;
     default: break;
     }
 }
@@ -230,4 +319,16 @@ void service_feed(service_t *s, const uint8_t *data, size_t n)
             send_status(s, PROTO_STATUS_BAD_FRAME);
         }
     }
+}
+
+void service_feed_packet(service_t *s, const uint8_t *payload, size_t n)
+{
+    if (n == 0 || n > PROTO_MAX_PAYLOAD) {
+        s->parser.frames_bad++;
+        s->frames_bad_reported = s->parser.frames_bad;
+        send_status(s, PROTO_STATUS_BAD_FRAME);
+        return;
+    }
+    s->parser.frames_ok++;
+    dispatch(s, payload, (int)n);
 }

@@ -2,9 +2,9 @@
  * interrupt-driven receive and transmit ring buffers, and the cost clock (DWT cycle
  * counter, or TIM2 where the DWT does not count, as in QEMU).
  *
- * There is deliberately no periodic interrupt (SysTick is left off): the host paces the
- * board with STEP messages, and a timer interrupt landing inside a measured call would
- * make the instruction counts depend on the host's timing. */
+ * SysTick keeps a 1 ms uptime. The host paces the estimator with STEP messages, so the
+ * tick drives nothing; its interrupt time, like the USART's, is taken out of the cost
+ * clock so that counts measured around estimator calls do not depend on the host's timing. */
 #include "board.h"
 
 #include "protocol.h"
@@ -31,6 +31,11 @@
 #define TIM2_PSC REG(0x40000028u)
 #define TIM2_ARR REG(0x4000002Cu)
 #define NVIC_ISER1 REG(0xE000E104u)
+#define SYST_CSR REG(0xE000E010u)
+#define SYST_RVR REG(0xE000E014u)
+#define SYST_CVR REG(0xE000E018u)
+#define SHPR3 REG(0xE000ED20u)
+#define TICK_PRIORITY 0xF0u
 #define DEMCR REG(0xE000EDFCu)
 #define DWT_CTRL REG(0xE0001000u)
 #define DWT_CYCCNT REG(0xE0001004u)
@@ -52,7 +57,8 @@ static struct {
     volatile uint32_t rx_head, rx_tail;   /* head: written by the IRQ; tail: by the main loop */
     volatile uint8_t tx[BOARD_TX_RING];
     volatile uint32_t tx_head, tx_tail;   /* head: main loop; tail: IRQ and kick */
-    volatile uint32_t isr_ticks;          /* time spent in the USART interrupt, not the estimator's */
+    volatile uint32_t isr_ticks;          /* time spent in interrupts, not the estimator's */
+    volatile uint32_t uptime_ms;          /* SysTick */
     uint8_t use_dwt;
 } board;
 
@@ -104,17 +110,47 @@ static void timers_init(void)
     TIM2_CR1 = 1u;
 }
 
+static uint32_t raw_clock(void)
+{
+    return board.use_dwt ? DWT_CYCCNT : TIM2_CNT;
+}
+
+/* 1 kHz tick from the core clock (CLKSOURCE = processor, TICKINT, ENABLE), at the lowest
+ * priority so that board_defer_tick can hold it off without holding off the USART. */
+static void systick_init(void)
+{
+    SHPR3 = (SHPR3 & 0x00FFFFFFu) | (TICK_PRIORITY << 24);
+    SYST_RVR = BOARD_CPU_HZ / 1000u - 1u;
+    SYST_CVR = 0;
+    SYST_CSR = 7u;
+}
+
+void systick_irq(void)
+{
+    const uint32_t start = raw_clock();
+    board.uptime_ms++;
+    board.isr_ticks += raw_clock() - start;
+}
+
+uint32_t board_uptime_ms(void)
+{
+    return board.uptime_ms;
+}
+
+void board_defer_tick(int defer)
+{
+    const uint32_t basepri = defer ? TICK_PRIORITY : 0u;
+    __asm volatile("msr basepri, %0" : : "r"(basepri) : "memory");
+}
+
 void board_init(void)
 {
     clock_init();
     usart_init();
     timers_init();
+    systick_init();
 }
 
-static uint32_t raw_clock(void)
-{
-    return board.use_dwt ? DWT_CYCCNT : TIM2_CNT;
-}
 
 /* Thread time: the counter minus the receive interrupt's own time, so a cost measured
  * around an estimator call does not depend on when the host's bytes happen to arrive. */

@@ -11,6 +11,10 @@
 #define BOARD_TX_RING 512u      /* power of two */
 
 void board_init(void);
+uint32_t board_uptime_ms(void);  /* SysTick */
+/* Hold the tick interrupt off (1) while the service works, so that it never lands inside
+ * a measured estimator call; a tick that falls due meanwhile runs on release (0). */
+void board_defer_tick(int defer);
 /* The cost clock: DWT cycles on hardware; TIM2 (one count per instruction under QEMU
  * -icount shift=0) where the DWT counter does not run. Time spent in the USART
  * interrupt is excluded (see board.c). */

@@ -17,6 +17,10 @@ int main(void)
      * byte by a host round trip, which halves the replay speed; a bench board has power. */
     for (;;) {
         const size_t n = board_read(buf, sizeof buf);
-        if (n) service_feed(&service, buf, n);
+        if (n) {
+            board_defer_tick(1);
+            service_feed(&service, buf, n);
+            board_defer_tick(0);
+        }
     }
 }

@@ -5,6 +5,7 @@
 extern uint32_t _stack_top, _data_load, _data_start, _data_end, _bss_start, _bss_end;
 int main(void);
 void usart1_irq(void);
+void systick_irq(void);
 
 #define SCB_CPACR (*(volatile uint32_t *)0xE000ED88u)
 
@@ -40,6 +41,6 @@ __attribute__((section(".isr_vector"), used)) const vector_t vector_table[16 + N
     [6] = default_handler,  /* UsageFault */
     [11] = default_handler, /* SVCall */
     [14] = default_handler, /* PendSV */
-    [15] = default_handler, /* SysTick: unused (see board.c) */
+    [15] = systick_irq,     /* 1 ms uptime (board.c) */
     [16 + 37] = usart1_irq,
 };
