@@ -1,1 +1,2 @@
-"""bridge: publishes a board's decoded stream on eclipse-zenoh (built in the rig-service issue)."""
+"""bridge: serves board links on eclipse-zenoh (bridge.zenoh_link) so that many boards on
+many hosts report to one rig; `bridge --help` (bridge.cli) runs one."""

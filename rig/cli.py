@@ -188,43 +188,80 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 # ----------------------------------------------------------------------------- replay
 
+def _board_link(target: str, session, board: str):
+    """The rig reaches boards only through a bridge: a remote one (zenoh:NAME) over the
+    session, or an in-process one tapping a local board's link onto the session."""
+    from bridge.zenoh_link import TapLink, ZenohLink
+    from rig import transport
+
+    if target.startswith("zenoh:"):
+        return ZenohLink(session, target[len("zenoh:"):]).open()
+    return TapLink(transport.open_target(target), session, board)
+
+
 def _replay(recording: Path, target: str, out: Path, *, use_nn: bool = True, robust: bool = True,
             model_path: Path | None = None, start: float | None = None, duration: float | None = None,
-            lookahead: int = 0) -> dict:
-    """Replay into one target and write OUT/metrics.json; returns the metrics."""
+            lookahead: int = 0, report: bool = True, session=None, board: str = "local") -> dict:
+    """Replay into one target through its bridge (on zenoh `session`, or a private one);
+    write OUT/run.mcap (as it goes, finished on every exit path), OUT/metrics.json (also
+    after a board failure, with the error) and the report."""
     import time
+
+    from bridge.zenoh_link import open_session
 
     from rig import replay, transport
     from rig.evaluate import estimator_config
     from rig.importer import load_any
+    from rig.runrecord import RUN_FILE, RunRecorder
 
     rec = load_any(recording)
     params, model = estimator_config(robust, use_nn, model_path)
     out.mkdir(parents=True, exist_ok=True)
+    recorder = RunRecorder(out / RUN_FILE)
+    info = {"recording": str(recording), "target": target, "bias_net": model is not None, "robust": robust,
+            "lookahead": lookahead}
+    began, run, error, own = time.monotonic(), None, None, session is None
     try:
-        link = transport.open_target(target)
+        session = session or open_session()
+        link = _board_link(target, session, board)
         try:
-            began = time.monotonic()
-            session = replay.run(link, rec, params, model, start=start, duration=duration, lookahead=lookahead,
-                                 progress=_progress(desc=f"replay {target}", total=None))
-            wall = time.monotonic() - began
+            run = replay.run(link, rec, params, model, start=start, duration=duration, lookahead=lookahead,
+                             progress=_progress(desc=f"replay {target}", total=None), recorder=recorder)
         finally:
             link.close()
+            info["bytes_sent"] = link.bytes_sent
     except transport.LinkError as exc:
-        raise CliError(str(exc)) from exc
-    result = replay.score(session, rec)
-    result.update({"recording": str(recording), "target": target, "bytes_sent": link.bytes_sent,
-                   "bias_net": model is not None, "robust": robust, "lookahead": lookahead,
-                   "wall_seconds": wall, "speed": len(session.estimates) * replay.BUDGET_SECONDS / wall})
+        error, run = str(exc), getattr(exc, "session", None)
+        recorder.status(run.t0 if run else 0.0, "rig", -1, error)
+    finally:
+        recorder.close()
+        if own and session is not None:
+            session.close()
+    wall = time.monotonic() - began
+    result = replay.score(run, rec) if run is not None and run.estimates else {"n_estimates": 0}
+    result.update(info)
+    info.setdefault("bytes_sent", 0)
+    result.update({"wall_seconds": wall, "speed": result["n_estimates"] * replay.BUDGET_SECONDS / wall,
+                   "run_record": str(out / RUN_FILE), "run_record_error": recorder.failed, "error": error})
     _write_json(out / "metrics.json", result)
+    if error is not None:
+        raise CliError(f"{error} (kept: {out / RUN_FILE}, {out / 'metrics.json'} with "
+                       f"{result['n_estimates']} estimates)")
     timing = result["timing"]
     print(f"{recording} -> {target}: {result['n_estimates']} estimates in {wall:.1f} s "
-          f"({result['speed']:.2f}x real time, {link.bytes_sent / max(1, len(session.estimates)):.0f} B a window)")
+          f"({result['speed']:.2f}x real time, {info['bytes_sent'] / max(1, result['n_estimates']):.0f} B a window)")
     _print_accuracy(result)
     print(f"timing ({timing['unit']}): window p50 {timing['window_p50']:.0f}, p99 {timing['window_p99']:.0f}, "
           f"max {timing['window_max']:.0f} = {timing['window_max_fraction_of_budget']:.1%} of the "
           f"{timing['budget']:.0f} budget; overruns {timing['overruns']}")
-    print(f"wrote {out / 'metrics.json'}")
+    if report:
+        from rig.report import write_report
+
+        print(f"wrote {out / 'metrics.json'}, {out / RUN_FILE} and {write_report(out)}")
+    else:
+        print(f"wrote {out / 'metrics.json'} and {out / RUN_FILE}")
+    if recorder.failed:
+        raise CliError(recorder.failed)
     return result
 
 
@@ -239,8 +276,15 @@ def _assertions(result: dict, max_rmse: float | None, max_budget: float | None) 
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
-    result = _replay(args.recording, args.target, args.out, use_nn=not args.no_nn, robust=not args.no_robust,
-                     model_path=args.model, start=args.start, duration=args.duration, lookahead=args.lookahead)
+    from bridge.zenoh_link import open_session
+
+    session = open_session(None, args.zenoh_listen, args.zenoh_connect)
+    try:
+        result = _replay(args.recording, args.target, args.out, use_nn=not args.no_nn, robust=not args.no_robust,
+                         model_path=args.model, start=args.start, duration=args.duration,
+                         lookahead=args.lookahead, session=session, board=args.board)
+    finally:
+        session.close()
     failed = _assertions(result, args.assert_rmse, args.assert_budget)
     for reason in failed:
         print(f"rig replay: assertion failed: {reason}", file=sys.stderr)
@@ -264,6 +308,107 @@ def cmd_size(args: argparse.Namespace) -> int:
     _write_json(args.json, result)
     within = est["flash"] <= budget["flash"] and est["ram"] <= budget["ram"]
     return EXIT_OK if within else EXIT_FAILED
+
+
+# ----------------------------------------------------------------------------- report
+
+def cmd_report(args: argparse.Namespace) -> int:
+    from rig.report import write_report
+
+    print(f"wrote {write_report(args.dir)}")
+    return EXIT_OK
+
+
+# ----------------------------------------------------------------------------- zenoh: router, watch
+
+def cmd_router(args: argparse.Namespace) -> int:
+    import threading
+
+    from bridge.zenoh_link import open_session, wait_interruptibly
+
+    session = open_session("router", args.listen, [])
+    print(f"router listening on {', '.join(args.listen)}", flush=True)
+    try:
+        wait_interruptibly(threading.Event(), args.duration)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        session.close()
+    return EXIT_OK
+
+
+def cmd_watch(args: argparse.Namespace) -> int:
+    from bridge.zenoh_link import EstimateCounter, open_session, wait_interruptibly
+
+    session = open_session(None, [], args.connect)
+    counter = EstimateCounter(session, args.board, args.count).start()
+    try:
+        print("watching", flush=True)
+        wait_interruptibly(counter.done, args.timeout)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        counter.stop()
+        session.close()
+    result = {"counts": counter.counts, "last": counter.last}
+    _write_json(args.json, result)
+    for board, n in sorted(counter.counts.items()):
+        print(f"{board}: {n} estimates")
+    return EXIT_OK if args.count is None or sum(counter.counts.values()) >= args.count else EXIT_FAILED
+
+
+# ----------------------------------------------------------------------------- farm
+
+def _farm_jobs(recordings: list[Path], targets: list[str]) -> list[tuple[Path, str]]:
+    if len(recordings) == 1 or len(targets) == 1:
+        return [(r, t) for r in recordings for t in targets]
+    if len(recordings) != len(targets):
+        raise CliError("give one recording, one target, or as many recordings as targets")
+    return list(zip(recordings, targets))
+
+
+def cmd_farm(args: argparse.Namespace) -> int:
+    """Many boards at once: one router session here, one bridge process per board, every
+    replay through zenoh in parallel; each job writes OUT/boardK/ (run.mcap, metrics.json,
+    report.html) and OUT/farm.json sums them up."""
+    import subprocess
+    from concurrent.futures import ThreadPoolExecutor
+
+    from bridge.zenoh_link import open_session
+    from rig.report import write_report
+
+    jobs = _farm_jobs(args.recordings, args.target or ["native"])
+    session = open_session("router", [args.listen], [])
+    bridges = [subprocess.Popen([sys.executable, "-m", "bridge", "--target", target, "--name", f"board{k}",
+                                 "--connect", args.listen], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+               for k, (_, target) in enumerate(jobs)]
+
+    def job(k: int) -> dict:
+        recording, target = jobs[k]
+        try:
+            result = _replay(recording, f"zenoh:board{k}", args.out / f"board{k}", use_nn=not args.no_nn,
+                             duration=args.duration, report=False, session=session, board=f"board{k}")
+        except Exception as exc:  # one board's failure must not take the others down
+            result = {"error": str(exc)}
+        return {**result, "board": f"board{k}", "recording": str(recording), "target": target,
+                "via": f"zenoh:board{k}"}
+
+    try:
+        with ThreadPoolExecutor(max_workers=len(jobs)) as pool:
+            results = list(pool.map(job, range(len(jobs))))
+    finally:
+        for proc in bridges:
+            proc.terminate()
+        for proc in bridges:
+            proc.wait(timeout=10)
+        session.close()
+    for k, r in enumerate(results):
+        if (args.out / f"board{k}" / "run.mcap").exists():
+            write_report(args.out / f"board{k}")
+        state = r.get("error") or f"RMSE {r['rmse_3d']:.3f} m, {r['n_estimates']} estimates"
+        print(f"board{k} ({r['target']}, {r['recording']}): {state}")
+    _write_json(args.out / "farm.json", {"jobs": results})
+    return EXIT_FAILED if any(r.get("error") for r in results) else EXIT_OK
 
 
 # ----------------------------------------------------------------------------- bench
@@ -415,6 +560,43 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--dataset-cache", type=Path, help="reuse (or write) the dataset here (.npz)")
     p.set_defaults(func=cmd_train)
 
+    p = sub.add_parser("farm", help="replay into many boards in parallel through zenoh (one bridge per board)",
+                       description="Open a zenoh router session here, start one `bridge` process per board "
+                                   "(connected to it), and replay every job through zenoh at once. Jobs: each "
+                                   "recording on each target when either list has one entry, else pairwise. "
+                                   "Writes OUT/boardK/{run.mcap,metrics.json,report.html} and OUT/farm.json.")
+    p.add_argument("recordings", type=Path, nargs="+")
+    p.add_argument("--target", action="append", help="repeatable: native, native-udp, qemu, serial:URL, ...")
+    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--duration", type=float, help="seconds of each recording to replay")
+    p.add_argument("--listen", default="tcp/127.0.0.1:7447", help="the router's endpoint (default %(default)s)")
+    p.add_argument("--no-nn", action="store_true", help="without the bias network")
+    p.set_defaults(func=cmd_farm)
+
+    p = sub.add_parser("router", help="a zenoh router (a Python session in router mode) for boards and rigs",
+                       description="Run a zenoh router on explicit endpoints (no multicast scouting) until "
+                                   "Ctrl-C: bridges, replays and watchers on other processes or hosts connect to it.")
+    p.add_argument("--listen", action="append", required=True, metavar="ENDPOINT", help="e.g. tcp/0.0.0.0:7447")
+    p.add_argument("--duration", type=float, help="stop after this many seconds (default: until Ctrl-C)")
+    p.set_defaults(func=cmd_router)
+
+    p = sub.add_parser("watch", help="subscribe to boards' estimates on zenoh and count them",
+                       description="Subscribe to rig/board/BOARD/estimate through a router and count what arrives; "
+                                   "exit when --count estimates arrived (exit 1 if they did not within --timeout).")
+    p.add_argument("--connect", action="append", required=True, metavar="ENDPOINT")
+    p.add_argument("--board", default="*", help="board name or * (default)")
+    p.add_argument("--count", type=int, help="stop after this many estimates")
+    p.add_argument("--timeout", type=float, default=600.0, help="give up after this many seconds")
+    p.add_argument("--json", type=Path, help="write the counts and the last estimate of each board")
+    p.set_defaults(func=cmd_watch)
+
+    p = sub.add_parser("report", help="write DIR/report.html from a replay's run.mcap and metrics.json",
+                       description="The trajectory against ground truth, the error over time, per-anchor "
+                                   "innovation statistics and the window-cost histogram against the budget, as "
+                                   "one self-contained HTML page (also written at the end of every replay).")
+    p.add_argument("dir", type=Path, help="a replay's output directory")
+    p.set_defaults(func=cmd_report)
+
     p = sub.add_parser("bench", help="per-call and per-window cost on native and QEMU against a baseline",
                        description="Replay a fixed segment in strict lock-step into the native program (ns) and "
                                    "the QEMU firmware (instructions, deterministic), print per-call and per-window "
@@ -441,11 +623,16 @@ def build_parser() -> argparse.ArgumentParser:
     _add_estimator_options(p)
     p.add_argument("--target", default="native",
                    help="native (program on a pty), native-udp (its UDP endpoint through cflib's udp:// driver), "
-                        "qemu, serial:URL (any pyserial URL) or crazyflie:URI (cflib radio://, usb://, udp://); "
-                        "default native")
+                        "qemu, serial:URL (any pyserial URL), crazyflie:URI (cflib radio://, usb://, udp://) or "
+                        "zenoh:NAME (a board served by a `bridge` process); default native")
     p.add_argument("--out", type=Path, required=True, help="output directory")
     p.add_argument("--start", type=float, help="start time on the recording's clock (default 1 s before take-off)")
     p.add_argument("--duration", type=float, help="seconds to replay (default: to the end)")
+    p.add_argument("--board", default="local", help="board name on zenoh for a local target (default local)")
+    p.add_argument("--zenoh-connect", action="append", default=[], metavar="ENDPOINT",
+                   help="zenoh endpoint (a router, e.g. tcp/127.0.0.1:7447) where boards and subscribers meet")
+    p.add_argument("--zenoh-listen", action="append", default=[], metavar="ENDPOINT",
+                   help="zenoh endpoint to listen on (subscribers connect here)")
     p.add_argument("--lookahead", type=int, default=0, metavar="N",
                    help="windows sent ahead of the awaited estimate (default 0: strict lock-step). Estimates "
                         "are identical; the link's idle time shrinks, but receive interrupts then land inside "

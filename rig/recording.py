@@ -217,14 +217,15 @@ class McapJsonWriter:
     even when the body raises, so whatever was recorded stays readable.
     """
 
-    def __init__(self, path: Path, *, compression: CompressionType = CompressionType.ZSTD):
+    def __init__(self, path: Path, *, compression: CompressionType = CompressionType.ZSTD,
+                 chunk_size: int = 4 * 1024 * 1024):
         self.path = Path(path)
         self._stream = open(self.path, "wb")
         # Per-message indexes would cost 16 uncompressed bytes a message (more than the
         # compressed message itself at 1 kHz); chunk indexes keep seeking by time cheap.
         self._writer = Writer(self._stream, compression=compression,
                               index_types=IndexType.CHUNK | IndexType.ATTACHMENT | IndexType.METADATA,
-                              chunk_size=4 * 1024 * 1024)
+                              chunk_size=chunk_size)
         self._writer.start(profile="", library=LIBRARY)
         self._schemas: dict[str, int] = {}
         self._channels: dict[str, int] = {}

@@ -96,6 +96,7 @@ class Session:
     counters: protocol.Counters | None = None
     statuses: list = field(default_factory=list)
     windows_sent: int = 0
+    recorder: object | None = None                  # a runrecord.RunRecorder, if recording
 
 
 def _expect(link: BoardLink, kind: type, what: str, timeout: float = REPLY_TIMEOUT_S, session: Session | None = None):
@@ -114,6 +115,9 @@ def _note(link: BoardLink, msg, session: Session | None) -> None:
     if isinstance(msg, protocol.Status):
         if session is not None:
             session.statuses.append(msg)
+            if session.recorder is not None:
+                session.recorder.status(session.t0, "board", msg.code, f"frames ok {msg.frames_ok}, bad "
+                                        f"{msg.frames_bad}, bytes dropped {msg.bytes_dropped}")
             if msg.code == protocol.STATUS_BOOT:
                 raise LinkError(f"{link.name}: the board reset during the replay (window {session.windows_sent})")
         if msg.code != protocol.STATUS_BOOT:
@@ -160,33 +164,51 @@ def configure(link: BoardLink, rec: Recording, params: native.EstimatorParams, m
 
 def run(link: BoardLink, rec: Recording, params: native.EstimatorParams, model: BiasNet | None = None,
         start: float | None = None, duration: float | None = None, progress=None,
-        lookahead: int = LOOKAHEAD) -> Session:
+        lookahead: int = LOOKAHEAD, recorder=None) -> Session:
     """Handshake, configure, reset at the start pose, then lock-step every window (with
-    `lookahead` further windows already on the wire; 0 is strict send-and-wait)."""
+    `lookahead` further windows already on the wire; 0 is strict send-and-wait). With a
+    `recorder` (runrecord.RunRecorder) every input and answer is recorded as it happens.
+    A LinkError carries the partial session as `.session`."""
     t0 = start_time(rec) if start is None else start
     t_end = None if duration is None else t0 + duration
-    hello = handshake(link)
-    configure(link, rec, params, model, hello)
-    pos, quat = truth_pose_at(rec, t0)
-    _acked(link, [protocol.reset(0, pos, quat)], "reset")
-    session = Session(t0, hello.unit, hello.timer_hz)
-    ws = windows(build_events(rec, t0, t_end))
-    imu = protocol.ImuStream()
-    sent = 0
+    session = Session(t0, recorder=recorder)
+    try:
+        hello = handshake(link)
+        session.unit, session.timer_hz = hello.unit, hello.timer_hz
+        configure(link, rec, params, model, hello)
+        pos, quat = truth_pose_at(rec, t0)
+        _acked(link, [protocol.reset(0, pos, quat)], "reset")
+        ws = windows(build_events(rec, t0, t_end))
+        if recorder is not None:
+            recorder.start(rec, t0, t_end if t_end is not None else t0 + len(ws) * BUDGET_SECONDS,
+                           {"target": link.name, "start": t0, "windows": len(ws), "unit": hello.unit})
+        _lock_step(link, ws, session, lookahead, progress)
+    except LinkError as exc:
+        exc.session = session
+        raise
+    return session
+
+
+def _lock_step(link: BoardLink, ws: list[Window], session: Session, lookahead: int, progress) -> None:
+    imu, sent, limit = protocol.ImuStream(), 0, budget(session.unit, session.timer_hz)
     for k in progress(range(len(ws))) if progress else range(len(ws)):
         # Keep `lookahead` windows in flight: the board still answers them strictly in
         # order (results are those of strict lock-step), but its slow receive overlaps
         # with the host's encoding and the previous answer.
         while sent < len(ws) and sent <= k + lookahead:
             link.send(window_messages(ws[sent], imu))
+            if session.recorder is not None:
+                session.recorder.inputs(session.t0, ws[sent - 1].t_us if sent else 0, ws[sent].imu, ws[sent].tdoa)
             sent += 1
         session.windows_sent = sent
         est = _expect(link, protocol.Estimate, f"window at {ws[k].t_us} us", session=session)
         att = _expect(link, protocol.Attitude, "attitude", session=session)
         session.counters = _expect(link, protocol.Counters, "counters", session=session)
-        session.timing.append(_expect(link, protocol.Timing, "timing", session=session))
+        timing = _expect(link, protocol.Timing, "timing", session=session)
+        session.timing.append(timing)
         session.estimates.append((est.t_us, est.pos, est.vel, att.quat, att.cov_diag))
-    return session
+        if session.recorder is not None:
+            session.recorder.answer(session.t0, est, att, session.counters, timing, session.unit, limit)
 
 
 def budget(unit: str, timer_hz: int) -> float:

@@ -72,9 +72,17 @@ class BoardLink:
     def send(self, payloads: list[bytes]) -> None:
         raise NotImplementedError
 
+    def receive_payloads(self, timeout: float) -> list[bytes]:
+        """Verified payloads that arrive within `timeout` (at least one, or an empty list)."""
+        raise NotImplementedError
+
     def receive(self, timeout: float) -> list:
         """Decoded messages that arrive within `timeout` (at least one, or an empty list)."""
-        raise NotImplementedError
+        deadline = time.monotonic() + timeout
+        while True:
+            messages = self._decode(self.receive_payloads(max(0.0, deadline - time.monotonic())))
+            if messages or time.monotonic() >= deadline:
+                return messages
 
     def _close_channel(self) -> None:
         raise NotImplementedError
@@ -132,7 +140,7 @@ class Link(BoardLink):
             raise LinkError(f"{self.name}: write failed: {exc}") from exc
         self.bytes_sent += len(data)
 
-    def receive(self, timeout: float) -> list:
+    def receive_payloads(self, timeout: float) -> list[bytes]:
         deadline = time.monotonic() + timeout
         while True:
             self._check_alive()
@@ -140,12 +148,9 @@ class Link(BoardLink):
                 chunk = self.port.read(max(1, self.port.in_waiting))
             except (serial.SerialException, OSError) as exc:
                 raise LinkError(f"{self.name}: read failed (board gone?): {exc}") from exc
-            if chunk:
-                messages = self._decode(self.parser.feed(chunk))
-                if messages:
-                    return messages
-            if time.monotonic() > deadline:
-                return []
+            payloads = self.parser.feed(chunk) if chunk else []
+            if payloads or time.monotonic() > deadline:
+                return payloads
 
     def _close_channel(self) -> None:
         self.port.close()
@@ -177,16 +182,14 @@ class CrtpLink(BoardLink):
             self.driver.send_packet(packet)
             self.bytes_sent += len(payload) + 1
 
-    def receive(self, timeout: float) -> list:
+    def receive_payloads(self, timeout: float) -> list[bytes]:
         deadline = time.monotonic() + timeout
         while True:
             self._check_alive()
             self._raise_link_error()
             packet = self.driver.receive_packet(max(0.001, min(0.05, deadline - time.monotonic())))
             if packet is not None and packet.port == CRTP_APP_PORT and packet.channel == CRTP_APP_CHANNEL:
-                messages = self._decode([bytes(packet.data)])
-                if messages:
-                    return messages
+                return [bytes(packet.data)]
             if time.monotonic() > deadline:
                 return []
 

@@ -1,0 +1,130 @@
+"""The rig as a service, with real components: zenoh sessions on loopback (a router
+process, bridge processes, watcher processes), the QEMU firmware, real MCAP run records
+read back, and failures (a bridge killed mid-run, a watcher that vanishes, a full disk,
+Ctrl-C)."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from mcap.reader import make_reader
+
+from rig.runrecord import read_run
+
+from conftest import ROOT, RIG, run_rig
+
+
+def _free_endpoint() -> str:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return f"tcp/127.0.0.1:{s.getsockname()[1]}"
+
+
+def _start(*args: str) -> subprocess.Popen:
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    return subprocess.Popen(list(args), cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _topics(path: Path) -> dict[str, int]:
+    return {topic: len(rows) for topic, rows in read_run(path).items()}
+
+
+def _finished(path: Path) -> bool:
+    with open(path, "rb") as f:
+        return make_reader(f).get_summary() is not None
+
+
+def test_held_out_flight_into_qemu_is_recorded_and_published_to_another_process(tmp_path: Path, data_dir) -> None:
+    endpoint = _free_endpoint()
+    router = _start(*RIG, "router", "--listen", endpoint, "--duration", "300")
+    try:
+        time.sleep(1.0)
+        watcher = _start(*RIG, "watch", "--connect", endpoint, "--board", "qemu0", "--count", "1000",
+                         "--timeout", "240", "--json", str(tmp_path / "watch.json"))
+        vanishing = _start(*RIG, "watch", "--connect", endpoint, "--timeout", "240")
+        time.sleep(2.0)
+        vanishing.kill()                       # a subscriber that vanishes must not disturb the run
+        out = tmp_path / "run"
+        proc = run_rig("replay", str(data_dir / "flights" / "0426-traj2"), "--target", "qemu", "--board", "qemu0",
+                       "--zenoh-connect", endpoint, "--start", "20", "--duration", "12", "--out", str(out))
+        assert proc.returncode == 0, proc.stderr
+        assert watcher.wait(timeout=60) == 0, watcher.stderr.read()
+    finally:
+        router.terminate()
+        router.wait(timeout=10)
+    metrics = json.loads((out / "metrics.json").read_text())
+    n = metrics["n_estimates"]
+    assert 1199 <= n <= 1200 and metrics["timing"]["unit"] == "instructions"   # 12 s at 100 Hz
+    assert _finished(out / "run.mcap")
+    counts = _topics(out / "run.mcap")
+    assert counts["/run/estimate"] == counts["/run/timing"] == n
+    assert counts["/run/input/imu"] > 9000 and counts["/run/input/tdoa"] > 2000 and counts["/run/truth"] > 1000
+    assert (out / "report.html").stat().st_size > 20_000
+    assert json.loads((tmp_path / "watch.json").read_text())["counts"]["qemu0"] >= 1000
+
+
+def test_four_boards_in_parallel_through_one_router(tmp_path: Path) -> None:
+    out = tmp_path / "farm"
+    proc = run_rig("farm", "recordings/default.mcap", *["--target", "native"] * 4, "--duration", "12",
+                   "--listen", _free_endpoint(), "--out", str(out))
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    jobs = json.loads((out / "farm.json").read_text())["jobs"]
+    assert len(jobs) == 4 and all(j["error"] is None and 1199 <= j["n_estimates"] <= 1200 for j in jobs)
+    for k in range(4):
+        assert _finished(out / f"board{k}" / "run.mcap")
+        assert _topics(out / f"board{k}" / "run.mcap")["/run/estimate"] == jobs[k]["n_estimates"]
+        assert (out / f"board{k}" / "report.html").exists()
+    assert len({j["rmse_3d"] for j in jobs}) == 1            # the same answers on every board
+
+
+def test_a_board_lost_mid_run_keeps_the_record_and_says_so(tmp_path: Path) -> None:
+    endpoint = _free_endpoint()
+    router = _start(*RIG, "router", "--listen", endpoint, "--duration", "120")
+    time.sleep(1.0)
+    bridge = _start(sys.executable, "-m", "bridge", "--target", "native", "--name", "b0", "--connect", endpoint)
+    try:
+        out = tmp_path / "run"
+        replay = _start(*RIG, "replay", "recordings/default.mcap", "--target", "zenoh:b0", "--zenoh-connect",
+                        endpoint, "--out", str(out))
+        time.sleep(8.0)                                       # handshake done, windows flowing
+        bridge.kill()                                         # the board and its bridge vanish
+        assert replay.wait(timeout=60) == 2                   # a clear error, not a crash
+        stderr = replay.stderr.read()
+        assert "went away" in stderr or "stopped answering" in stderr
+    finally:
+        router.terminate()
+        router.wait(timeout=10)
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["error"] and metrics["n_estimates"] > 0
+    assert _finished(out / "run.mcap")
+    rows = read_run(out / "run.mcap")
+    assert len(rows["/run/estimate"]) == metrics["n_estimates"]
+    assert rows["/run/status"][-1]["source"] == "rig"
+
+
+def test_ctrl_c_finishes_the_run_record(tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    replay = _start(*RIG, "replay", "recordings/default.mcap", "--target", "qemu", "--out", str(out))
+    time.sleep(6.0)
+    replay.send_signal(signal.SIGINT)
+    replay.wait(timeout=30)
+    assert _finished(out / "run.mcap")
+    assert len(read_run(out / "run.mcap").get("/run/estimate", [])) > 0
+
+
+def test_a_full_disk_is_reported_and_the_replay_still_scores(tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "run.mcap").symlink_to("/dev/full")               # every write: ENOSPC
+    proc = run_rig("replay", "recordings/default.mcap", "--target", "native", "--duration", "12", "--out", str(out))
+    assert proc.returncode == 2
+    assert "No space left on device" in proc.stderr
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["n_estimates"] >= 1199 and "No space left" in metrics["run_record_error"]
