@@ -112,9 +112,12 @@ def test_a_board_lost_mid_run_keeps_the_record_and_says_so(tmp_path: Path) -> No
 def test_ctrl_c_finishes_the_run_record(tmp_path: Path) -> None:
     out = tmp_path / "run"
     replay = _start(*RIG, "replay", "recordings/default.mcap", "--target", "qemu", "--out", str(out))
-    time.sleep(6.0)
+    deadline = time.monotonic() + 120
+    record = out / "run.mcap"
+    while time.monotonic() < deadline and (not record.exists() or record.stat().st_size < 300_000):
+        time.sleep(0.2)                                       # until windows are flowing (chunks on disk)
     replay.send_signal(signal.SIGINT)
-    replay.wait(timeout=30)
+    assert replay.wait(timeout=60) == 130
     assert _finished(out / "run.mcap")
     assert len(read_run(out / "run.mcap").get("/run/estimate", [])) > 0
 
