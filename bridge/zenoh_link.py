@@ -84,6 +84,21 @@ def message_json(msg) -> bytes:
     return json.dumps(dataclasses.asdict(msg)).encode()
 
 
+def declare_board_publishers(session: zenoh.Session, board: str) -> dict:
+    """The publishers of what a board says (raw and per kind); BLOCK: never dropped."""
+    block = zenoh.CongestionControl.BLOCK
+    return {leaf: session.declare_publisher(key(board, leaf), congestion_control=block)
+            for leaf in ["rx", *KINDS.values()]}
+
+
+def wait_interruptibly(stop: threading.Event, timeout: float | None = None) -> None:
+    """Wait for `stop` (or `timeout`) in short slices, so Ctrl-C is honoured."""
+    deadline = None if timeout is None else time.monotonic() + timeout
+    while not stop.wait(0.2):
+        if deadline is not None and time.monotonic() > deadline:
+            return
+
+
 @dataclass
 class Bridge:
     """Owns one board link and serves it on a zenoh session until stopped."""
@@ -99,9 +114,7 @@ class Bridge:
     _publishers: dict = field(default_factory=dict)
 
     def start(self) -> "Bridge":
-        block = zenoh.CongestionControl.BLOCK
-        self._publishers = {leaf: self.session.declare_publisher(key(self.name, leaf), congestion_control=block)
-                            for leaf in ["rx", *KINDS.values()]}
+        self._publishers = declare_board_publishers(self.session, self.name)
         self._entities = [self.session.declare_subscriber(key(self.name, "tx"), self._on_tx),
                           self.session.liveliness().declare_token(key(self.name, "alive"))]
         self._thread = threading.Thread(target=self._pump, name=f"bridge {self.name}", daemon=True)
@@ -134,13 +147,9 @@ class Bridge:
             self._publishers["status"].put(json.dumps({**dataclasses.asdict(status), "error": reason}).encode())
             self._stop.set()
 
-    def wait(self, timeout: float | None = None) -> bool:
-        """Block (Ctrl-C-friendly) until stopped; True when stopped."""
-        deadline = None if timeout is None else time.monotonic() + timeout
-        while not self._stop.wait(0.2):
-            if deadline is not None and time.monotonic() > deadline:
-                return False
-        return True
+    def wait(self) -> None:
+        """Block (Ctrl-C-friendly) until stopped."""
+        wait_interruptibly(self._stop)
 
     def stop(self) -> None:
         self._stop.set()
@@ -170,9 +179,7 @@ class TapLink(BoardLink):
 
     def __post_init__(self) -> None:
         self.name = self.name or f"{self.link.name} (zenoh {self.board})"
-        block = zenoh.CongestionControl.BLOCK
-        self._publishers = {leaf: self.session.declare_publisher(key(self.board, leaf), congestion_control=block)
-                            for leaf in ["rx", *KINDS.values()]}
+        self._publishers = declare_board_publishers(self.session, self.board)
         self._token = self.session.liveliness().declare_token(key(self.board, "alive"))
 
     def send(self, payloads: list[bytes]) -> None:
@@ -263,14 +270,6 @@ class ZenohLink(BoardLink):
         for entity in self._entities + ([self._tx] if self._tx is not None else []):
             entity.undeclare()
         self._entities, self._tx = [], None
-
-
-def wait_interruptibly(stop: threading.Event, timeout: float | None = None) -> None:
-    """Wait for `stop` (or `timeout`) in short slices, so Ctrl-C is honoured."""
-    deadline = None if timeout is None else time.monotonic() + timeout
-    while not stop.wait(0.2):
-        if deadline is not None and time.monotonic() > deadline:
-            return
 
 
 @dataclass

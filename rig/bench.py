@@ -3,7 +3,7 @@
 `rig bench` replays a fixed segment of a recording in strict lock-step into the native
 program (nanoseconds) and the QEMU firmware (instructions, deterministic under
 -icount), collects the figures of `replay.timing_summary` and compares each with
-benchmarks/baseline.json: a figure that grew by more than its unit's threshold is a
+benchmarks/baseline.json (paths.BENCH_BASELINE): a figure that grew by more than its unit's threshold is a
 regression. Instruction counts repeat exactly, so their threshold is tight;
 nanoseconds depend on the machine and its load, so theirs is loose.
 """
@@ -21,11 +21,9 @@ from rig.recording import Recording
 
 log = logging.getLogger(__name__)
 
-BASELINE = Path(__file__).resolve().parent.parent / "benchmarks" / "baseline.json"
 THRESHOLDS = {"instructions": 0.05, "cycles": 0.05, "ns": 0.50}
 # Wall-clock extremes are one preemption away from anything: printed, never compared.
 UNCOMPARED = {"ns": {"window_p99", "window_max", "tdoa_update_max"}}
-TARGETS = ("native", "qemu")
 
 
 @dataclass

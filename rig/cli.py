@@ -239,8 +239,8 @@ def _replay(recording: Path, target: str, out: Path, *, use_nn: bool = True, rob
             session.close()
     wall = time.monotonic() - began
     result = replay.score(run, rec) if run is not None and run.estimates else {"n_estimates": 0}
+    info.setdefault("bytes_sent", 0)       # the link never opened
     result.update(info)
-    info.setdefault("bytes_sent", 0)
     result.update({"wall_seconds": wall, "speed": result["n_estimates"] * replay.BUDGET_SECONDS / wall,
                    "run_record": str(out / RUN_FILE), "run_record_error": recorder.failed, "error": error})
     _write_json(out / "metrics.json", result)
@@ -416,6 +416,7 @@ def cmd_farm(args: argparse.Namespace) -> int:
 def cmd_bench(args: argparse.Namespace) -> int:
     from rig import bench
     from rig.importer import load_any
+    from rig.transport import LinkError
 
     rec = load_any(args.recording)
     baseline = None if args.update_baseline else bench.load_baseline(args.baseline)
@@ -425,7 +426,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
     for target in args.targets.split(","):
         try:
             current.append(bench.measure(target, rec, start, duration, binaries.get(target)))
-        except transport_error() as exc:
+        except LinkError as exc:
             raise CliError(str(exc)) from exc
     document = bench.baseline_document(current, str(args.recording), start, duration)
     if baseline is None:
@@ -450,12 +451,6 @@ def cmd_bench(args: argparse.Namespace) -> int:
         print(f"rig bench: {r['target']} {r['figure']} regressed by {r['ratio'] - 1:.1%} "
               f"(threshold {r['threshold']:.0%})", file=sys.stderr)
     return EXIT_FAILED if regressed else EXIT_OK
-
-
-def transport_error() -> type[Exception]:
-    from rig.transport import LinkError
-
-    return LinkError
 
 
 # ----------------------------------------------------------------------------- demo (main job)
@@ -605,7 +600,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("recording", type=Path, nargs="?", default=paths.default_recording(),
                    help="recording (default: the shipped default recording)")
     p.add_argument("--targets", default="native,qemu", help="comma-separated: native, qemu (default both)")
-    p.add_argument("--baseline", type=Path, default=Path("benchmarks/baseline.json"), help="baseline file")
+    p.add_argument("--baseline", type=Path, default=paths.BENCH_BASELINE, help="baseline file (default: the "
+                   "committed benchmarks/baseline.json)")
     p.add_argument("--update-baseline", action="store_true", help="measure and write the baseline instead")
     p.add_argument("--start", type=float, help="segment start when writing a baseline (default: take-off)")
     p.add_argument("--duration", type=float, default=20.0, help="segment length when writing a baseline")

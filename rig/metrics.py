@@ -51,8 +51,13 @@ def flight_window(truth: PoseSeries, rule: SegmentRule) -> tuple[float, float]:
     return float(start), float(landing)
 
 
+def interpolate(t: np.ndarray, ts: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Each column of `values` (sampled at `ts`) linearly interpolated at `t`."""
+    return np.column_stack([np.interp(t, ts, values[:, i]) for i in range(values.shape[1])])
+
+
 def interpolate_positions(truth: PoseSeries, t: np.ndarray) -> np.ndarray:
-    return np.column_stack([np.interp(t, truth.t, truth.position[:, i]) for i in range(3)])
+    return interpolate(t, truth.t, truth.position)
 
 
 @dataclass

@@ -12,6 +12,7 @@ from pathlib import Path
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_DATA_DIR = PROJECT_ROOT.parent / "shared" / "data" / "util"
 RECORDINGS_DIR = PROJECT_ROOT / "recordings"
+BENCH_BASELINE = PROJECT_ROOT / "benchmarks" / "baseline.json"   # rig bench's committed figures
 DEFAULT_SURVEY_NAME = "anchor_0425.txt"
 
 

@@ -196,9 +196,8 @@ class ImuStream:
                 msgs.append(struct.pack("<BB6h", IMU, self.seq, *counts[i].tolist()) + deltas.astype(np.int8).tobytes())
                 self.since_key = 0
             else:
-                deltas = np.diff(np.vstack([self.last, counts[i:]]), axis=0)
-                n, payload = _packed_deltas(deltas[:_run_of_small_deltas(np.vstack([self.last, counts[i:]]),
-                                                                          IMU_DELTA_MAX)])
+                chain = np.vstack([self.last, counts[i:]])
+                n, payload = _packed_deltas(np.diff(chain, axis=0)[:_run_of_small_deltas(chain, IMU_DELTA_MAX)])
                 msgs.append(bytes([IMU_DELTA, self.seq]) + payload)
                 self.since_key += 1
             self.seq = (self.seq + 1) & 0xFF
@@ -317,9 +316,9 @@ class BoardView:
         width = [(layout >> (3 * i) & 7) + 1 for i in range(IMU_AXES)]
         bits, pos, samples = int.from_bytes(payload[IMU_DELTA_HEADER:], "little"), 0, []
         for _ in range((layout >> 18 & 7) + 1):
+            self.last = self.last.copy()        # each sample its own array
             for i, w in enumerate(width):
                 v = bits >> pos & ((1 << w) - 1)
-                self.last = self.last.copy()
                 self.last[i] += v - (1 << w) if v >> (w - 1) else v
                 pos += w
             samples.append(self.last)

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from rig.metrics import interpolate
 from rig.recording import TOPIC_ANCHORS
 from rig.runrecord import RUN_FILE, TOPIC_ESTIMATE, TOPIC_TDOA, TOPIC_TIMING, TOPIC_TRUTH, read_run
 
@@ -27,10 +28,6 @@ REPORT_FILE = "report.html"
 
 def _xyz(rows: list[dict], key: str) -> np.ndarray:
     return np.array([[r[key]["x"], r[key]["y"], r[key]["z"]] for r in rows], float).reshape(-1, 3)
-
-
-def _interp(t: np.ndarray, ts: np.ndarray, values: np.ndarray) -> np.ndarray:
-    return np.column_stack([np.interp(t, ts, values[:, i]) for i in range(values.shape[1])])
 
 
 def innovation_stats(messages: dict) -> list[dict]:
@@ -46,7 +43,7 @@ def innovation_stats(messages: dict) -> list[dict]:
             and t_est[0] <= r["t"] <= t_est[-1]]
     if not rows:
         return []
-    p = _interp(np.array([r["t"] for r in rows]), t_est, _xyz(est, "position"))
+    p = interpolate(np.array([r["t"] for r in rows]), t_est, _xyz(est, "position"))
     a = np.array([where[r["id_a"]] for r in rows])
     b = np.array([where[r["id_b"]] for r in rows])
     predicted = np.linalg.norm(p - b, axis=1) - np.linalg.norm(p - a, axis=1)
@@ -94,7 +91,7 @@ def _plots(messages: dict, stats: list[dict]) -> dict[str, str]:
         images["trajectory"] = _png(fig)
         plt.close(fig)
         if truth:
-            err = np.linalg.norm(p_est - _interp(t_est, t_truth, p_truth), axis=1)
+            err = np.linalg.norm(p_est - interpolate(t_est, t_truth, p_truth), axis=1)
             fig, ax = plt.subplots(figsize=(12, 3))
             ax.plot(t_est - t_est[0], err, lw=0.8)
             ax.set(xlabel="time [s]", ylabel="3D error [m]", title="position error over time")
