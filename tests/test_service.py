@@ -28,8 +28,12 @@ def _free_endpoint() -> str:
 
 
 def _start(*args: str) -> subprocess.Popen:
+    """A child as from a terminal: SIGINT at its default disposition (a runner that started
+    the tests in the background may have left it ignored, and a program started with
+    SIGINT ignored rightly keeps ignoring it)."""
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    return subprocess.Popen(list(args), cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    return subprocess.Popen(list(args), cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
 
 
 def _topics(path: Path) -> dict[str, int]:
@@ -115,7 +119,8 @@ def test_ctrl_c_finishes_the_run_record(tmp_path: Path) -> None:
     deadline = time.monotonic() + 120
     record = out / "run.mcap"
     while time.monotonic() < deadline and (not record.exists() or record.stat().st_size < 30_000):
-        time.sleep(0.2)                                       # until windows are flowing (chunks on disk)
+        time.sleep(0.2)                                       # anchors and ground truth are on disk
+    time.sleep(3.0)                                           # windows are flowing
     replay.send_signal(signal.SIGINT)
     assert replay.wait(timeout=60) == 130
     assert _finished(out / "run.mcap")
