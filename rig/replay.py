@@ -1,10 +1,16 @@
-"""Lock-step replay of a recording into a board over the wire protocol.
+"""Replay of a recording into a board over the wire protocol, in lock-step or in real time.
 
 The recording is cut into 10 ms windows exactly as `rig evaluate` does (same start,
 same initial pose, same events). Each window goes out as delta-coded IMU messages
 (accelerometer and gyroscope samples paired), packed TDOA items and a STEP; the host
 then waits for the board's estimate, attitude, counters and timing before sending the
 next window, so results do not depend on link speed.
+
+Real-time mode sends each window when the recording's clock (scaled by `speed`) says
+it is due, whatever the board is doing, and matches answers to windows as they come:
+it measures the input-to-estimate latency and finds late windows (the estimate came
+after the next window was due), missed windows (no estimate at all) and overruns, the
+timing problems lock-step hides.
 
 `wire_events` rebuilds the event stream exactly as the board decodes it (quantised
 IMU and TDOA, paired samples), so the in-process library can be compared with any
@@ -97,6 +103,33 @@ class Session:
     statuses: list = field(default_factory=list)
     windows_sent: int = 0
     recorder: object | None = None                  # a runrecord.RunRecorder, if recording
+    realtime: RealTime | None = None                # real-time mode only
+
+
+@dataclass
+class RealTime:
+    """Real-time mode bookkeeping: when each window went out, how long its answer took."""
+
+    speed: float
+    sent_at: dict = field(default_factory=dict)     # window t_us -> monotonic time its last byte was sent
+    latency: dict = field(default_factory=dict)     # window t_us -> seconds to its estimate
+    send_lag_max: float = 0.0                       # how far the host itself fell behind the schedule
+
+    @property
+    def period(self) -> float:
+        return BUDGET_SECONDS / self.speed
+
+    def summary(self) -> dict:
+        lat = np.array(list(self.latency.values()), float) * 1e3
+        missed = sorted(t for t in self.sent_at if t not in self.latency)
+        return {
+            "speed": self.speed, "deadline_ms": self.period * 1e3, "windows_sent": len(self.sent_at),
+            "latency_ms": ({"p50": float(np.percentile(lat, 50)), "p99": float(np.percentile(lat, 99)),
+                            "max": float(lat.max())} if len(lat) else None),
+            "late_windows": int((lat > self.period * 1e3).sum()),
+            "missed_windows": len(missed), "first_missed_t_us": missed[:10],
+            "host_send_lag_max_ms": self.send_lag_max * 1e3,
+        }
 
 
 def _expect(link: BoardLink, kind: type, what: str, timeout: float = REPLY_TIMEOUT_S, session: Session | None = None):
@@ -164,9 +197,10 @@ def configure(link: BoardLink, rec: Recording, params: native.EstimatorParams, m
 
 def run(link: BoardLink, rec: Recording, params: native.EstimatorParams, model: BiasNet | None = None,
         start: float | None = None, duration: float | None = None, progress=None,
-        lookahead: int = LOOKAHEAD, recorder=None) -> Session:
+        lookahead: int = LOOKAHEAD, recorder=None, speed: float | None = None) -> Session:
     """Handshake, configure, reset at the start pose, then lock-step every window (with
-    `lookahead` further windows already on the wire; 0 is strict send-and-wait). With a
+    `lookahead` further windows already on the wire; 0 is strict send-and-wait), or, with
+    a `speed`, send them in real time at that multiple of the recording's clock. With a
     `recorder` (runrecord.RunRecorder) every input and answer is recorded as it happens.
     A LinkError carries the partial session as `.session`."""
     t0 = start_time(rec) if start is None else start
@@ -182,7 +216,11 @@ def run(link: BoardLink, rec: Recording, params: native.EstimatorParams, model: 
         if recorder is not None:
             recorder.start(rec, t0, t_end if t_end is not None else t0 + len(ws) * BUDGET_SECONDS,
                            {"target": link.name, "start": t0, "windows": len(ws), "unit": hello.unit})
-        _lock_step(link, ws, session, lookahead, progress)
+        if speed is None:
+            _lock_step(link, ws, session, lookahead, progress)
+        else:
+            session.realtime = RealTime(speed)
+            _real_time(link, ws, session, progress)
     except LinkError as exc:
         exc.session = session
         raise
@@ -209,6 +247,64 @@ def _lock_step(link: BoardLink, ws: list[Window], session: Session, lookahead: i
         session.estimates.append((est.t_us, est.pos, est.vel, att.quat, att.cov_diag))
         if session.recorder is not None:
             session.recorder.answer(session.t0, est, att, session.counters, timing, session.unit, limit)
+
+
+def _real_time(link: BoardLink, ws: list[Window], session: Session, progress) -> None:
+    """Send window k at start + k * period whatever the board does; take answers as
+    they come; after the last window wait for the stragglers."""
+    rt, imu, collector = session.realtime, protocol.ImuStream(), _AnswerCollector(link, session)
+    begin = time.monotonic()
+    for k in progress(range(len(ws))) if progress else range(len(ws)):
+        due = begin + k * rt.period
+        while (now := time.monotonic()) < due:
+            collector.take(link.next_message(due - now))
+        rt.send_lag_max = max(rt.send_lag_max, now - due)
+        link.send(window_messages(ws[k], imu))
+        rt.sent_at[ws[k].t_us] = time.monotonic()
+        session.windows_sent = k + 1
+        if session.recorder is not None:
+            session.recorder.inputs(session.t0, ws[k - 1].t_us if k else 0, ws[k].imu, ws[k].tdoa)
+    last = time.monotonic()
+    while len(rt.latency) < len(rt.sent_at) and time.monotonic() - last < REPLY_TIMEOUT_S:
+        msg = link.next_message(0.1)
+        if msg is not None:
+            collector.take(msg)
+            last = time.monotonic()
+
+
+class _AnswerCollector:
+    """Assembles a window's answer (estimate, attitude, counters, timing, in that order)
+    from messages taken one at a time, and stamps its latency."""
+
+    def __init__(self, link: BoardLink, session: Session) -> None:
+        self.link, self.session, self.estimate, self.arrived, self.parts = link, session, None, 0.0, {}
+
+    def take(self, msg) -> None:
+        if msg is None:
+            return
+        if isinstance(msg, protocol.Estimate):
+            self.estimate, self.arrived, self.parts = msg, time.monotonic(), {}
+        elif isinstance(msg, (protocol.Attitude, protocol.Counters)) and self.estimate is not None:
+            self.parts[type(msg)] = msg
+        elif isinstance(msg, protocol.Timing) and self.estimate is not None:
+            self._complete(msg)
+        else:
+            _note(self.link, msg, self.session)
+
+    def _complete(self, timing: protocol.Timing) -> None:
+        s, est, rt = self.session, self.estimate, self.session.realtime
+        att, counters = self.parts.get(protocol.Attitude), self.parts.get(protocol.Counters)
+        self.estimate = None
+        if att is None or counters is None or est.t_us not in rt.sent_at:
+            log.warning("incomplete or unknown answer for window %d us dropped", est.t_us)
+            return
+        latency = self.arrived - rt.sent_at[est.t_us]
+        rt.latency[est.t_us] = latency
+        s.counters = counters
+        s.timing.append(timing)
+        s.estimates.append((est.t_us, est.pos, est.vel, att.quat, att.cov_diag))
+        if s.recorder is not None:
+            s.recorder.answer(s.t0, est, att, counters, timing, s.unit, budget(s.unit, s.timer_hz), latency)
 
 
 def budget(unit: str, timer_hz: int) -> float:
@@ -249,6 +345,8 @@ def score(session: Session, rec: Recording) -> dict:
     result = metrics.score(t, pos, rec.truth)
     result["n_estimates"] = len(session.estimates)
     result["timing"] = timing_summary(session)
+    if session.realtime is not None:
+        result["realtime"] = session.realtime.summary()
     if session.counters is not None:
         c = session.counters
         result.update({"tdoa_accepted": c.accepted, "tdoa_downweighted": c.downweighted,

@@ -117,6 +117,14 @@ def _plots(messages: dict, stats: list[dict]) -> dict[str, str]:
         ax.legend()
         images["timing"] = _png(fig)
         plt.close(fig)
+    latency = [(r["t"], r["latency_ms"]) for r in timing if r.get("latency_ms") is not None]
+    if latency:
+        t, ms = np.array(latency).T
+        fig, ax = plt.subplots(figsize=(8, 3))
+        ax.plot(t - t[0], ms, ".", ms=2)
+        ax.set(xlabel="time [s]", ylabel="latency [ms]", title="real time: input-to-estimate latency", yscale="log")
+        images["latency"] = _png(fig)
+        plt.close(fig)
     return images
 
 
@@ -151,6 +159,9 @@ def write_report(directory: Path) -> Path:
         {"figure": "worst window / budget", "value": timing.get("window_max_fraction_of_budget")},
         {"figure": "overruns", "value": timing.get("overruns")},
         {"figure": "replay speed [x real time]", "value": metrics.get("speed")},
+        {"figure": "mode", "value": metrics.get("mode")},
+        *([{"figure": f"real time: {k}", "value": v} for k, v in metrics["realtime"].items()]
+          if metrics.get("realtime") else []),
         {"figure": "error", "value": metrics.get("error")},
     ]
     parts = ["<!doctype html><meta charset='utf-8'><title>uwb-rig run report</title>",
@@ -159,7 +170,8 @@ def write_report(directory: Path) -> Path:
              f"<h1>Run report: {html.escape(str(metrics.get('recording', directory)))}</h1>",
              _table(summary, ["figure", "value"])]
     titles = {"trajectory": "Trajectory against ground truth", "error": "Error over time",
-              "innovation": "Per-anchor innovation", "timing": "Window cost against the budget"}
+              "innovation": "Per-anchor innovation", "timing": "Window cost against the budget",
+              "latency": "Input-to-estimate latency (real-time mode)"}
     for key, title in titles.items():
         if key in images:
             parts.append(f"<h2>{title}</h2><img src='data:image/png;base64,{images[key]}'>")

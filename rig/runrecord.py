@@ -60,13 +60,17 @@ RUN_SCHEMAS = {
         "t": _T, "unit": {"type": "string", "description": "ns, cycles or instructions"},
         "budget": _number("one 10 ms window in the unit"), "window": _number("cost of the whole window"),
         "predict": _number("prediction"), "tdoa_total": _number("all TDOA updates"),
-        "tdoa_max": _number("most expensive TDOA update"), "n_tdoa": {"type": "integer"}}),
+        "tdoa_max": _number("most expensive TDOA update"), "n_tdoa": {"type": "integer"},
+        "latency_ms": _number("real-time mode only: wall time from the window's last byte sent to its "
+                              "estimate received", "ms")}),
     "uwb_rig.Counters": _object("uwb_rig.Counters", {
         "t": _T, **{name: {"type": "integer"} for name in protocol.Counters.__dataclass_fields__}}),
     "uwb_rig.Status": _object("uwb_rig.Status", {
         "t": _T, "source": {"type": "string", "description": "board or rig"},
         "code": {"type": "integer"}, "message": {"type": "string"}}),
 }
+
+RUN_SCHEMAS["uwb_rig.Timing"]["required"].remove("latency_ms")    # present in real-time mode only
 
 
 def _xyz_dict(v) -> dict:
@@ -116,7 +120,7 @@ class RunRecorder:
                                                          "distance_diff": float(v) if np.isfinite(v) else None})
 
     def answer(self, t0: float, est: protocol.Estimate, att: protocol.Attitude, counters: protocol.Counters,
-               timing: protocol.Timing, unit: str, budget: float) -> None:
+               timing: protocol.Timing, unit: str, budget: float, latency_s: float | None = None) -> None:
         t = t0 + est.t_us * 1e-6
         q = att.quat
         self._write(TOPIC_ESTIMATE, "uwb_rig.Estimate", t, {
@@ -125,7 +129,8 @@ class RunRecorder:
             "cov_diag": [float(c) if np.isfinite(c) else None for c in att.cov_diag]})
         self._write(TOPIC_TIMING, "uwb_rig.Timing", t, {
             "t": t, "unit": unit, "budget": budget, "window": timing.window, "predict": timing.predict,
-            "tdoa_total": timing.tdoa_total, "tdoa_max": timing.tdoa_max, "n_tdoa": timing.n_tdoa})
+            "tdoa_total": timing.tdoa_total, "tdoa_max": timing.tdoa_max, "n_tdoa": timing.n_tdoa,
+            **({} if latency_s is None else {"latency_ms": latency_s * 1e3})})
         self._write(TOPIC_COUNTERS, "uwb_rig.Counters", t, {"t": t, **counters.__dict__})
 
     def status(self, t: float, source: str, code: int, message: str) -> None:

@@ -15,6 +15,7 @@ Targets:
 from __future__ import annotations
 
 import fcntl
+import select
 import logging
 import shutil
 import socket
@@ -36,7 +37,7 @@ log = logging.getLogger(__name__)
 QEMU = "qemu-system-arm"
 # -icount shift=0: one instruction per virtual nanosecond, so TIM2 counts instructions
 # deterministically; sleep=off: never wait for the host clock.
-QEMU_ARGS = ["-M", "netduinoplus2", "-nographic", "-monitor", "none", "-icount", "shift=0,sleep=off"]
+QEMU_ARGS = ["-M", "netduinoplus2", "-nographic", "-icount", "shift=0,sleep=off"]
 
 
 class SocketPort(protocol_socket.Serial):
@@ -128,6 +129,7 @@ class Link(BoardLink):
     port: serial.SerialBase
     name: str
     process: subprocess.Popen | None = None
+    monitor_port: int | None = None          # QEMU's monitor, for a hardware reset
     parser: protocol.Parser = field(default_factory=protocol.Parser)
     bytes_sent: int = 0
     pending: deque = field(default_factory=deque)
@@ -145,15 +147,34 @@ class Link(BoardLink):
         while True:
             self._check_alive()
             try:
-                chunk = self.port.read(max(1, self.port.in_waiting))
+                chunk = self._read(deadline)
             except (serial.SerialException, OSError) as exc:
                 raise LinkError(f"{self.name}: read failed (board gone?): {exc}") from exc
             payloads = self.parser.feed(chunk) if chunk else []
             if payloads or time.monotonic() > deadline:
                 return payloads
 
+    def _read(self, deadline: float) -> bytes:
+        """What is waiting, else wait until `deadline` at most (real-time pacing needs
+        millisecond waits, not the port's read timeout) for the first byte."""
+        waiting = self.port.in_waiting
+        if not waiting and hasattr(self.port, "fileno"):
+            wait = min(self.port.timeout or 0.05, max(0.0, deadline - time.monotonic()))
+            if not select.select([self.port.fileno()], [], [], wait)[0]:
+                return b""
+        # readable with nothing waiting means the other end closed: read() raises then
+        return self.port.read(max(1, self.port.in_waiting))
+
     def _close_channel(self) -> None:
         self.port.close()
+
+    def reset_board(self) -> None:
+        """Reset the emulated board as its reset pin would (QEMU's `system_reset`)."""
+        if self.monitor_port is None:
+            raise LinkError(f"{self.name}: no way to reset this board from the rig")
+        with socket.create_connection(("127.0.0.1", self.monitor_port), timeout=5) as monitor:
+            monitor.sendall(b"system_reset\n")
+            monitor.recv(4096)
 
 
 CRTP_APP_PORT, CRTP_APP_CHANNEL = 13, 2
@@ -222,9 +243,11 @@ def open_qemu(firmware: Path | None = None, read_timeout: float = 0.05, connect_
     if shutil.which(QEMU) is None:
         raise LinkError(f"{QEMU} is not installed (run scripts/setup.sh)")
     firmware = firmware or _build_for_target(native.FIRMWARE_ELF, "firmware")
-    port_number = _free_port()
+    port_number, monitor_port = _free_port(), _free_port()
     serial_arg = f"tcp:127.0.0.1:{port_number},server=on,wait=on,nodelay=on"
-    proc = subprocess.Popen([QEMU, *QEMU_ARGS, "-kernel", str(firmware), "-serial", serial_arg],
+    monitor_arg = f"tcp:127.0.0.1:{monitor_port},server=on,wait=off"
+    proc = subprocess.Popen([QEMU, *QEMU_ARGS, "-kernel", str(firmware), "-serial", serial_arg,
+                             "-monitor", monitor_arg],
                             stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     deadline = time.monotonic() + connect_timeout
     while True:
@@ -236,7 +259,7 @@ def open_qemu(firmware: Path | None = None, read_timeout: float = 0.05, connect_
                 proc.kill()
                 raise LinkError(f"QEMU did not open its serial socket: {exc}") from exc
             time.sleep(0.05)
-    return Link(port, f"qemu :{port_number}", proc)
+    return Link(port, f"qemu :{port_number}", proc, monitor_port)
 
 
 def open_crazyflie(uri: str, process: subprocess.Popen | None = None) -> CrtpLink:

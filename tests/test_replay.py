@@ -149,17 +149,79 @@ def test_a_target_that_stops_answering_fails_clearly_within_seconds(default_rec)
         link.close()
 
 
-def test_a_board_that_resets_mid_replay_is_reported(default_rec) -> None:
-    link = transport.open_native()
-    original = link.send
-    count = {"n": 0}
+def test_a_board_that_resets_mid_replay_fails_clearly_and_keeps_the_record(default_rec, tmp_path: Path) -> None:
+    """A real reset: QEMU's system_reset reboots the firmware mid-replay; the board
+    announces its boot, the replay stops with a clear error and the run record keeps
+    every estimate received before, and the board's boot status."""
+    from rig.runrecord import TOPIC_ESTIMATE, TOPIC_STATUS, RunRecorder, read_run
+
+    link = transport.open_qemu()
+    original, count = link.send, {"n": 0}
 
     def send_then_reset(payloads):
         count["n"] += 1
         original(payloads)
-        if count["n"] == 300:  # the board reboots: it announces itself again
-            link.pending.append(protocol.Status(protocol.STATUS_BOOT, 0, 0, 0))
+        if count["n"] == 300:
+            link.reset_board()
 
     link.send = send_then_reset
-    with pytest.raises(transport.LinkError, match="reset during the replay"):
-        run_target(link, default_rec, native.params_with(use_bias_net=0), None, duration=5.0)
+    recorder = RunRecorder(tmp_path / "run.mcap")
+    try:
+        with pytest.raises(transport.LinkError, match="reset during the replay") as failure:
+            replay.run(link, default_rec, native.params_with(use_bias_net=0), None, duration=8.0, recorder=recorder)
+    finally:
+        link.close()
+        recorder.close()
+    record = read_run(tmp_path / "run.mcap")
+    received = failure.value.session.estimates
+    assert 200 < len(received) < 300 and len(record[TOPIC_ESTIMATE]) == len(received)
+    assert any(r["code"] == protocol.STATUS_BOOT for r in record[TOPIC_STATUS])
+
+
+def test_real_time_mode_gives_the_lock_step_estimates_and_counts_a_lost_window(default_rec) -> None:
+    """Real time at 2x on the native program: every window answered in order with the
+    same estimates as lock-step, latencies measured; a window lost on the link (the
+    radio dropped it) is counted as missed and the replay carries on."""
+    params = native.params_with(use_bias_net=0)
+    lock = run_target(transport.open_native(), default_rec, params, None, duration=6.0)
+    link, original, calls = transport.open_native(), None, {"n": 0}
+    original = link.send
+
+    def drop_one_window(payloads):
+        calls["n"] += 1
+        if calls["n"] != 300:       # the 300th send is a window (handshake and set-up come first)
+            original(payloads)
+
+    link.send = drop_one_window
+    try:
+        rt = replay.run(link, default_rec, params, None, duration=6.0, speed=2.0)
+    finally:
+        link.close()
+    summary = rt.realtime.summary()
+    assert summary["windows_sent"] == len(lock.estimates)
+    assert summary["missed_windows"] == 1 and len(rt.estimates) == len(lock.estimates) - 1
+    assert 0 < summary["latency_ms"]["p50"] < summary["deadline_ms"]
+    lost = summary["first_missed_t_us"][0]
+    same = [e for e in lock.estimates if e[0] < lost]
+    np.testing.assert_array_equal(positions(rt)[:len(same)], np.array([e[1] for e in same], np.float32))
+
+
+def test_real_time_mode_exposes_the_slow_qemu_link_that_lock_step_hides(tmp_path: Path) -> None:
+    """QEMU's emulated UART takes about 75 us a byte: lock-step hides it (every window
+    still meets the board's budget), real time at 3x the recording's clock shows the
+    estimates falling ever further behind; --assert-deadlines fails the run, the run
+    record carries each window's latency."""
+    out = tmp_path / "rt"
+    proc = subprocess.run([*RIG, "replay", "recordings/default.mcap", "--target", "qemu", "--duration", "8",
+                           "--mode", "realtime", "--speed", "3", "--assert-deadlines", "--assert-budget", "0.2",
+                           "--out", str(out)], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 1, proc.stdout + proc.stderr
+    assert "late windows" in proc.stderr and "budget" not in proc.stderr
+    result = json.loads((out / "metrics.json").read_text())
+    rt = result["realtime"]
+    assert result["mode"] == "realtime" and result["timing"]["overruns"] == 0
+    assert rt["missed_windows"] == 0 and rt["late_windows"] > rt["windows_sent"] // 2
+    assert rt["latency_ms"]["max"] > 10 * rt["deadline_ms"]       # a backlog that grows, not jitter
+    from rig.runrecord import TOPIC_TIMING, read_run
+    latency = [r["latency_ms"] for r in read_run(out / "run.mcap")[TOPIC_TIMING]]
+    assert len(latency) == result["n_estimates"] and max(latency) == pytest.approx(rt["latency_ms"]["max"])
