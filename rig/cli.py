@@ -88,6 +88,58 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+# ----------------------------------------------------------------------------- diagnosis
+
+def _effects_argument(text: str) -> list[dict]:
+    """Effects as JSON text or a JSON file: a list, one effect, or {"effects": [...]}."""
+    path = Path(text)
+    try:
+        data = json.loads(path.read_text() if path.is_file() else text)
+    except (OSError, json.JSONDecodeError) as exc:
+        raise CliError(f"--effects: neither a JSON file nor JSON text ({exc})") from exc
+    if isinstance(data, dict):
+        data = data.get("effects", [data])
+    if not isinstance(data, list) or not all(isinstance(e, dict) and "effect" in e for e in data):
+        raise CliError('--effects: expected [{"effect": NAME, "params": {...}}, ...]')
+    return data
+
+
+def cmd_diagnose(args: argparse.Namespace) -> int:
+    from rig.diagnose import diagnose
+    from rig.diagnosis_report import REPORT_JSON, REPORT_MD, describe, write
+    from rig.importer import load_any
+
+    rec = load_any(args.recording)
+    if len(rec.truth) < 10:
+        raise CliError(f"{args.recording}: no ground truth to simulate the flight from")
+    result = diagnose(rec, progress=_progress(desc="diagnose channels"))
+    report = write(result, args.out, str(args.recording))
+    for name, c in report["channels"].items():
+        print(f"{name}: mismatch {c['fit_before']:.4g} -> {c['fit_after']:.4g} ({c['samples']} samples)")
+    for f in result.findings:
+        print(f"  {f.effect:16s} evidence {f.evidence:9.1f}  {describe(f)}")
+    print(f"wrote {args.out / REPORT_JSON} and {args.out / REPORT_MD}")
+    return EXIT_OK
+
+
+def cmd_inject(args: argparse.Namespace) -> int:
+    from rig.effects import effects_from_json
+    from rig.importer import load_any
+    from rig.recording import write_recording
+    from rig.simulate import inject
+
+    effects = _effects_argument(args.effects)
+    try:
+        effects_from_json(effects)
+    except ValueError as exc:
+        raise CliError(str(exc)) from exc
+    rec = inject(load_any(args.recording), effects, seed=args.seed)
+    args.output.parent.mkdir(parents=True, exist_ok=True)
+    write_recording(rec, args.output, progress=_progress(desc="writing"))
+    print(f"{args.output}: {args.recording} with {', '.join(e['effect'] for e in effects)}")
+    return EXIT_OK
+
+
 # ----------------------------------------------------------------------------- metrics
 
 def _load_estimates(path: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -201,7 +253,8 @@ def _board_link(target: str, session, board: str):
 
 def _replay(recording: Path, target: str, out: Path, *, use_nn: bool = True, robust: bool = True,
             model_path: Path | None = None, start: float | None = None, duration: float | None = None,
-            lookahead: int = 0, report: bool = True, session=None, board: str = "local") -> dict:
+            lookahead: int = 0, speed: float | None = None, report: bool = True, session=None,
+            board: str = "local") -> dict:
     """Replay into one target through its bridge (on zenoh `session`, or a private one);
     write OUT/run.mcap (as it goes, finished on every exit path), OUT/metrics.json (also
     after a board failure, with the error) and the report."""
@@ -219,14 +272,14 @@ def _replay(recording: Path, target: str, out: Path, *, use_nn: bool = True, rob
     out.mkdir(parents=True, exist_ok=True)
     recorder = RunRecorder(out / RUN_FILE)
     info = {"recording": str(recording), "target": target, "bias_net": model is not None, "robust": robust,
-            "lookahead": lookahead}
+            "lookahead": lookahead, "mode": "lockstep" if speed is None else "realtime"}
     began, run, error, own = time.monotonic(), None, None, session is None
     try:
         session = session or open_session()
         link = _board_link(target, session, board)
         try:
             run = replay.run(link, rec, params, model, start=start, duration=duration, lookahead=lookahead,
-                             progress=_progress(desc=f"replay {target}", total=None), recorder=recorder)
+                             speed=speed, progress=_progress(desc=f"replay {target}", total=None), recorder=recorder)
         finally:
             link.close()
             info["bytes_sent"] = link.bytes_sent
@@ -254,6 +307,11 @@ def _replay(recording: Path, target: str, out: Path, *, use_nn: bool = True, rob
     print(f"timing ({timing['unit']}): window p50 {timing['window_p50']:.0f}, p99 {timing['window_p99']:.0f}, "
           f"max {timing['window_max']:.0f} = {timing['window_max_fraction_of_budget']:.1%} of the "
           f"{timing['budget']:.0f} budget; overruns {timing['overruns']}")
+    if "realtime" in result:
+        rt, lat = result["realtime"], result["realtime"]["latency_ms"] or {"p50": np.nan, "p99": np.nan, "max": np.nan}
+        print(f"real time x{rt['speed']:g}: latency p50 {lat['p50']:.1f} ms, p99 {lat['p99']:.1f} ms, max "
+              f"{lat['max']:.1f} ms; late windows {rt['late_windows']} (deadline {rt['deadline_ms']:.1f} ms), "
+              f"missed windows {rt['missed_windows']}")
     if report:
         from rig.report import write_report
 
@@ -275,17 +333,30 @@ def _assertions(result: dict, max_rmse: float | None, max_budget: float | None) 
     return failed
 
 
+def _deadline_failures(result: dict) -> list[str]:
+    rt = result.get("realtime")
+    if rt is None:
+        return ["--assert-deadlines needs --mode realtime"]
+    return [f"{rt[key]} {key.replace('_', ' ')}" for key in ("late_windows", "missed_windows") if rt[key]]
+
+
 def cmd_replay(args: argparse.Namespace) -> int:
     from bridge.zenoh_link import open_session
+
+    if not args.speed > 0:
+        raise CliError(f"--speed must be a positive number, not {args.speed}")
 
     session = open_session(None, args.zenoh_listen, args.zenoh_connect)
     try:
         result = _replay(args.recording, args.target, args.out, use_nn=not args.no_nn, robust=not args.no_robust,
                          model_path=args.model, start=args.start, duration=args.duration,
-                         lookahead=args.lookahead, session=session, board=args.board)
+                         lookahead=args.lookahead, speed=args.speed if args.mode == "realtime" else None,
+                         session=session, board=args.board)
     finally:
         session.close()
     failed = _assertions(result, args.assert_rmse, args.assert_budget)
+    if args.assert_deadlines:
+        failed += _deadline_failures(result)
     for reason in failed:
         print(f"rig replay: assertion failed: {reason}", file=sys.stderr)
     return EXIT_FAILED if failed else EXIT_OK
@@ -519,6 +590,32 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--noiseless", action="store_true", help="no effects at all: ideal sensors")
     p.set_defaults(func=cmd_simulate)
 
+    p = sub.add_parser("diagnose", help="where a simulation of the flight and the recording differ, and why",
+                       description="Simulate the recording's own flight (its ground truth and anchors) with the "
+                                   "simulator's physics, compare channel by channel (TDOA, accelerometer, "
+                                   "gyroscope), locate the mismatch, fit the effect catalog (time_offset, "
+                                   "clock_drift, anchor_position, anchor_delay, antenna_pattern, nlos, "
+                                   "multipath_floor, imu_accel_bias, imu_gyro_bias, imu_accel_scale, "
+                                   "imu_gyro_scale, lever_arm), keep what held-out time blocks support and "
+                                   "re-simulate. Writes DIR/report.json (findings sorted by evidence), "
+                                   "DIR/report.md with plots and DIR/model.json (the fitted effects, usable "
+                                   "as a `rig simulate` effect list). See docs/diagnosis.md.")
+    p.add_argument("recording", type=Path, help="recording (MCAP, or a flight directory of the shared data)")
+    p.add_argument("--out", type=Path, required=True, help="output directory")
+    p.set_defaults(func=cmd_diagnose)
+
+    p = sub.add_parser("inject", help="a recording as if effects of the catalog had been present",
+                       description="Add catalog effects to a recording (real or simulated): TDOA values change "
+                                   "by what the effects change in the simulator along the ground truth, UWB "
+                                   "stamps move with timing effects, IMU effects act on the recorded readings. "
+                                   "The recording keeps its own noise and effects (use it as the control).")
+    p.add_argument("recording", type=Path)
+    p.add_argument("--effects", required=True,
+                   help='JSON text or file: [{"effect": "anchor_delay", "params": {"anchor": 3, "meters": 0.1}}]')
+    p.add_argument("-o", "--output", type=Path, required=True, help="output .mcap")
+    p.add_argument("--seed", type=int, default=0, help="seed of random effects (nlos, noise)")
+    p.set_defaults(func=cmd_inject)
+
     p = sub.add_parser("metrics", help="score an estimate stream against a recording's ground truth",
                        description="Align estimates with ground truth (interpolated), keep the flight segment, "
                                    "report 3D/per-axis RMSE, max and percentiles.")
@@ -633,9 +730,18 @@ def build_parser() -> argparse.ArgumentParser:
                    help="windows sent ahead of the awaited estimate (default 0: strict lock-step). Estimates "
                         "are identical; the link's idle time shrinks, but receive interrupts then land inside "
                         "measured calls (a few instructions each)")
+    p.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep",
+                   help="lockstep (default): send a window, wait for its estimate, so results do not depend on "
+                        "link or host speed. realtime: send each window when the recording's clock says it is "
+                        "due whatever the board does; measures input-to-estimate latency and counts late "
+                        "windows (estimate after the next window was due), missed windows and overruns")
+    p.add_argument("--speed", type=float, default=1.0, metavar="X",
+                   help="real-time mode: play the recording's clock X times faster (default 1)")
     p.add_argument("--assert-rmse", type=float, metavar="M", help="exit 1 when rmse_3d exceeds M metres")
     p.add_argument("--assert-budget", type=float, metavar="FRACTION",
                    help="exit 1 when the worst window exceeds FRACTION of the 10 ms budget")
+    p.add_argument("--assert-deadlines", action="store_true",
+                   help="real-time mode: exit 1 when any window is late or missed")
     p.set_defaults(func=cmd_replay)
 
     p = sub.add_parser("size", help="flash, RAM and stack of the estimator for the STM32F405",

@@ -19,10 +19,11 @@ from scipy.spatial.transform import Rotation
 
 # Stages, in order of application.
 WORLD = 0       # changes what is physically true (anchor positions, lever arm)
-SIGNAL = 1      # deterministic sensor errors (biases, scale factors, delays)
-NOISE = 2       # random errors (white noise)
-CORRUPTION = 3  # rare gross errors (outliers)
-TIMING = 4      # timestamps (offsets, drift)
+SCALE = 1       # multiplicative sensor errors (scale factors), before any additive one
+SIGNAL = 2      # deterministic additive sensor errors (biases, delays, antenna pattern)
+NOISE = 3       # random errors (white noise, NLOS excess delays)
+CORRUPTION = 4  # rare gross errors (outliers)
+TIMING = 5      # timestamps (offsets, drift)
 
 
 @dataclass
@@ -77,8 +78,13 @@ class Effect:
     def apply_imu(self, imu: ImuBatch, rng: np.random.Generator) -> None:
         """Change IMU readings in place."""
 
-    def apply_tdoa(self, tdoa: TdoaBatch, world: World, rng: np.random.Generator) -> None:
-        """Change TDOA values (or timestamps) in place."""
+    def apply_tdoa(self, tdoa: TdoaBatch, world: World, rng: np.random.Generator | None) -> None:
+        """Change TDOA values (or timestamps) in place. With `rng` None, random effects add
+        their expected value (the diagnosis predicts; the simulator draws)."""
+
+    def stamp(self, t: np.ndarray) -> np.ndarray:
+        """Timing effects: the UWB timestamp of a measurement made at true time `t`."""
+        return t
 
 
 def _vec3(value, name: str) -> np.ndarray:
@@ -88,24 +94,81 @@ def _vec3(value, name: str) -> np.ndarray:
     return v
 
 
-class _ImuConstantBias(Effect):
-    """measured = true + bias on one IMU stream (body frame)."""
+class _Windowed:
+    """An effect that may act during part of the flight only: optional parameter
+    `during` = [t_start, t_end] on the recording's clock."""
 
-    stage = SIGNAL
+    during: tuple[float, float] | None = None
+
+    def _set_during(self, during) -> None:
+        if during is not None:
+            t0, t1 = map(float, during)
+            if not t1 > t0:
+                raise ValueError(f"during must be [start, end] with end > start, got {during!r}")
+            self.during = (t0, t1)
+
+    def _window_params(self) -> dict:
+        return {} if self.during is None else {"during": list(self.during)}
+
+    def active(self, t: np.ndarray) -> np.ndarray:
+        if self.during is None:
+            return np.ones(len(t), bool)
+        return (t >= self.during[0]) & (t < self.during[1])
+
+
+class _ImuVectorEffect(_Windowed, Effect):
+    """One vector parameter acting on one IMU stream (body frame)."""
+
     stream: ClassVar[str] = ""   # "accel" or "gyro"
     param: ClassVar[str] = ""    # the catalog's parameter name
+    neutral: ClassVar[float] = 0.0
 
-    def __init__(self, **params):
+    def __init__(self, during=None, **params):
         unknown = set(params) - {self.param}
         if unknown:
             raise TypeError(f"unexpected parameter(s) {sorted(unknown)}")
-        self.bias = _vec3(params.get(self.param, (0.0, 0.0, 0.0)), self.param)
+        self.value = _vec3(params.get(self.param, (self.neutral,) * 3), self.param)
+        self._set_during(during)
 
     def params(self) -> dict:
-        return {self.param: self.bias.tolist()}
+        return {self.param: self.value.tolist(), **self._window_params()}
 
-    def apply_imu(self, imu: ImuBatch, rng: np.random.Generator) -> None:
-        getattr(imu, self.stream)[:] += self.bias
+    def apply_imu(self, imu: ImuBatch, rng: np.random.Generator | None) -> None:
+        stream = getattr(imu, self.stream)
+        stream[self.active(imu.t)] = self._apply(stream[self.active(imu.t)])
+
+    def _apply(self, values: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+
+class _ImuConstantBias(_ImuVectorEffect):
+    """measured = true + bias."""
+
+    stage = SIGNAL
+
+    def _apply(self, values: np.ndarray) -> np.ndarray:
+        return values + self.value
+
+
+class _ImuScale(_ImuVectorEffect):
+    """measured = scale × true, per axis."""
+
+    stage, param, neutral = SCALE, "scale", 1.0
+
+    def _apply(self, values: np.ndarray) -> np.ndarray:
+        return values * self.value
+
+
+class ImuAccelScale(_ImuScale):
+    """Accelerometer scale factors."""
+
+    name, stream = "imu_accel_scale", "accel"
+
+
+class ImuGyroScale(_ImuScale):
+    """Gyroscope scale factors."""
+
+    name, stream = "imu_gyro_scale", "gyro"
 
 
 class ImuAccelBias(_ImuConstantBias):
@@ -131,7 +194,9 @@ class ImuNoise(Effect):
     def params(self) -> dict:
         return {"accel_std": self.accel_std, "gyro_std": self.gyro_std}
 
-    def apply_imu(self, imu: ImuBatch, rng: np.random.Generator) -> None:
+    def apply_imu(self, imu: ImuBatch, rng: np.random.Generator | None) -> None:
+        if rng is None:
+            return
         imu.accel += rng.normal(0.0, self.accel_std, imu.accel.shape)
         imu.gyro += rng.normal(0.0, self.gyro_std, imu.gyro.shape)
 
@@ -147,8 +212,9 @@ class TdoaNoise(Effect):
     def params(self) -> dict:
         return {"std_m": self.std}
 
-    def apply_tdoa(self, tdoa: TdoaBatch, world: World, rng: np.random.Generator) -> None:
-        tdoa.value += rng.normal(0.0, self.std, tdoa.value.shape)
+    def apply_tdoa(self, tdoa: TdoaBatch, world: World, rng: np.random.Generator | None) -> None:
+        if rng is not None:
+            tdoa.value += rng.normal(0.0, self.std, tdoa.value.shape)
 
 
 class Outliers(Effect):
@@ -166,7 +232,9 @@ class Outliers(Effect):
     def params(self) -> dict:
         return {"fraction": self.fraction, "mean_excess_m": self.mean_excess}
 
-    def apply_tdoa(self, tdoa: TdoaBatch, world: World, rng: np.random.Generator) -> None:
+    def apply_tdoa(self, tdoa: TdoaBatch, world: World, rng: np.random.Generator | None) -> None:
+        if rng is None:        # symmetric in sign: no expected shift
+            return
         hit = rng.random(len(tdoa.value)) < self.fraction
         excess = 1.0 + rng.exponential(self.mean_excess, len(tdoa.value))
         # A longer path to B raises distance_diff, a longer path to A lowers it.
@@ -174,15 +242,217 @@ class Outliers(Effect):
         tdoa.value += np.where(hit, sign * excess, 0.0)
 
 
+def _anchor_sign(tdoa: TdoaBatch, anchor: int) -> np.ndarray:
+    """+1 where `anchor` is B (its range adds to distance_diff), -1 where it is A, else 0."""
+    return (tdoa.id_b == anchor).astype(float) - (tdoa.id_a == anchor).astype(float)
+
+
+def _anchor_id(anchor) -> int:
+    if isinstance(anchor, bool) or int(anchor) != anchor or anchor < 0:
+        raise ValueError(f"anchor must be a non-negative integer id, got {anchor!r}")
+    return int(anchor)
+
+
+class TimeOffset(Effect):
+    """UWB timestamps are late by `seconds` relative to the IMU and ground-truth clock."""
+
+    name, stage = "time_offset", TIMING
+
+    def __init__(self, seconds: float = 0.0):
+        self.seconds = float(seconds)
+
+    def params(self) -> dict:
+        return {"seconds": self.seconds}
+
+    def stamp(self, t: np.ndarray) -> np.ndarray:
+        return t + self.seconds
+
+    def apply_tdoa(self, tdoa: TdoaBatch, world: World, rng: np.random.Generator | None) -> None:
+        tdoa.t = self.stamp(tdoa.t)
+
+
+class ClockDrift(Effect):
+    """The UWB timestamps run fast by `ppm` relative to the IMU clock (zero at t = 0 of
+    the recording's clock)."""
+
+    name, stage = "clock_drift", TIMING
+
+    def __init__(self, ppm: float = 0.0):
+        self.ppm = float(ppm)
+
+    def params(self) -> dict:
+        return {"ppm": self.ppm}
+
+    def stamp(self, t: np.ndarray) -> np.ndarray:
+        return t * (1.0 + self.ppm * 1e-6)
+
+    def apply_tdoa(self, tdoa: TdoaBatch, world: World, rng: np.random.Generator | None) -> None:
+        tdoa.t = self.stamp(tdoa.t)
+
+
+class AnchorPosition(Effect):
+    """The anchor's antenna is really at surveyed + `offset_m` (true minus surveyed)."""
+
+    name, stage = "anchor_position", WORLD
+
+    def __init__(self, anchor: int = 0, offset_m=(0.0, 0.0, 0.0)):
+        self.anchor, self.offset = _anchor_id(anchor), _vec3(offset_m, "offset_m")
+
+    def params(self) -> dict:
+        return {"anchor": self.anchor, "offset_m": self.offset.tolist()}
+
+    def apply_world(self, world: World) -> None:
+        if self.anchor in world.anchor_positions:
+            world.anchor_positions[self.anchor] = world.anchor_positions[self.anchor] + self.offset
+
+
+class LeverArm(Effect):
+    """The UWB antenna sits at `offset_m` from the body origin (body frame)."""
+
+    name, stage = "lever_arm", WORLD
+
+    def __init__(self, offset_m=(0.0, 0.0, 0.0)):
+        self.offset = _vec3(offset_m, "offset_m")
+
+    def params(self) -> dict:
+        return {"offset_m": self.offset.tolist()}
+
+    def apply_world(self, world: World) -> None:
+        world.lever_arm = world.lever_arm + self.offset
+
+
+class AnchorDelay(_Windowed, Effect):
+    """Every range from `anchor` reads `meters` too long (an antenna delay error)."""
+
+    name, stage = "anchor_delay", SIGNAL
+
+    def __init__(self, anchor: int = 0, meters: float = 0.0, during=None):
+        self.anchor, self.meters = _anchor_id(anchor), float(meters)
+        self._set_during(during)
+
+    def params(self) -> dict:
+        return {"anchor": self.anchor, "meters": self.meters, **self._window_params()}
+
+    def apply_tdoa(self, tdoa: TdoaBatch, world: World, rng: np.random.Generator | None) -> None:
+        tdoa.value += self.meters * _anchor_sign(tdoa, self.anchor) * self.active(tdoa.t)
+
+
+def viewing_angles(tdoa: TdoaBatch, world: World, anchor: int) -> tuple[np.ndarray, np.ndarray]:
+    """Azimuth and elevation (rad) of the tag seen in `anchor`'s own frame."""
+    rel = tdoa.tag_position - world.anchor_positions[anchor]
+    local = world.anchor_rotations[anchor].inv().apply(rel)
+    return np.arctan2(local[:, 1], local[:, 0]), np.arcsin(np.clip(local[:, 2] / np.linalg.norm(local, axis=1),
+                                                                   -1.0, 1.0))
+
+
+def pattern_basis(azimuth: np.ndarray, elevation: np.ndarray) -> np.ndarray:
+    """The antenna-pattern bias terms: the second-order real spherical harmonics that do
+    not look like a displaced antenna (first order) or a delay (constant):
+    sin²(el) − 1/3, cos²(el)·cos(2 az), cos²(el)·sin(2 az)."""
+    c2 = np.cos(elevation) ** 2
+    return np.stack([np.sin(elevation) ** 2 - 1.0 / 3.0, c2 * np.cos(2 * azimuth), c2 * np.sin(2 * azimuth)], axis=1)
+
+
+class AntennaPattern(_Windowed, Effect):
+    """Range bias of `anchor` depending on where the tag is seen from the anchor (its
+    doughnut-shaped radiation pattern, paper Section II.B): `coeffs_m` weigh
+    `pattern_basis` of the tag's azimuth and elevation in the anchor's frame."""
+
+    name, stage = "antenna_pattern", SIGNAL
+
+    def __init__(self, anchor: int = 0, coeffs_m=(0.0, 0.0, 0.0), during=None):
+        self.anchor, self.coeffs = _anchor_id(anchor), _vec3(coeffs_m, "coeffs_m")
+        self._set_during(during)
+
+    def params(self) -> dict:
+        return {"anchor": self.anchor, "coeffs_m": self.coeffs.tolist(), **self._window_params()}
+
+    def apply_tdoa(self, tdoa: TdoaBatch, world: World, rng: np.random.Generator | None) -> None:
+        if self.anchor not in world.anchor_positions:
+            return
+        bias = pattern_basis(*viewing_angles(tdoa, world, self.anchor)) @ self.coeffs
+        tdoa.value += bias * _anchor_sign(tdoa, self.anchor) * self.active(tdoa.t)
+
+
+@dataclass
+class Region:
+    """An axis-aligned box in the world frame."""
+
+    low: np.ndarray
+    high: np.ndarray
+
+    @classmethod
+    def from_json(cls, region) -> "Region":
+        if region is None:
+            return cls(np.full(3, -np.inf), np.full(3, np.inf))
+        if not isinstance(region, dict) or set(region) != {"min", "max"}:
+            raise ValueError(f"region must be {{'min': [x, y, z], 'max': [x, y, z]}}, got {region!r}")
+        return cls(_vec3(region["min"], "region min"), _vec3(region["max"], "region max"))
+
+    def to_json(self) -> dict | None:
+        if not np.isfinite(self.low).any() and not np.isfinite(self.high).any():
+            return None
+        return {"min": self.low.tolist(), "max": self.high.tolist()}
+
+    def contains(self, points: np.ndarray) -> np.ndarray:
+        return np.all((points >= self.low) & (points <= self.high), axis=1)
+
+
+class Nlos(_Windowed, Effect):
+    """Non-line-of-sight to `anchor` while the tag is inside `region`: a `fraction` of
+    those ranges gets a positive excess delay, exponential with mean `mean_excess_m`."""
+
+    name, stage = "nlos", NOISE
+
+    def __init__(self, anchor: int = 0, fraction: float = 1.0, mean_excess_m: float = 0.0, region=None,
+                 during=None):
+        if not 0.0 <= fraction <= 1.0 or mean_excess_m < 0:
+            raise ValueError("fraction must be within [0, 1] and mean_excess_m non-negative")
+        self.anchor, self.fraction, self.mean_excess = _anchor_id(anchor), float(fraction), float(mean_excess_m)
+        self.region = Region.from_json(region)
+        self._set_during(during)
+
+    def params(self) -> dict:
+        return {"anchor": self.anchor, "fraction": self.fraction, "mean_excess_m": self.mean_excess,
+                "region": self.region.to_json(), **self._window_params()}
+
+    def apply_tdoa(self, tdoa: TdoaBatch, world: World, rng: np.random.Generator | None) -> None:
+        inside = self.region.contains(tdoa.tag_position) & self.active(tdoa.t)
+        if rng is None:
+            excess = np.full(len(tdoa.t), self.fraction * self.mean_excess)
+        else:
+            hit = rng.random(len(tdoa.t)) < self.fraction
+            excess = np.where(hit, rng.exponential(max(self.mean_excess, 1e-12), len(tdoa.t)), 0.0)
+        tdoa.value += excess * inside * _anchor_sign(tdoa, self.anchor)
+
+
+class MultipathFloor(Effect):
+    """Near the floor, reflections add error: below `height_m` every TDOA gets extra
+    zero-mean noise of `std_m` (the tag's height is what matters, not the anchor)."""
+
+    name, stage = "multipath_floor", NOISE
+
+    def __init__(self, height_m: float = 0.3, std_m: float = 0.0):
+        if height_m <= 0 or std_m < 0:
+            raise ValueError("height_m must be positive and std_m non-negative")
+        self.height, self.std = float(height_m), float(std_m)
+
+    def params(self) -> dict:
+        return {"height_m": self.height, "std_m": self.std}
+
+    def low(self, tag_position: np.ndarray) -> np.ndarray:
+        return tag_position[:, 2] < self.height
+
+    def apply_tdoa(self, tdoa: TdoaBatch, world: World, rng: np.random.Generator | None) -> None:
+        if rng is not None:
+            tdoa.value += rng.normal(0.0, self.std, len(tdoa.t)) * self.low(tdoa.tag_position)
+
+
 EFFECTS: dict[str, type[Effect]] = {
-    cls.name: cls for cls in (ImuAccelBias, ImuGyroBias, ImuNoise, TdoaNoise, Outliers)
+    cls.name: cls for cls in (ImuAccelBias, ImuGyroBias, ImuAccelScale, ImuGyroScale, ImuNoise, TdoaNoise, Outliers,
+                              TimeOffset, ClockDrift, AnchorPosition, LeverArm, AnchorDelay, AntennaPattern, Nlos,
+                              MultipathFloor)
 }
-
-
-def register(cls: type[Effect]) -> type[Effect]:
-    """Add an effect class to the catalog (used as a decorator by effect modules)."""
-    EFFECTS[cls.name] = cls
-    return cls
 
 
 def make_effect(name: str, params: dict | None = None) -> Effect:

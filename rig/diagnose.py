@@ -1,0 +1,721 @@
+"""Sim-vs-real diagnosis: where a simulation of a recording's own flight and the
+recording disagree, which physical effect of the catalog (rig.effects) explains it,
+with fitted parameters, and how much closer the simulation gets with it.
+
+Method, per channel (TDOA, accelerometer, gyroscope):
+
+1. Predict every recorded sample with the simulator's physics along the recording's
+   ground truth (simulate.Predictor) and take the residual, recorded − predicted,
+   standardised by a robust noise scale (MAD; per axis for the IMU).
+2. Each candidate effect (an effect of the catalog with its anchor, if any) gets
+   design columns: the derivative of the prediction with respect to its parameters,
+   taken numerically through the effect's own simulator code, so the diagnosis and
+   the simulator share one definition of every physical effect.
+3. Forward selection: the candidate whose parameters, fitted robustly (Huber IRLS)
+   on four of five contiguous time blocks, most reduce the robust loss on the fifth
+   (summed over the five folds) joins the model, if that held-out gain beats a
+   threshold after a penalty per parameter (look-alikes: the simpler one wins a tie).
+   Kept effects are refitted jointly after each step. The held-out gain is the
+   `evidence` (half a chi-square in the Gaussian limit; it grows with the recording's
+   length and so compares runs of equal length).
+4. Effects that may be confined in time are tried on windows of the flight; NLOS
+   candidates get a region found on the training blocks only; the floor multipath is
+   a noise-level effect tested the same held-out way on the TDOA noise below a height.
+5. The kept effects re-simulate the recording: `fit_before`/`fit_after` are the
+   robust RMS mismatch of the affected samples without and with each effect.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from rig import effects as fx
+from rig.recording import Recording
+from rig.simulate import Predictor
+
+log = logging.getLogger(__name__)
+
+HUBER_C = 1.345                # Huber threshold, in noise standard deviations
+FOLDS = 5                      # contiguous time blocks for cross-validation
+PENALTY_PER_PARAMETER = 2.0    # held-out gain a parameter must pay for (AIC-like)
+MIN_EVIDENCE = 8.0             # held-out gain, in half chi-square units, to keep an effect
+MAX_EFFECTS = 24
+TIME_BLOCKS = 10               # resolution of "only in part of the flight"
+MIN_SAMPLES = 50
+EDGE_S = 0.5                   # ignore samples this close to the ends of the ground truth
+# IMU channels compare block means: the gyroscope's against rotation increments of the
+# ground truth, whose attitude noise differentiated over less than a second drowns
+# the small rates of these flights (and would dilute a fitted scale factor).
+IMU_BLOCK_S = {"accel": 0.2, "gyro": 1.0}
+IMU_MIN_BLOCK = 5              # samples a block needs
+AXES = "xyz"
+
+
+@dataclass
+class Channel:
+    """One channel's rows: standardised residual, time of each row, noise scale."""
+
+    name: str
+    t: np.ndarray
+    residual: np.ndarray       # recorded − predicted, in the channel's unit
+    scale: np.ndarray          # robust noise standard deviation of each row
+
+    @property
+    def z(self) -> np.ndarray:
+        return self.residual / self.scale
+
+    def folds(self) -> np.ndarray:
+        edges = np.quantile(self.t, np.linspace(0, 1, FOLDS + 1))
+        return np.clip(np.searchsorted(edges, self.t, side="right") - 1, 0, FOLDS - 1)
+
+
+@dataclass
+class Candidate:
+    """An effect of the catalog whose vector parameter `param` is fitted."""
+
+    effect: str
+    channel: str
+    param: str
+    size: int
+    fixed: dict = field(default_factory=dict)       # e.g. {"anchor": 3}
+    neutral: float = 0.0                            # parameter value that means "no effect"
+    step: float = 0.01                              # finite-difference step
+    prior: float = 0.5                              # plausible size of the parameter (a weak ridge)
+    bound: float = 1.0                              # largest physical size: a fit beyond is a misfit
+    columns: np.ndarray | None = None               # design columns (standardised), rows x size
+    key: str = ""
+
+    def __post_init__(self) -> None:
+        self.key = self.effect + "".join(f":{v}" for v in self.fixed.values())
+
+    def make(self, theta: np.ndarray, extra: dict | None = None) -> fx.Effect:
+        value = self.neutral + np.asarray(theta, float)
+        params = {**self.fixed, self.param: float(value[0]) if self.size == 1 else value.tolist(), **(extra or {})}
+        return fx.make_effect(self.effect, params)
+
+
+# ----------------------------------------------------------------------------- robust fitting
+
+def huber_loss(z: np.ndarray) -> np.ndarray:
+    a = np.abs(z)
+    return np.where(a <= HUBER_C, 0.5 * z * z, HUBER_C * (a - 0.5 * HUBER_C))
+
+
+def huber_weight(z: np.ndarray) -> np.ndarray:
+    a = np.abs(z)
+    return np.where(a <= HUBER_C, 1.0, HUBER_C / np.maximum(a, 1e-12))
+
+
+def irls(z: np.ndarray, x: np.ndarray, prior: np.ndarray | None = None, iterations: int = 8) -> np.ndarray:
+    """Huber M-estimate of theta in z ≈ x theta (both standardised), with a Gaussian
+    prior of standard deviation `prior` on each parameter: look-alike effects fitted
+    together stay at physical sizes instead of cancelling each other at absurd ones."""
+    theta = np.zeros(x.shape[1])
+    ridge = np.diag(np.full(x.shape[1], 1e-9) if prior is None else 1.0 / np.asarray(prior, float) ** 2)
+    for _ in range(iterations):
+        w = huber_weight(z - x @ theta)
+        xw = x * w[:, None]
+        a = xw.T @ x + ridge
+        new = np.linalg.solve(a, xw.T @ z)
+        if np.allclose(new, theta, atol=1e-10, rtol=1e-6):
+            return new
+        theta = new
+    return theta
+
+
+def held_out_gain(z: np.ndarray, x: np.ndarray, prior: np.ndarray, folds: np.ndarray,
+                  base: tuple[np.ndarray, np.ndarray] | None = None) -> float:
+    """Sum over folds of the held-out robust loss removed by fitting `x` (on top of the
+    columns `base` = (columns, prior), which are refitted too) on the other folds."""
+    gain = 0.0
+    full_x = x if base is None else np.hstack([base[0], x])
+    full_prior = prior if base is None else np.concatenate([base[1], prior])
+    for k in range(FOLDS):
+        train, test = folds != k, folds == k
+        if train.sum() < MIN_SAMPLES or not test.any():
+            continue
+        with_x = huber_loss(z[test] - full_x[test] @ irls(z[train], full_x[train], full_prior)).sum()
+        if base is None:
+            without = huber_loss(z[test]).sum()
+        else:
+            without = huber_loss(z[test] - base[0][test] @ irls(z[train], base[0][train], base[1])).sum()
+        gain += without - with_x
+    return float(gain)
+
+
+def robust_rms(residual: np.ndarray, scale: np.ndarray) -> float:
+    """The mismatch in the channel's unit: an RMS that stops growing past HUBER_C noise
+    deviations (so a few outliers do not hide a systematic error)."""
+    if not len(residual):
+        return float("nan")
+    z = residual / scale
+    return float(np.sqrt(2.0 * np.mean(huber_loss(z) * scale ** 2)))
+
+
+# ----------------------------------------------------------------------------- channels
+
+def _mad_scale(values: np.ndarray) -> float:
+    values = values[np.isfinite(values)]
+    scale = 1.4826 * np.median(np.abs(values - np.median(values))) if len(values) else 1.0
+    return float(scale) if scale > 1e-9 else 1.0
+
+
+class Problem:
+    """A recording, its predictor and the channels' rows."""
+
+    def __init__(self, rec: Recording, predictor: Predictor | None = None):
+        self.rec = rec
+        self.predictor = predictor or Predictor(rec)
+        t0, t1 = rec.truth.t[0] + EDGE_S, rec.truth.t[-1] - EDGE_S
+        d = rec.tdoa
+        known = {a.id for a in rec.anchors}
+        self.tdoa_rows = np.flatnonzero(np.isfinite(d.distance_diff) & (d.t >= t0) & (d.t <= t1)
+                                        & np.isin(d.id_a, list(known)) & np.isin(d.id_b, list(known)))
+        self.imu_rows, self.imu_blocks = {}, {}
+        for name, series in (("accel", rec.accel), ("gyro", rec.gyro)):
+            rows = np.flatnonzero((series.t >= t0) & (series.t <= t1) & np.all(np.isfinite(series.xyz), axis=1))
+            block = np.floor((series.t[rows] - t0) / IMU_BLOCK_S[name]).astype(int)
+            full = np.bincount(block)[block] >= IMU_MIN_BLOCK
+            self.imu_rows[name] = rows[full]
+            self.imu_blocks[name] = np.unique(block[full], return_inverse=True)[1].ravel()
+        self.anchor_ids = sorted(int(k) for k in np.unique(np.concatenate([d.id_a[self.tdoa_rows],
+                                                                          d.id_b[self.tdoa_rows]]))
+                                 if self._anchor_rows(k).sum() >= MIN_SAMPLES)
+        base = self.predict([])
+        self.scales = {name: self._scales(name, self.recorded(name) - base[name]) for name in base}
+
+    def _anchor_rows(self, k: int) -> np.ndarray:
+        d = self.rec.tdoa
+        return (d.id_a[self.tdoa_rows] == k) | (d.id_b[self.tdoa_rows] == k)
+
+    def anchor_sign(self, k: int) -> np.ndarray:
+        d = self.rec.tdoa
+        return (d.id_b[self.tdoa_rows] == k).astype(float) - (d.id_a[self.tdoa_rows] == k).astype(float)
+
+    def recorded(self, name: str) -> np.ndarray:
+        if name == "tdoa":
+            return self.rec.tdoa.distance_diff[self.tdoa_rows]
+        series = self.rec.accel if name == "accel" else self.rec.gyro
+        return self._block_means(name, series.xyz[self.imu_rows[name]])
+
+    def _block_means(self, name: str, values: np.ndarray) -> np.ndarray:
+        """IMU rows are block means (axis-interleaved): the vibration noise of a flying
+        drone and the ground truth's differentiation noise average out, the slower
+        physics stays."""
+        block = self.imu_blocks[name]
+        counts = np.bincount(block)
+        values = np.atleast_2d(values.T).T
+        return np.stack([np.bincount(block, weights=values[:, a]) / counts for a in range(values.shape[1])],
+                        axis=1).ravel()
+
+    def predict(self, effects: list[fx.Effect]) -> dict[str, np.ndarray]:
+        """The prediction of every channel's rows under `effects`."""
+        out = {}
+        if len(self.tdoa_rows):
+            out["tdoa"] = self.predictor.tdoa(effects).value[self.tdoa_rows]
+        accel, gyro = self.predictor.imu(effects)
+        for name, values in (("accel", accel), ("gyro", gyro)):
+            if len(self.imu_rows[name]):
+                out[name] = self._block_means(name, values[self.imu_rows[name]])
+        return out
+
+    def predict_channel(self, name: str, effects: list[fx.Effect]) -> np.ndarray:
+        if name == "tdoa":
+            return self.predictor.tdoa(effects).value[self.tdoa_rows]
+        accel, gyro = self.predictor.imu(effects)
+        return self._block_means(name, (accel if name == "accel" else gyro)[self.imu_rows[name]])
+
+    def _scales(self, name: str, residual: np.ndarray) -> np.ndarray:
+        if name == "tdoa":
+            return np.full(len(residual), _mad_scale(residual))
+        per_axis = [_mad_scale(residual[axis::3]) for axis in range(3)]
+        return np.tile(per_axis, len(residual) // 3)
+
+    def times(self, name: str) -> np.ndarray:
+        if name == "tdoa":
+            return self.rec.tdoa.t[self.tdoa_rows]
+        series = self.rec.accel if name == "accel" else self.rec.gyro
+        return np.repeat(self._block_means(name, series.t[self.imu_rows[name]]), 3)
+
+    def tag_positions(self) -> np.ndarray:
+        return self.predictor.tdoa([]).tag_position[self.tdoa_rows]
+
+    def channel(self, name: str, effects: list[fx.Effect]) -> Channel:
+        residual = self.recorded(name) - self.predict_channel(name, effects)
+        return Channel(name, self.times(name), residual, self.scales[name])
+
+
+# ----------------------------------------------------------------------------- candidates
+
+def candidates(problem: Problem) -> list[Candidate]:
+    """The catalog's mean effects, one per anchor where they have one."""
+    out = []
+    if len(problem.tdoa_rows):
+        out += [Candidate("time_offset", "tdoa", "seconds", 1, step=0.005, prior=0.2, bound=0.5),
+                Candidate("clock_drift", "tdoa", "ppm", 1, step=200.0, prior=2000.0, bound=20000.0),
+                Candidate("lever_arm", "tdoa", "offset_m", 3, prior=0.1, bound=0.3)]
+        for k in problem.anchor_ids:
+            out += [Candidate("anchor_delay", "tdoa", "meters", 1, {"anchor": k}, bound=1.5),
+                    Candidate("anchor_position", "tdoa", "offset_m", 3, {"anchor": k}, prior=0.3, bound=1.0),
+                    Candidate("antenna_pattern", "tdoa", "coeffs_m", 3, {"anchor": k}, prior=0.3, bound=1.0)]
+    if len(problem.imu_rows["accel"]):
+        out += [Candidate("imu_accel_bias", "accel", "bias_mps2", 3, prior=3.0, bound=6.0),
+                Candidate("imu_accel_scale", "accel", "scale", 3, neutral=1.0, step=1e-3, prior=0.2, bound=0.5)]
+    if len(problem.imu_rows["gyro"]):
+        out += [Candidate("imu_gyro_bias", "gyro", "bias_rps", 3, step=1e-3, prior=0.2, bound=0.5),
+                Candidate("imu_gyro_scale", "gyro", "scale", 3, neutral=1.0, step=1e-3, prior=0.2, bound=0.5)]
+    for c in out:
+        c.columns = design_columns(problem, c)
+    return out
+
+
+def design_columns(problem: Problem, c: Candidate, model: list[fx.Effect] = ()) -> np.ndarray:
+    """d prediction / d parameter, through the effect's own simulator code, standardised."""
+    base = problem.predict_channel(c.channel, list(model))
+    cols = []
+    for j in range(c.size):
+        theta = np.zeros(c.size)
+        theta[j] = c.step
+        cols.append((problem.predict_channel(c.channel, [*model, c.make(theta)]) - base) / c.step)
+    return np.nan_to_num(np.stack(cols, axis=1)) / problem.scales[c.channel][:, None]
+
+
+# ----------------------------------------------------------------------------- selection
+
+WINDOWABLE = {"anchor_delay", "antenna_pattern", "imu_accel_bias", "imu_gyro_bias", "imu_accel_scale",
+              "imu_gyro_scale"}
+NLOS_CELL_M = 0.5
+NLOS_MIN_CELL = 20
+NLOS_PRIOR_M = 1.0
+NLOS_MAX_SHARE = 0.6          # a "region" holding most of an anchor's samples is a delay, not NLOS
+
+
+@dataclass
+class Term:
+    """A candidate in the model: its columns (as used), unfitted settings and fit."""
+
+    candidate: Candidate
+    columns: np.ndarray
+    extra: dict = field(default_factory=dict)       # during, region, ...
+    theta: np.ndarray | None = None
+    evidence: float = 0.0
+
+    @property
+    def key(self) -> str:
+        return self.candidate.key
+
+    @property
+    def prior(self) -> np.ndarray:
+        return np.full(self.columns.shape[1], self.candidate.prior)
+
+
+def _stack(terms: list[Term]) -> tuple[np.ndarray, np.ndarray] | None:
+    if not terms:
+        return None
+    return np.hstack([t.columns for t in terms]), np.concatenate([t.prior for t in terms])
+
+
+def _refit(z: np.ndarray, terms: list[Term]) -> np.ndarray:
+    """Fit all terms jointly; returns the standardised residual left."""
+    if not terms:
+        return z
+    x, prior = _stack(terms)
+    theta = irls(z, x, prior)
+    at = 0
+    for t in terms:
+        t.theta = theta[at:at + t.columns.shape[1]]
+        at += t.columns.shape[1]
+    return z - x @ theta
+
+
+def select(problem: Problem, channel: Channel, pool: list[Candidate]) -> list[Term]:
+    """Forward selection by held-out gain (see the module's description)."""
+    z, folds, kept, banned = channel.z, channel.folds(), [], set()
+    # Parametric effects first, then NLOS (whose region adapts to the data) on what
+    # they leave, then parametric again on what NLOS leaves, until nothing joins: the
+    # flexible candidate must not swallow the rigid ones, nor hide them.
+    stages = ["parametric", "nlos"] * 3 if channel.name == "tdoa" else ["parametric"]
+    for number, stage in enumerate(stages):
+        before = len(kept)
+        left = _refit(z, kept)
+        while len(kept) < MAX_EFFECTS:
+            taken = {t.key for t in kept} | banned
+            if stage == "parametric":
+                trials = [(held_out_gain(left, c.columns, np.full(c.size, c.prior), folds), Term(c, c.columns))
+                          for c in pool if c.channel == channel.name and c.key not in taken]
+            else:
+                trials = [trial for k in problem.anchor_ids if f"nlos:{k}" not in taken
+                          for trial in [_nlos_trial(problem, channel, left, folds, k)] if trial is not None]
+            if not trials:
+                break
+            gain, best = max(trials, key=lambda gt: gt[0] - PENALTY_PER_PARAMETER * gt[1].columns.shape[1])
+            if gain - PENALTY_PER_PARAMETER * best.columns.shape[1] < MIN_EVIDENCE:
+                break
+            kept.append(best)
+            left = _refit(z, kept)
+            for term in [t for t in kept if np.abs(t.theta).max() > t.candidate.bound]:
+                # beyond physical size: the term is bending to fit something else
+                log.info("%s: %s fitted out of bounds (%s); not this effect", channel.name, term.key, term.theta)
+                kept.remove(term)
+                banned.add(term.key)
+                left = _refit(z, kept)
+            if best in kept:
+                log.info("%s: + %s (held-out gain %.1f)", channel.name, best.key, gain)
+        if number and len(kept) == before and stage == "parametric":
+            break
+    _confine_in_time(channel, kept)
+    _refit(z, kept)
+    return _prune(z, folds, kept)
+
+
+def _prune(z: np.ndarray, folds: np.ndarray, kept: list[Term]) -> list[Term]:
+    """Each term's evidence is its held-out gain given all the others; the weakest goes
+    while it is below the bar (an effect that an added look-alike made redundant)."""
+    while kept:
+        for term in kept:
+            term.evidence = held_out_gain(z, term.columns, term.prior, folds,
+                                          _stack([t for t in kept if t is not term]))
+        weakest = min(kept, key=lambda t: t.evidence - PENALTY_PER_PARAMETER * t.columns.shape[1])
+        if weakest.evidence - PENALTY_PER_PARAMETER * weakest.columns.shape[1] >= MIN_EVIDENCE:
+            break
+        log.info("- %s (evidence %.1f given the others)", weakest.key, weakest.evidence)
+        kept.remove(weakest)
+        _refit(z, kept)
+    return kept
+
+
+def _confine_in_time(channel: Channel, kept: list[Term]) -> None:
+    """An effect present in part of the flight only: try every run of whole time
+    blocks; keep the best window when it explains clearly more than the whole flight."""
+    if not kept:
+        return
+    edges = np.quantile(channel.t, np.linspace(0, 1, TIME_BLOCKS + 1))
+    for term in kept:
+        if term.candidate.effect not in WINDOWABLE:
+            continue
+        others = [t for t in kept if t is not term]
+        z = channel.z if not others else channel.z - _stack(others)[0] @ np.concatenate([t.theta for t in others])
+        full = huber_loss(z - term.columns @ irls(z, term.columns, term.prior)).sum()
+        best = (full - MIN_EVIDENCE - 2 * PENALTY_PER_PARAMETER, None)
+        for i in range(TIME_BLOCKS):
+            for j in range(i + 1, TIME_BLOCKS + 1):
+                if j - i == TIME_BLOCKS:
+                    continue
+                inside = (channel.t >= edges[i]) & (channel.t < edges[j] if j < TIME_BLOCKS else True)
+                cols = term.columns * inside[:, None]
+                loss = huber_loss(z - cols @ irls(z, cols, term.prior)).sum()
+                if loss < best[0]:
+                    best = (loss, (float(edges[i]), float(edges[j])), cols)
+        if best[1] is not None:
+            term.columns, term.extra["during"] = best[2], list(best[1])
+
+
+# ----------------------------------------------------------------------------- NLOS
+
+def _nlos_trial(problem: Problem, channel: Channel, z: np.ndarray, folds: np.ndarray,
+                k: int) -> tuple[float, Term] | None:
+    """Held-out gain of a positive excess on anchor k's ranges inside a region that is
+    found on the training blocks only; the term carries the region found on all data."""
+    sign = problem.anchor_sign(k)
+    positions = problem.tag_positions()
+    gain = 0.0
+    for fold in range(FOLDS):
+        train, test = folds != fold, folds == fold
+        region = find_region(positions[train], (sign * z)[train], sign[train] != 0)
+        if region is None:
+            continue
+        col = (region.contains(positions) * sign)[:, None] / channel.scale[:, None]
+        theta = irls(z[train], col[train], np.array([NLOS_PRIOR_M]))
+        if theta[0] <= 0:
+            continue
+        gain += huber_loss(z[test]).sum() - huber_loss(z[test] - col[test] @ theta).sum()
+    region = find_region(positions, sign * z, sign != 0)
+    if region is None:
+        return None
+    col = (region.contains(positions) * sign)[:, None] / channel.scale[:, None]
+    return gain, Term(Candidate("nlos", "tdoa", "mean_excess_m", 1, {"anchor": k}, prior=NLOS_PRIOR_M), col,
+                      {"region": region.to_json()})
+
+
+def find_region(positions: np.ndarray, s: np.ndarray, involved: np.ndarray) -> fx.Region | None:
+    """Where an anchor's ranges read long: the connected set of floor cells (NLOS_CELL_M)
+    around the cell with the most significant positive mean of `s` (its standardised
+    signed residual), cells counted when their mean is 3 standard errors above zero."""
+    pos, s = positions[involved], np.clip(s[involved], -HUBER_C * 3, HUBER_C * 3)
+    if len(s) < MIN_SAMPLES:
+        return None
+    cells = np.floor((pos[:, :2] - pos[:, :2].min(axis=0)) / NLOS_CELL_M).astype(int)
+    keys, inverse, counts = np.unique(cells, axis=0, return_inverse=True, return_counts=True)
+    inverse = inverse.ravel()
+    sums = np.bincount(inverse, weights=s)
+    tstat = sums / np.sqrt(np.maximum(counts, 1))        # s has unit variance: mean * sqrt(n)
+    hot = (counts >= NLOS_MIN_CELL) & (tstat > 3.0)
+    if not hot.any():
+        return None
+    component = _connected(keys, hot, int(np.argmax(np.where(hot, tstat, -np.inf))))
+    inside = np.isin(inverse, component)
+    if inside.mean() > NLOS_MAX_SHARE:
+        return None
+    chosen = pos[inside]
+    margin = np.array([NLOS_CELL_M / 2, NLOS_CELL_M / 2, 0.05])
+    return fx.Region(chosen.min(axis=0) - margin, chosen.max(axis=0) + margin)
+
+
+def _connected(keys: np.ndarray, hot: np.ndarray, start: int) -> list[int]:
+    index = {tuple(k): i for i, k in enumerate(keys)}
+    seen, todo = {start}, [start]
+    while todo:
+        i = todo.pop()
+        for dx in (-1, 0, 1):
+            for dy in (-1, 0, 1):
+                j = index.get((keys[i][0] + dx, keys[i][1] + dy))
+                if j is not None and hot[j] and j not in seen:
+                    seen.add(j)
+                    todo.append(j)
+    return sorted(seen)
+
+
+def nlos_shape(excess: np.ndarray, outside: np.ndarray, mean_shift: float) -> tuple[float, float]:
+    """Fraction and mean excess of an exponential NLOS mixture from its mean shift and
+    the extra second moment of the signed residuals inside the region (robustly
+    trimmed); falls back to 'every sample, by the mean shift' when unidentifiable."""
+    limit = 6 * _mad_scale(outside) if len(outside) else np.inf
+    inside, outside = excess[np.abs(excess) < limit], outside[np.abs(outside) < limit]
+    if mean_shift <= 0 or len(inside) < MIN_SAMPLES or len(outside) < MIN_SAMPLES:
+        return 1.0, max(mean_shift, 0.0)
+    extra = np.mean((inside - np.mean(inside)) ** 2) - np.var(outside)    # f m² (2 − f)
+    mean_excess = max(mean_shift, (extra + mean_shift ** 2) / (2 * mean_shift))
+    return float(min(1.0, mean_shift / mean_excess)), float(mean_excess)
+
+
+# ----------------------------------------------------------------------------- floor multipath
+
+FLOOR_HEIGHTS_M = (0.25, 0.4, 0.6, 0.8, 1.0)
+ON_GROUND_M = 0.1             # a tag this low is sitting on the floor: its own regime, left out
+
+
+def _nll(r: np.ndarray, sigma: np.ndarray | float) -> np.ndarray:
+    """Robust negative log-likelihood per sample (Huber loss with scale)."""
+    return np.log(sigma) + huber_loss(r / sigma)
+
+
+def floor_multipath(channel: Channel, heights: np.ndarray) -> dict | None:
+    """Is the TDOA noise larger below some height? Held-out gain of a two-level noise
+    model (below/above h) over one level, best h; None when not supported."""
+    folds, r, best = channel.folds(), channel.residual, None
+    airborne = heights >= ON_GROUND_M
+    folds, r, heights = folds[airborne], r[airborne], heights[airborne]
+    for h in FLOOR_HEIGHTS_M:
+        low = heights < h
+        if low.sum() < MIN_SAMPLES or (~low).sum() < MIN_SAMPLES:
+            continue
+        gain = 0.0
+        for k in range(FOLDS):
+            train, test = folds != k, folds == k
+            if (train & low).sum() < MIN_SAMPLES // 2 or (train & ~low).sum() < MIN_SAMPLES:
+                continue
+            one = _mad_scale(r[train])
+            two = np.where(low, _mad_scale(r[train & low]), _mad_scale(r[train & ~low]))
+            gain += float((_nll(r[test], one) - _nll(r[test], two[test])).sum())
+        sigma_low, sigma_high = _mad_scale(r[low]), _mad_scale(r[~low])
+        if sigma_low > sigma_high and (best is None or gain > best["evidence"]):
+            rows = np.zeros(len(airborne), bool)
+            rows[np.flatnonzero(airborne)[low]] = True
+            best = {"height_m": h, "std_m": float(np.sqrt(sigma_low ** 2 - sigma_high ** 2)), "evidence": gain,
+                    "sigma_low": sigma_low, "sigma_high": sigma_high, "low": rows}
+    if best is None or best["evidence"] - 2 * PENALTY_PER_PARAMETER < MIN_EVIDENCE:
+        return None
+    return best
+
+
+# ----------------------------------------------------------------------------- the diagnosis
+
+@dataclass
+class Finding:
+    """One effect the recording supports, as reported (report.json's contract)."""
+
+    effect: str
+    channel: str
+    anchors: list[int]
+    params: dict
+    evidence: float
+    fit_before: float
+    fit_after: float
+    where: dict
+    rows: np.ndarray = field(repr=False, default=None)      # affected rows of the channel
+
+    def to_json(self) -> dict:
+        out = {"effect": self.effect, "channel": self.channel, "params": self.params, "evidence": self.evidence,
+               "fit_before": self.fit_before, "fit_after": self.fit_after, "where": self.where}
+        if self.anchors:
+            out["anchors"] = self.anchors
+        return out
+
+
+@dataclass
+class Diagnosis:
+    problem: Problem
+    findings: list[Finding]
+    model: list[fx.Effect]
+    residual_before: dict[str, np.ndarray]
+    residual_after: dict[str, np.ndarray]
+
+    def channel_fits(self) -> dict:
+        return {name: {"samples": int(len(r)), "noise_scale": float(self.problem.scales[name][0]),
+                       "fit_before": robust_rms(r, self.problem.scales[name]),
+                       "fit_after": robust_rms(self.residual_after[name], self.problem.scales[name])}
+                for name, r in self.residual_before.items()}
+
+    def to_json(self) -> dict:
+        rec = self.problem.rec
+        return {"recording": rec.metadata.get("source", ""), "duration_s": float(rec.truth.t[-1] - rec.truth.t[0]),
+                "findings": [f.to_json() for f in self.findings], "channels": self.channel_fits(),
+                "mismatch": locate(self.problem, self.residual_before),
+                "model": [e.to_json() for e in self.model] + self.noise_model()}
+
+    def noise_model(self) -> list[dict]:
+        """The noise the fitted model leaves, so `model` simulates data like the recording."""
+        s = self.problem.scales
+        out = []
+        if "tdoa" in s:
+            out.append({"effect": "tdoa_noise", "params": {"std_m": float(s["tdoa"][0])}})
+        if "accel" in s and "gyro" in s:
+            out.append({"effect": "imu_noise", "params": {"accel_std": float(np.mean(s["accel"][:3])),
+                                                          "gyro_std": float(np.mean(s["gyro"][:3]))}})
+        return out
+
+
+def diagnose(rec: Recording, progress=None) -> Diagnosis:
+    problem = Problem(rec)
+    pool = candidates(problem)
+    before = {name: problem.recorded(name) - pred for name, pred in problem.predict([]).items()}
+    findings, model, names = [], [], list(before)
+    for name in progress(names) if progress else names:
+        channel = problem.channel(name, [])
+        terms = select(problem, channel, pool)
+        z_after = _refit(channel.z, terms)
+        for term in terms:
+            effect = _effect_of(problem, channel, term)
+            model.append(effect)
+            findings.append(_finding(problem, channel, term, effect, z_after))
+    after = {name: problem.recorded(name) - pred for name, pred in problem.predict(model).items()}
+    if "tdoa" in after:
+        floor = _floor_finding(problem, after["tdoa"])
+        if floor is not None:
+            findings.append(floor)
+            model.append(fx.make_effect("multipath_floor", floor.params))
+    findings.sort(key=lambda f: -f.evidence)
+    return Diagnosis(problem, findings, model, before, after)
+
+
+def _effect_of(problem: Problem, channel: Channel, term: Term) -> fx.Effect:
+    c = term.candidate
+    if c.effect != "nlos":
+        return c.make(term.theta, term.extra)
+    k, shift = c.fixed["anchor"], float(term.theta[0])
+    sign, inside = problem.anchor_sign(k), term.columns[:, 0] != 0
+    signed = sign * channel.residual          # before any effect
+    fraction, mean_excess = nlos_shape(signed[inside], signed[(sign != 0) & ~inside], shift)
+    return fx.make_effect("nlos", {"anchor": k, "fraction": fraction, "mean_excess_m": mean_excess,
+                                   "region": term.extra["region"]})
+
+
+def _finding(problem: Problem, channel: Channel, term: Term, effect: fx.Effect, z_after: np.ndarray) -> Finding:
+    """fit_before/fit_after: the affected rows' mismatch under the fitted model without
+    and with this effect (the whole model re-simulated is in Diagnosis.channel_fits)."""
+    rows = np.any(term.columns != 0, axis=1)
+    scale = channel.scale[rows]
+    z_without = z_after + term.columns @ term.theta
+    anchors = [term.candidate.fixed["anchor"]] if "anchor" in term.candidate.fixed else []
+    return Finding(effect.name, channel.name, anchors, _rounded(effect.params()), round(float(term.evidence), 2),
+                   robust_rms(z_without[rows] * scale, scale), robust_rms(z_after[rows] * scale, scale),
+                   _where(problem, channel, term, rows, z_after), rows)
+
+
+def _floor_finding(problem: Problem, residual: np.ndarray) -> Finding | None:
+    heights = problem.tag_positions()[:, 2]
+    channel = Channel("tdoa", problem.times("tdoa"), residual, problem.scales["tdoa"])
+    floor = floor_multipath(channel, heights)
+    if floor is None:
+        return None
+    low = floor["low"]
+    before = float(np.mean(_nll(residual[low], _mad_scale(residual[heights >= ON_GROUND_M]))))
+    after = float(np.mean(_nll(residual[low], floor["sigma_low"])))
+    return Finding("multipath_floor", "tdoa", [], {"height_m": floor["height_m"], "std_m": round(floor["std_m"], 4)},
+                   round(floor["evidence"], 2), before, after,
+                   {"below_height_m": floor["height_m"], "time": _span(channel.t[low]),
+                    "fit_unit": "mean negative log-likelihood per sample (a noise-level effect)"}, low)
+
+
+def _rounded(params: dict) -> dict:
+    def r(v):
+        if isinstance(v, float):
+            return round(v, 6)
+        if isinstance(v, list):
+            return [r(x) for x in v]
+        if isinstance(v, dict):
+            return {k: r(x) for k, x in v.items()}
+        return v
+    return r(params)
+
+
+def _span(t: np.ndarray) -> list[float]:
+    return [round(float(t.min()), 3), round(float(t.max()), 3)] if len(t) else []
+
+
+def _where(problem: Problem, channel: Channel, term: Term, rows: np.ndarray, z_after: np.ndarray) -> dict:
+    where: dict = {"time": _span(channel.t[rows])}
+    if channel.name == "tdoa":
+        positions = problem.tag_positions()[rows]
+        where["region"] = term.extra.get("region") or {"min": np.round(positions.min(axis=0), 3).tolist(),
+                                                        "max": np.round(positions.max(axis=0), 3).tolist()}
+        if "anchor" in term.candidate.fixed:
+            where["anchors"] = [term.candidate.fixed["anchor"]]
+        return where
+    where["axes"] = [AXES[j] for j in _significant_axes(term, z_after)]
+    return where
+
+
+def _significant_axes(term: Term, z_after: np.ndarray) -> list[int]:
+    """Axes whose parameter matters: zeroing it (all else as fitted) raises the robust
+    loss by more than 4 (about 2.8 standard errors)."""
+    best = huber_loss(z_after).sum()
+    out = []
+    for j in range(term.columns.shape[1]):
+        if huber_loss(z_after + term.columns[:, j] * term.theta[j]).sum() - best > 4.0:
+            out.append(j)
+    return out
+
+
+def locate(problem: Problem, residual: dict[str, np.ndarray]) -> dict:
+    """Where the untouched simulation and the recording differ: robust mean mismatch per
+    anchor (signed: positive = that anchor's ranges read long), per IMU axis and per
+    time block."""
+    out: dict = {}
+    if "tdoa" in residual:
+        r, scale = residual["tdoa"], problem.scales["tdoa"][0]
+        out["tdoa_per_anchor_m"] = {str(k): _huber_mean(problem.anchor_sign(k)[problem.anchor_sign(k) != 0]
+                                                        * r[problem.anchor_sign(k) != 0], scale)
+                                    for k in problem.anchor_ids}
+    for name in ("accel", "gyro"):
+        if name in residual:
+            r = residual[name]
+            out[f"{name}_per_axis"] = {AXES[a]: _huber_mean(r[a::3], problem.scales[name][a]) for a in range(3)}
+    for name, r in residual.items():
+        t = problem.times(name)
+        edges = np.quantile(t, np.linspace(0, 1, TIME_BLOCKS + 1))
+        block = np.clip(np.searchsorted(edges, t, side="right") - 1, 0, TIME_BLOCKS - 1)
+        out[f"{name}_per_time_block"] = [
+            {"time": [round(float(edges[b]), 2), round(float(edges[b + 1]), 2)],
+             "robust_rms": robust_rms(r[block == b], problem.scales[name][block == b])}
+            for b in range(TIME_BLOCKS) if (block == b).any()]
+    return out
+
+
+def _huber_mean(values: np.ndarray, scale: float) -> float:
+    if not len(values):
+        return float("nan")
+    return float(irls(values / scale, np.ones((len(values), 1)))[0] * scale)

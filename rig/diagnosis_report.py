@@ -1,0 +1,170 @@
+"""Writes a diagnosis: DIR/report.json (the findings contract), DIR/model.json (the
+fitted effects as a simulator effect list) and DIR/report.md with plots of the
+residuals against time, viewing angle and position, before and after."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from rig import effects as fx  # noqa: E402
+from rig.diagnose import Diagnosis, Finding  # noqa: E402
+
+REPORT_JSON, REPORT_MD, MODEL_JSON = "report.json", "report.md", "model.json"
+
+PLAIN = {
+    "time_offset": "the UWB timestamps are late by {seconds:.3f} s against the IMU and ground-truth clock",
+    "clock_drift": "the UWB clock runs fast by {ppm:.0f} ppm against the IMU clock",
+    "anchor_position": "anchor {anchor} is really {offset_m} m from where the survey puts it",
+    "anchor_delay": "every range from anchor {anchor} reads {meters:+.3f} m long (antenna delay)",
+    "antenna_pattern": "anchor {anchor}'s ranges are biased with the viewing angle (antenna pattern {coeffs_m} m)",
+    "nlos": "ranges to anchor {anchor} carry an excess delay (NLOS: {fraction:.0%} of them, {mean_excess_m:.3f} m "
+            "on average) while the tag is inside {region}",
+    "multipath_floor": "below {height_m} m the TDOA noise grows by {std_m:.3f} m (floor multipath)",
+    "imu_accel_bias": "the accelerometer reads {bias_mps2} m/s² too high",
+    "imu_gyro_bias": "the gyroscope reads {bias_rps} rad/s too high",
+    "imu_accel_scale": "the accelerometer's scale factors are {scale}",
+    "imu_gyro_scale": "the gyroscope's scale factors are {scale}",
+    "lever_arm": "the UWB antenna sits at {offset_m} m from the body origin (body frame)",
+}
+UNITS = {"tdoa": "m", "accel": "m/s²", "gyro": "rad/s"}
+
+
+def describe(finding: Finding) -> str:
+    params = {k: (np.round(v, 3).tolist() if isinstance(v, list) else v) for k, v in finding.params.items()}
+    text = PLAIN.get(finding.effect, finding.effect + " {}").format(**params)
+    if "during" in finding.params:
+        text += f", from {finding.params['during'][0]:.1f} s to {finding.params['during'][1]:.1f} s only"
+    return text
+
+
+def write(diagnosis: Diagnosis, out: Path, recording: str) -> dict:
+    out.mkdir(parents=True, exist_ok=True)
+    report = diagnosis.to_json()
+    report["recording"] = recording
+    (out / REPORT_JSON).write_text(json.dumps(report, indent=2, allow_nan=False, default=_finite))
+    (out / MODEL_JSON).write_text(json.dumps({"effects": report["model"]}, indent=2))
+    images = _plots(diagnosis, out)
+    (out / REPORT_MD).write_text(_markdown(diagnosis, report, images))
+    return report
+
+
+def _finite(value):
+    raise TypeError(f"not JSON: {value!r}")
+
+
+def _markdown(diagnosis: Diagnosis, report: dict, images: list[tuple[str, str]]) -> str:
+    lines = [f"# Diagnosis of {report['recording']}", "",
+             f"{report['duration_s']:.1f} s of flight. The simulator flew the recording's own ground truth past its "
+             "surveyed anchors; every recorded sample was compared with the simulated one.", "",
+             "## How far simulation and recording are apart", "",
+             "| channel | samples | noise (robust σ) | mismatch before | after modelling the findings |",
+             "|---|---|---|---|---|"]
+    for name, c in report["channels"].items():
+        lines.append(f"| {name} | {c['samples']} | {c['noise_scale']:.4g} {UNITS[name]} | "
+                     f"{c['fit_before']:.4g} | {c['fit_after']:.4g} ({_change(c)}) |")
+    lines += ["", "Mismatch is a robust RMS of recorded − simulated in the channel's unit (IMU channels as "
+              "block means); the *after* column re-simulates the recording with every kept effect.", "",
+              "## What physics the simulation left out", ""]
+    if not diagnosis.findings:
+        lines.append("Nothing: no catalog effect is supported by held-out data.")
+    for k, f in enumerate(diagnosis.findings, 1):
+        lines.append(f"{k}. **{f.effect}**: {describe(f)}. Evidence {f.evidence:.1f}; the affected "
+                     f"{f.channel} samples' mismatch goes from {f.fit_before:.4g} to {f.fit_after:.4g}.")
+    lines += ["", "Evidence is the held-out gain in robust loss (five contiguous time blocks, each predicted "
+              "from the other four); larger is stronger. Look-alikes: an anchor displacement along the line "
+              "of sight reads as a delay, and a second-order antenna pattern over a small range of viewing "
+              "angles as a displacement; an accelerometer scale on z reads as a bias in hover.", ""]
+    for title, name in images:
+        lines += [f"## {title}", "", f"![{title}]({name})", ""]
+    return "\n".join(lines)
+
+
+def _change(c: dict) -> str:
+    if not c["fit_before"]:
+        return "—"
+    return f"{(c['fit_after'] - c['fit_before']) / c['fit_before']:+.1%}"
+
+
+def _plots(diagnosis: Diagnosis, out: Path) -> list[tuple[str, str]]:
+    images = []
+    p = diagnosis.problem
+    names = list(diagnosis.residual_before)
+    fig, axes = plt.subplots(len(names), 1, figsize=(9, 2.6 * len(names)), squeeze=False)
+    for ax, name in zip(axes[:, 0], names):
+        t = p.times(name)
+        for label, r in (("before", diagnosis.residual_before[name]), ("after", diagnosis.residual_after[name])):
+            ax.plot(*_running_median(t, np.abs(r)), label=f"|residual| {label}")
+        ax.set(ylabel=f"{name} [{UNITS[name]}]")
+        ax.legend(loc="upper right", fontsize=8)
+    axes[-1, 0].set(xlabel="time [s]")
+    fig.suptitle("recorded − simulated against time (running median of the magnitude)")
+    images.append(("Residuals against time", _save(fig, out, "residual_time.png")))
+    anchor_findings = [f for f in diagnosis.findings if f.channel == "tdoa" and f.anchors]
+    if anchor_findings:
+        k = anchor_findings[0].anchors[0]
+        images.append((f"Anchor {k}: residual against viewing angle", _angle_plot(diagnosis, k, out)))
+        images.append((f"Anchor {k}: residual against position", _position_plot(diagnosis, k, out)))
+    if diagnosis.findings:
+        fig, ax = plt.subplots(figsize=(9, 0.4 * len(diagnosis.findings) + 1.2))
+        labels = [f"{f.effect} {f.anchors or ''}" for f in diagnosis.findings]
+        y = np.arange(len(labels))
+        ax.barh(y - 0.2, [f.fit_before for f in diagnosis.findings], 0.4, label="without the effect")
+        ax.barh(y + 0.2, [f.fit_after for f in diagnosis.findings], 0.4, label="with it")
+        ax.set(yticks=y, yticklabels=labels, xlabel="mismatch of the affected samples (channel unit)")
+        ax.invert_yaxis()
+        ax.legend(fontsize=8)
+        images.append(("Each finding's fit", _save(fig, out, "findings.png")))
+    return images
+
+
+def _signed(diagnosis: Diagnosis, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    sign = diagnosis.problem.anchor_sign(k)
+    rows = sign != 0
+    return rows, sign[rows] * diagnosis.residual_before["tdoa"][rows], sign[rows] * diagnosis.residual_after["tdoa"][rows]
+
+
+def _angle_plot(diagnosis: Diagnosis, k: int, out: Path) -> str:
+    p = diagnosis.problem
+    batch = p.predictor.tdoa([])
+    _, elevation = fx.viewing_angles(batch, p.predictor.world([]), k)
+    rows, before, after = _signed(diagnosis, k)
+    el = np.degrees(elevation[p.tdoa_rows][rows])
+    fig, ax = plt.subplots(figsize=(8, 3))
+    for label, r in (("before", before), ("after", after)):
+        ax.plot(*_running_median(el, r), label=label)
+    ax.axhline(0, color="k", lw=0.5)
+    ax.set(xlabel=f"elevation of the tag seen from anchor {k} [deg]", ylabel="range error [m] (running median)")
+    ax.legend(fontsize=8)
+    return _save(fig, out, f"anchor{k}_angle.png")
+
+
+def _position_plot(diagnosis: Diagnosis, k: int, out: Path) -> str:
+    rows, before, after = _signed(diagnosis, k)
+    xy = diagnosis.problem.tag_positions()[rows]
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4), sharey=True)
+    lim = np.percentile(np.abs(before), 90)
+    for ax, (label, r) in zip(axes, (("before", before), ("after", after))):
+        sc = ax.scatter(xy[:, 0], xy[:, 1], c=r, s=2, cmap="coolwarm", vmin=-lim, vmax=lim)
+        ax.set(title=f"anchor {k} range error, {label}", xlabel="x [m]", aspect="equal")
+    axes[0].set(ylabel="y [m]")
+    fig.colorbar(sc, ax=axes, label="m")
+    return _save(fig, out, f"anchor{k}_position.png")
+
+
+def _running_median(x: np.ndarray, y: np.ndarray, bins: int = 60) -> tuple[np.ndarray, np.ndarray]:
+    order = np.argsort(x)
+    chunks = np.array_split(order, min(bins, max(1, len(order) // 10)))
+    return (np.array([x[c].mean() for c in chunks if len(c)]), np.array([np.median(y[c]) for c in chunks if len(c)]))
+
+
+def _save(fig, out: Path, name: str) -> str:
+    fig.savefig(out / name, dpi=90, bbox_inches="tight")
+    plt.close(fig)
+    return name
