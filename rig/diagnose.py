@@ -85,6 +85,7 @@ class Candidate:
     step: float = 0.01                              # finite-difference step
     prior: float = 0.5                              # plausible size of the parameter (a weak ridge)
     bound: float = 1.0                              # largest physical size: a fit beyond is a misfit
+    penalty: float = PENALTY_PER_PARAMETER          # held-out gain each parameter must pay for
     columns: np.ndarray | None = None               # design columns (standardised), rows x size
     key: str = ""
 
@@ -259,8 +260,10 @@ def candidates(problem: Problem) -> list[Candidate]:
                 Candidate("lever_arm", "tdoa", "offset_m", 3, prior=0.1, bound=0.3)]
         for k in problem.anchor_ids:
             out += [Candidate("anchor_delay", "tdoa", "meters", 1, {"anchor": k}, bound=1.5),
-                    Candidate("anchor_position", "tdoa", "offset_m", 3, {"anchor": k}, prior=0.3, bound=1.0),
-                    Candidate("antenna_pattern", "tdoa", "coeffs_m", 3, {"anchor": k}, prior=0.3, bound=1.0)]
+                    Candidate("anchor_position", "tdoa", "offset_m", 3, {"anchor": k}, prior=0.3, bound=1.0,
+                              penalty=2 * PENALTY_PER_PARAMETER),     # a delay wins a tie
+                    Candidate("antenna_pattern", "tdoa", "coeffs_m", 3, {"anchor": k}, prior=0.3, bound=1.0,
+                              penalty=3 * PENALTY_PER_PARAMETER)]    # the least specific: pays most
     if len(problem.imu_rows["accel"]):
         out += [Candidate("imu_accel_bias", "accel", "bias_mps2", 3, prior=3.0, bound=6.0),
                 Candidate("imu_accel_scale", "accel", "scale", 3, neutral=1.0, step=1e-3, prior=0.2, bound=0.5)]
@@ -289,8 +292,8 @@ WINDOWABLE = {"anchor_delay", "antenna_pattern", "imu_accel_bias", "imu_gyro_bia
               "imu_gyro_scale"}
 NLOS_CELL_M = 0.5
 NLOS_MIN_CELL = 20
-NLOS_PRIOR_M = 1.0
-NLOS_MAX_SHARE = 0.6          # a "region" holding most of an anchor's samples is a delay, not NLOS
+NLOS_PRIOR_M = 0.3            # small: what all of an anchor's ranges share is its delay's
+NLOS_MAX_SHARE = 0.5          # a "region" holding most of an anchor's samples is a delay, not NLOS
 
 
 @dataclass
@@ -302,6 +305,7 @@ class Term:
     extra: dict = field(default_factory=dict)       # during, region, ...
     theta: np.ndarray | None = None
     evidence: float = 0.0
+    window_cost: bool = False                        # confined in time: its two ends are parameters too
 
     @property
     def key(self) -> str:
@@ -310,6 +314,10 @@ class Term:
     @property
     def prior(self) -> np.ndarray:
         return np.full(self.columns.shape[1], self.candidate.prior)
+
+    @property
+    def cost(self) -> float:
+        return self.candidate.penalty * self.columns.shape[1] + (2 * PENALTY_PER_PARAMETER if self.window_cost else 0)
 
 
 def _stack(terms: list[Term]) -> tuple[np.ndarray, np.ndarray] | None:
@@ -344,15 +352,17 @@ def select(problem: Problem, channel: Channel, pool: list[Candidate]) -> list[Te
         while len(kept) < MAX_EFFECTS:
             taken = {t.key for t in kept} | banned
             if stage == "parametric":
+                open_pool = [c for c in pool if c.channel == channel.name and c.key not in taken]
                 trials = [(held_out_gain(left, c.columns, np.full(c.size, c.prior), folds), Term(c, c.columns))
-                          for c in pool if c.channel == channel.name and c.key not in taken]
+                          for c in open_pool]
+                trials += [_window_trial(channel, left, folds, c) for c in open_pool if c.effect in WINDOWABLE]
             else:
                 trials = [trial for k in problem.anchor_ids if f"nlos:{k}" not in taken
                           for trial in [_nlos_trial(problem, channel, left, folds, k)] if trial is not None]
             if not trials:
                 break
-            gain, best = max(trials, key=lambda gt: gt[0] - PENALTY_PER_PARAMETER * gt[1].columns.shape[1])
-            if gain - PENALTY_PER_PARAMETER * best.columns.shape[1] < MIN_EVIDENCE:
+            gain, best = max(trials, key=lambda gt: gt[0] - gt[1].cost)
+            if gain - best.cost < MIN_EVIDENCE:
                 break
             kept.append(best)
             left = _refit(z, kept)
@@ -366,9 +376,35 @@ def select(problem: Problem, channel: Channel, pool: list[Candidate]) -> list[Te
                 log.info("%s: + %s (held-out gain %.1f)", channel.name, best.key, gain)
         if number and len(kept) == before and stage == "parametric":
             break
+    _simplify(z, folds, kept, pool)
     _confine_in_time(channel, kept)
     _refit(z, kept)
     return _prune(z, folds, kept)
+
+
+SIMPLER = {"anchor_position": ("anchor_delay",), "antenna_pattern": ("anchor_delay", "anchor_position")}
+
+
+def _simplify(z: np.ndarray, folds: np.ndarray, kept: list[Term], pool: list[Candidate]) -> None:
+    """Given everything else that was found, would a simpler look-alike on the same
+    anchor do as well (an anchor displaced along the line of sight is a delay)? Then
+    it replaces the richer effect, which picked up some of the others' signal while
+    they were not yet in the model."""
+    by_key = {c.key: c for c in pool}
+    for term in list(kept):
+        others = [t for t in kept if t is not term]
+        base = _stack(others)
+        score = held_out_gain(z, term.columns, term.prior, folds, base) - term.cost
+        for name in SIMPLER.get(term.candidate.effect, ()):
+            simple = by_key.get(name + "".join(f":{v}" for v in term.candidate.fixed.values()))
+            if simple is None or simple.key in {t.key for t in others}:
+                continue
+            alternative = Term(simple, simple.columns)
+            if held_out_gain(z, simple.columns, alternative.prior, folds, base) - alternative.cost >= score - 2.0:
+                log.info("%s reads as the simpler %s", term.key, simple.key)
+                kept[kept.index(term)] = alternative
+                _refit(z, kept)
+                break
 
 
 def _prune(z: np.ndarray, folds: np.ndarray, kept: list[Term]) -> list[Term]:
@@ -378,13 +414,35 @@ def _prune(z: np.ndarray, folds: np.ndarray, kept: list[Term]) -> list[Term]:
         for term in kept:
             term.evidence = held_out_gain(z, term.columns, term.prior, folds,
                                           _stack([t for t in kept if t is not term]))
-        weakest = min(kept, key=lambda t: t.evidence - PENALTY_PER_PARAMETER * t.columns.shape[1])
-        if weakest.evidence - PENALTY_PER_PARAMETER * weakest.columns.shape[1] >= MIN_EVIDENCE:
+        weakest = min(kept, key=lambda t: t.evidence - t.cost)
+        if weakest.evidence - weakest.cost >= MIN_EVIDENCE:
             break
         log.info("- %s (evidence %.1f given the others)", weakest.key, weakest.evidence)
         kept.remove(weakest)
         _refit(z, kept)
     return kept
+
+
+def _window_trial(channel: Channel, z: np.ndarray, folds: np.ndarray, c: Candidate) -> tuple[float, Term]:
+    """The candidate confined to the run of time blocks where it explains most (from
+    per-block sufficient statistics of a weighted least-squares fit), then judged on
+    held-out blocks like any candidate; its two ends cost two more parameters."""
+    edges = np.quantile(channel.t, np.linspace(0, 1, TIME_BLOCKS + 1))
+    block = np.clip(np.searchsorted(edges, channel.t, side="right") - 1, 0, TIME_BLOCKS - 1)
+    w = huber_weight(z)[:, None]
+    sxz = np.stack([np.bincount(block, (w * c.columns * z[:, None])[:, j], TIME_BLOCKS) for j in range(c.size)], 1)
+    sxx = np.stack([np.bincount(block, (w * c.columns ** 2)[:, j], TIME_BLOCKS) for j in range(c.size)], 1)
+    best, window = -np.inf, (0, TIME_BLOCKS)
+    for i in range(TIME_BLOCKS):
+        for j in range(i + 1, TIME_BLOCKS + 1):
+            if j - i < TIME_BLOCKS:
+                gain = np.sum(sxz[i:j].sum(0) ** 2 / (sxx[i:j].sum(0) + 1.0 / c.prior ** 2))
+                if gain > best:
+                    best, window = gain, (i, j)
+    inside = (channel.t >= edges[window[0]]) & ((channel.t < edges[window[1]]) if window[1] < TIME_BLOCKS else True)
+    columns = c.columns * inside[:, None]
+    term = Term(c, columns, {"during": [float(edges[window[0]]), float(edges[window[1]])]}, window_cost=True)
+    return held_out_gain(z, columns, np.full(c.size, c.prior), folds), term
 
 
 def _confine_in_time(channel: Channel, kept: list[Term]) -> None:
@@ -410,7 +468,7 @@ def _confine_in_time(channel: Channel, kept: list[Term]) -> None:
                 if loss < best[0]:
                     best = (loss, (float(edges[i]), float(edges[j])), cols)
         if best[1] is not None:
-            term.columns, term.extra["during"] = best[2], list(best[1])
+            term.columns, term.extra["during"], term.window_cost = best[2], list(best[1]), True
 
 
 # ----------------------------------------------------------------------------- NLOS

@@ -100,9 +100,10 @@ class PatternTrajectory(Trajectory):
     through a smoothstep, so the flight is smooth from the first to the last sample.
     """
 
-    def __init__(self, plan: FlightPlan, yaw_rate: float = 0.0):
+    def __init__(self, plan: FlightPlan, yaw_rate: float = 0.0, yaw_amplitude: float = 0.0, yaw_omega: float = 1.0):
         self.plan = plan
         self.yaw_rate = yaw_rate
+        self.yaw_amplitude, self.yaw_omega = yaw_amplitude, yaw_omega   # a yaw swing excites the gyro
         self.t_start = 0.0
         self.t_end = plan.duration
         self._t_on = plan.ground_before + plan.climb  # pattern phase starts here
@@ -133,7 +134,10 @@ class PatternTrajectory(Trajectory):
 
     def rotation(self, t: np.ndarray) -> Rotation:
         t = np.asarray(t, float)
-        return _thrust_attitude(self.acceleration(t), self.yaw_rate * (t - self.t_start))
+        yaw = self.yaw_rate * (t - self.t_start)
+        if self.yaw_amplitude:
+            yaw = yaw + self.yaw_amplitude * np.sin(self.yaw_omega * (t - self.t_start))
+        return _thrust_attitude(self.acceleration(t), yaw)
 
 
 class CircleTrajectory(PatternTrajectory):
@@ -141,8 +145,8 @@ class CircleTrajectory(PatternTrajectory):
 
     def __init__(self, plan: FlightPlan, radius: float = 1.5, omega: float = 0.6, height: float = 1.5,
                  center: tuple[float, float] = (0.0, 0.0), z_amplitude: float = 0.0, z_omega: float = 0.0,
-                 yaw_rate: float = 0.0):
-        super().__init__(plan, yaw_rate)
+                 yaw_rate: float = 0.0, yaw_amplitude: float = 0.0, yaw_omega: float = 1.0):
+        super().__init__(plan, yaw_rate, yaw_amplitude, yaw_omega)
         self.radius, self.omega, self.height = radius, omega, height
         self.center = np.asarray(center, float)
         self.z_amplitude, self.z_omega = z_amplitude, z_omega
@@ -161,8 +165,9 @@ class SmoothRandomTrajectory(PatternTrajectory):
     """A sum of random sinusoids per axis inside a box: smooth, seeded, covers space."""
 
     def __init__(self, plan: FlightPlan, seed: int = 0, box_min=(-2.0, -2.0, 0.8), box_max=(2.0, 2.0, 2.2),
-                 components: int = 4, max_omega: float = 0.8, yaw_rate: float = 0.0):
-        super().__init__(plan, yaw_rate)
+                 components: int = 4, max_omega: float = 0.8, yaw_rate: float = 0.0, yaw_amplitude: float = 0.0,
+                 yaw_omega: float = 1.0):
+        super().__init__(plan, yaw_rate, yaw_amplitude, yaw_omega)
         rng = np.random.default_rng(seed)
         self.lo, self.hi = np.asarray(box_min, float), np.asarray(box_max, float)
         self.omegas = rng.uniform(0.1, max_omega, size=(components, 3))

@@ -1,0 +1,246 @@
+"""Proof of the diagnosis on concealed effects: each catalog effect injected, at a
+per-sample size at or below the noise (checked here, so it is invisible in a residual
+plot), into (a) a simulated flight and (b) a real shared flight, compared with the
+untouched flight as control (real flights carry real effects). The tool must name the
+effect, locate it (anchor, axis), recover its parameters within the stated tolerance
+and fit better with it than without. Plus harder cases: two effects at once, an effect
+in part of the flight, look-alikes. Effects this data cannot identify are marked as
+expected failures with the reason (strict: they fail the suite once they pass)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import RIG
+from rig.diagnose import Problem, _mad_scale, diagnose
+from rig.importer import load_any
+from rig.simulate import Predictor, SimConfig, inject, simulate
+
+NOISE = [{"effect": "tdoa_noise", "params": {"std_m": 0.15}},
+         {"effect": "imu_noise", "params": {"accel_std": 0.5, "gyro_std": 0.05}},
+         {"effect": "outliers", "params": {"fraction": 0.03, "mean_excess_m": 1.0}}]
+REAL_FLIGHT = "0426-traj1"
+
+
+def sim_config(survey: Path, effects: list[dict]) -> SimConfig:
+    """A circle with a vertical sine and a yaw swing (so thrust and yaw rate vary)."""
+    return SimConfig(trajectory="circle-sine", survey=str(survey), duration=40.0, seed=3,
+                     trajectory_params={"yaw_amplitude": 1.0, "yaw_omega": 0.5}, effects=NOISE + effects)
+
+
+@pytest.fixture(scope="module")
+def survey(data_dir: Path) -> Path:
+    return data_dir / "surveys" / "anchor_0425.txt"
+
+
+@pytest.fixture(scope="module")
+def sim_control(survey):
+    return findings(diagnose(simulate(sim_config(survey, []))))
+
+
+@pytest.fixture(scope="module")
+def real(data_dir: Path):
+    rec = load_any(data_dir / "flights" / REAL_FLIGHT)
+    return rec, Predictor(rec)
+
+
+@pytest.fixture(scope="module")
+def real_control(real):
+    return findings(diagnose(real[0]))
+
+
+def findings(result) -> dict[tuple, dict]:
+    return {(f["effect"], tuple(f.get("anchors", []))): f for f in result.to_json()["findings"]}
+
+
+def concealed(rec, effect: dict, predictor: Predictor | None = None) -> None:
+    """The injected effect changes no channel by more than that channel's per-sample
+    noise (robust σ of recorded − simulated, raw samples), in RMS."""
+    predictor = predictor or Predictor(rec)
+    changed = inject(rec, [effect], seed=1, predictor=predictor)
+    base = Problem(rec, predictor)
+    for name, series in (("accel", "accel"), ("gyro", "gyro")):
+        before, after = getattr(rec, series).xyz, getattr(changed, series).xyz
+        true = predictor.accel_true if name == "accel" else predictor.gyro_true
+        for axis in range(3):
+            noise = _mad_scale(before[:, axis] - true[:, axis])
+            effect_rms = np.sqrt(np.mean((after[:, axis] - before[:, axis]) ** 2))
+            assert effect_rms <= noise, f"{effect} is not concealed on {name} {axis}: {effect_rms} > {noise}"
+    rows = base.tdoa_rows
+    if effect["effect"] in ("time_offset", "clock_drift"):
+        moved = Predictor(changed).tdoa([]).value[rows] - predictor.tdoa([]).value[rows]
+    else:
+        moved = changed.tdoa.distance_diff[rows] - rec.tdoa.distance_diff[rows]
+    noise = _mad_scale(rec.tdoa.distance_diff[rows] - predictor.tdoa([]).value[rows])
+    effect_rms = np.sqrt(np.mean(moved ** 2))
+    assert effect_rms <= noise, f"{effect} is not concealed on TDOA: {effect_rms:.3f} > {noise:.3f} m"
+
+
+# (effect, tolerance check on (found params, injected params) after subtracting the control)
+# Tolerances are for simulated flights; on a real flight, whose own effects the fit
+# shares the data with, they are REAL_SLACK times wider.
+REAL_SLACK = 1.5
+
+
+def _vector_close(key: str, tol: float):
+    return lambda got, want, slack=1.0: np.allclose(got[key], want[key], atol=tol * slack)
+
+
+def _scalar_close(key: str, rel: float):
+    return lambda got, want, slack=1.0: abs(got[key] - want[key]) <= rel * slack * abs(want[key])
+
+
+CASES = {
+    "time_offset": ({"seconds": 0.06}, _scalar_close("seconds", 0.35)),
+    "clock_drift": ({"ppm": 2000.0}, _scalar_close("ppm", 0.25)),
+    "anchor_delay": ({"anchor": 5, "meters": 0.12}, _scalar_close("meters", 0.25)),
+    "anchor_position": ({"anchor": 3, "offset_m": [0.2, 0.2, 0.0]}, _vector_close("offset_m", 0.06)),
+    "antenna_pattern": ({"anchor": 2, "coeffs_m": [0.3, 0.2, 0.0]}, _vector_close("coeffs_m", 0.15)),
+    "nlos": ({"anchor": 6, "fraction": 0.5, "mean_excess_m": 0.3, "region": {"min": [-5, 0, -1], "max": [5, 5, 5]}},
+             lambda got, want, slack=1.0: 0.05 <= got["fraction"] * got["mean_excess_m"] <= 0.3),
+    "multipath_floor": ({"height_m": 0.6, "std_m": 0.2},
+                        lambda got, want, slack=1.0: 0.25 <= got["height_m"] <= 1.0 and 0.1 <= got["std_m"] <= 0.35),
+    "imu_accel_bias": ({"bias_mps2": [0.0, 0.15, 0.0]}, _vector_close("bias_mps2", 0.03)),
+    "imu_gyro_bias": ({"bias_rps": [0.0, 0.0, 0.02]}, _vector_close("bias_rps", 0.004)),
+    "imu_accel_scale": ({"scale": [1.0, 1.0, 1.03]}, lambda got, want, slack=1.0: abs(got["scale"][2] - 1.03) < 0.01 * slack),
+    "imu_gyro_scale": ({"scale": [1.0, 1.0, 1.3]}, lambda got, want, slack=1.0: abs(got["scale"][2] - 1.3) < 0.1 * slack),
+    "lever_arm": ({"offset_m": [0.0, 0.0, 0.08]}, _vector_close("offset_m", 0.03)),
+}
+WHERE = {"imu_accel_bias": ("axes", ["y"]), "imu_gyro_bias": ("axes", ["z"]), "imu_accel_scale": ("axes", ["z"]),
+         "imu_gyro_scale": ("axes", ["z"])}
+
+NOT_ON_SIM = {
+    "antenna_pattern": "over this flight's viewing angles the pattern reads as a displaced anchor (look-alike)",
+    "nlos": "a half-space NLOS region is fitted as a displaced anchor before the NLOS search",
+    "imu_gyro_scale": "the fitted yaw-rate scale is not separated from a gyro bias on this flight",
+}
+NOT_ON_REAL = {
+    "anchor_position": "the flight's own pose-dependent bias on anchor 3 hides a 0.28 m displacement",
+    "anchor_delay": "anchor 5's real NLOS region absorbs an added delay",
+    "antenna_pattern": "real flights already carry larger pattern-like biases on every anchor",
+    "imu_gyro_scale": "these flights hardly rotate: the ground truth's rotation increments do not excite a scale",
+    "lever_arm": "with almost no rotation a lever arm is a fixed shift, absorbed by the real per-anchor biases",
+    "imu_accel_scale": "in hover a z scale reads as a z bias, and the flight's own drag terms move the fit",
+}
+
+
+def _mark(name: str, known: dict) -> list:
+    return [pytest.mark.xfail(strict=True, reason=known[name])] if name in known else []
+
+
+def _check(found: dict, control: dict, name: str, params: dict, check, real: bool = False) -> None:
+    key = (name, (params["anchor"],) if "anchor" in params else ())
+    assert key in found, f"{name} not named; found {sorted(found)}"
+    got = dict(found[key]["params"])
+    if key in control:           # a real flight: what the injection added to what was there
+        for field, value in control[key]["params"].items():
+            if isinstance(value, (int, float)) and field != "anchor" and name not in ("nlos", "multipath_floor"):
+                neutral = 1.0 if "scale" in name else 0.0
+                got[field] = got[field] - value + neutral
+            elif isinstance(value, list) and field not in ("during",):
+                neutral = 1.0 if "scale" in name else 0.0
+                got[field] = (np.array(got[field]) - np.array(value) + neutral).tolist()
+    assert check(got, params, REAL_SLACK if real else 1.0), f"{name}: got {got}, injected {params}"
+    assert found[key]["fit_after"] < found[key]["fit_before"]
+    if name in WHERE:                # on a real flight, the axes of the flight's own biases come too
+        field, expected = WHERE[name]
+        located = found[key]["where"][field]
+        assert set(expected) <= set(located) if real else located == expected
+    if "anchor" in params:
+        assert found[key]["where"]["anchors"] == [params["anchor"]]
+
+
+@pytest.mark.parametrize("name", [pytest.param(n, marks=_mark(n, NOT_ON_SIM)) for n in CASES])
+def test_a_concealed_effect_in_a_simulated_flight_is_named_located_and_measured(name, survey, sim_control) -> None:
+    params, check = CASES[name]
+    effect = {"effect": name, "params": params}
+    rec = simulate(sim_config(survey, [effect]))
+    concealed(simulate(sim_config(survey, [])), effect)
+    assert sim_control == {} or all(k[0] != name for k in sim_control)
+    _check(findings(diagnose(rec)), sim_control, name, params, check)
+
+
+@pytest.mark.parametrize("name", [pytest.param(n, marks=_mark(n, NOT_ON_REAL)) for n in CASES])
+def test_a_concealed_effect_in_a_real_flight_is_found_against_its_control(name, real, real_control) -> None:
+    params, check = CASES[name]
+    rec, predictor = real
+    effect = {"effect": name, "params": params}
+    concealed(rec, effect, predictor)
+    injected = inject(rec, [effect], seed=1, predictor=predictor)
+    _check(findings(diagnose(injected)), real_control, name, params, check, real=True)
+
+
+def test_two_effects_at_once_are_both_found(survey) -> None:
+    both = [{"effect": "anchor_delay", "params": {"anchor": 1, "meters": -0.1}},
+            {"effect": "time_offset", "params": {"seconds": 0.05}}]
+    found = findings(diagnose(simulate(sim_config(survey, both))))
+    assert abs(found[("anchor_delay", (1,))]["params"]["meters"] + 0.1) < 0.025
+    assert abs(found[("time_offset", ())]["params"]["seconds"] - 0.05) < 0.015
+
+
+def test_an_effect_in_part_of_the_flight_is_confined_in_time(survey) -> None:
+    partial = {"effect": "anchor_delay", "params": {"anchor": 4, "meters": 0.15, "during": [15.0, 30.0]}}
+    found = findings(diagnose(simulate(sim_config(survey, [partial]))))
+    got = found[("anchor_delay", (4,))]
+    start, end = got["params"]["during"]
+    assert abs(start - 15.0) < 3.0 and abs(end - 30.0) < 3.0
+    assert abs(got["params"]["meters"] - 0.15) < 0.04
+
+
+def test_time_offset_and_clock_drift_are_told_apart(survey) -> None:
+    drift = findings(diagnose(simulate(sim_config(survey, [{"effect": "clock_drift", "params": {"ppm": 2000.0}}]))))
+    offset = findings(diagnose(simulate(sim_config(survey, [{"effect": "time_offset", "params": {"seconds": 0.06}}]))))
+    assert ("clock_drift", ()) in drift and ("time_offset", ()) not in drift
+    assert ("time_offset", ()) in offset and ("clock_drift", ()) not in offset
+
+
+def test_a_displacement_along_the_line_of_sight_reads_as_a_delay(survey) -> None:
+    """Not identifiable from a small flight area: documented, and the tool says delay."""
+    rec = simulate(sim_config(survey, []))
+    anchor = next(a for a in rec.anchors if a.id == 3)
+    line_of_sight = np.array(anchor.position) - rec.truth.position.mean(axis=0)
+    offset = (0.15 * line_of_sight / np.linalg.norm(line_of_sight)).tolist()      # away from the flight
+    found = findings(diagnose(simulate(sim_config(survey, [
+        {"effect": "anchor_position", "params": {"anchor": 3, "offset_m": offset}}]))))
+    assert ("anchor_delay", (3,)) in found and ("anchor_position", (3,)) not in found
+    assert 0.08 < found[("anchor_delay", (3,))]["params"]["meters"] < 0.2
+
+
+def test_cli_writes_the_report_contract(tmp_path: Path, survey) -> None:
+    recording = tmp_path / "sim.mcap"
+    subprocess.run([*RIG, "simulate", "--trajectory", "circle-sine", "--survey", str(survey), "--duration", "20",
+                    "-o", str(recording)], check=True, capture_output=True)
+    injected = tmp_path / "injected.mcap"
+    subprocess.run([*RIG, "inject", str(recording), "--effects",
+                    '[{"effect": "anchor_delay", "params": {"anchor": 2, "meters": 0.3}}]', "-o", str(injected)],
+                   check=True, capture_output=True)
+    proc = subprocess.run([*RIG, "diagnose", str(injected), "--out", str(tmp_path / "d")], capture_output=True,
+                          text=True)
+    assert proc.returncode == 0, proc.stderr
+    report = json.loads((tmp_path / "d" / "report.json").read_text())
+    evidence = [f["evidence"] for f in report["findings"]]
+    assert evidence == sorted(evidence, reverse=True)
+    for f in report["findings"]:
+        assert {"effect", "channel", "params", "evidence", "fit_before", "fit_after", "where"} <= set(f)
+    delay = next(f for f in report["findings"] if f["effect"] == "anchor_delay" and f["anchors"] == [2])
+    assert abs(delay["params"]["meters"] - 0.3) < 0.05
+    markdown = (tmp_path / "d" / "report.md").read_text()
+    assert "anchor_delay" in markdown and "![" in markdown
+    for image in (tmp_path / "d").glob("*.png"):
+        assert image.stat().st_size > 1000
+    model = json.loads((tmp_path / "d" / "model.json").read_text())["effects"]
+    fitted = next(e for e in model if e["effect"] == "anchor_delay" and e["params"]["anchor"] == 2)
+    assert fitted["params"]["meters"] == pytest.approx(delay["params"]["meters"], abs=1e-6)
+
+
+def test_bad_effects_are_refused_clearly(tmp_path: Path) -> None:
+    proc = subprocess.run([*RIG, "inject", "recordings/default.mcap", "--effects",
+                           '[{"effect": "warp_drive", "params": {}}]', "-o", str(tmp_path / "x.mcap")],
+                          capture_output=True, text=True)
+    assert proc.returncode == 2 and "unknown effect 'warp_drive'" in proc.stderr
+    assert not (tmp_path / "x.mcap").exists()
