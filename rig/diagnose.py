@@ -21,8 +21,9 @@ Method, per channel (TDOA, accelerometer, gyroscope):
 4. Effects that may be confined in time are tried on windows of the flight; NLOS
    candidates get a region found on the training blocks only; the floor multipath is
    a noise-level effect tested the same held-out way on the TDOA noise below a height.
-5. The kept effects re-simulate the recording: `fit_before`/`fit_after` are the
-   robust RMS mismatch of the affected samples without and with each effect.
+5. The kept effects re-simulate the recording (each channel's mismatch before and
+   after); each finding's `fit_before`/`fit_after` is the robust RMS mismatch of its
+   affected samples under the fitted model without and with it.
 """
 
 from __future__ import annotations
@@ -603,7 +604,6 @@ class Finding:
     fit_before: float
     fit_after: float
     where: dict
-    rows: np.ndarray = field(repr=False, default=None)      # affected rows of the channel
 
     def to_json(self) -> dict:
         out = {"effect": self.effect, "channel": self.channel, "params": self.params, "evidence": self.evidence,
@@ -690,7 +690,7 @@ def _finding(problem: Problem, channel: Channel, term: Term, effect: fx.Effect, 
     anchors = [term.candidate.fixed["anchor"]] if "anchor" in term.candidate.fixed else []
     return Finding(effect.name, channel.name, anchors, _rounded(effect.params()), round(float(term.evidence), 2),
                    robust_rms(z_without[rows] * scale, scale), robust_rms(z_after[rows] * scale, scale),
-                   _where(problem, channel, term, rows, z_after), rows)
+                   _where(problem, channel, term, rows, z_after))
 
 
 def _floor_finding(problem: Problem, residual: np.ndarray) -> Finding | None:
@@ -705,7 +705,7 @@ def _floor_finding(problem: Problem, residual: np.ndarray) -> Finding | None:
     return Finding("multipath_floor", "tdoa", [], {"height_m": floor["height_m"], "std_m": round(floor["std_m"], 4)},
                    round(floor["evidence"], 2), before, after,
                    {"below_height_m": floor["height_m"], "time": _span(channel.t[low]),
-                    "fit_unit": "mean negative log-likelihood per sample (a noise-level effect)"}, low)
+                    "fit_unit": "mean negative log-likelihood per sample (a noise-level effect)"})
 
 
 def _rounded(params: dict) -> dict:
