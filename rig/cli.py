@@ -185,6 +185,9 @@ def cmd_metrics(args: argparse.Namespace) -> int:
 
 
 def _print_accuracy(result: dict) -> None:
+    if "score_error" in result:
+        print(f"not scored: {result['score_error']}")
+        return
     x, y, z = result["rmse_xyz"]
     print(f"RMSE 3D {result['rmse_3d']:.3f} m (x {x:.3f}, y {y:.3f}, z {z:.3f}); "
           f"p95 {result['p95_3d']:.3f} m, max {result['max_3d']:.3f} m over {result['n_scored']} estimates")
@@ -291,7 +294,7 @@ def _replay(recording: Path, target: str, out: Path, *, use_nn: bool = True, rob
         if own and session is not None:
             session.close()
     wall = time.monotonic() - began
-    result = replay.score(run, rec) if run is not None and run.estimates else {"n_estimates": 0}
+    result = _score_run(run, rec)
     info.setdefault("bytes_sent", 0)       # the link never opened
     result.update(info)
     result.update({"wall_seconds": wall, "speed": result["n_estimates"] * replay.BUDGET_SECONDS / wall,
@@ -323,9 +326,25 @@ def _replay(recording: Path, target: str, out: Path, *, use_nn: bool = True, rob
     return result
 
 
+def _score_run(run, rec) -> dict:
+    """Accuracy and timing of what the board answered; a run cut short before the
+    scored segment still reports its estimates and timing, without accuracy."""
+    from rig import replay
+    from rig.metrics import MetricsError
+
+    if run is None or not run.estimates:
+        return {"n_estimates": 0}
+    try:
+        return replay.score(run, rec)
+    except MetricsError as exc:
+        return {"n_estimates": len(run.estimates), "timing": replay.timing_summary(run), "score_error": str(exc)}
+
+
 def _assertions(result: dict, max_rmse: float | None, max_budget: float | None) -> list[str]:
     failed = []
-    if max_rmse is not None and not result["rmse_3d"] <= max_rmse:
+    if max_rmse is not None and "rmse_3d" not in result:
+        failed.append(f"no rmse_3d to compare with {max_rmse} m ({result.get('score_error')})")
+    elif max_rmse is not None and not result["rmse_3d"] <= max_rmse:
         failed.append(f"rmse_3d {result['rmse_3d']:.3f} m > {max_rmse} m")
     fraction = result["timing"]["window_max_fraction_of_budget"]
     if max_budget is not None and not fraction <= max_budget:

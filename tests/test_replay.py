@@ -225,3 +225,12 @@ def test_real_time_mode_exposes_the_slow_qemu_link_that_lock_step_hides(tmp_path
     from rig.runrecord import TOPIC_TIMING, read_run
     latency = [r["latency_ms"] for r in read_run(out / "run.mcap")[TOPIC_TIMING]]
     assert len(latency) == result["n_estimates"] and max(latency) == pytest.approx(rt["latency_ms"]["max"])
+
+
+def test_a_run_too_short_to_score_still_reports_and_fails_its_accuracy_assertion(tmp_path: Path) -> None:
+    proc = subprocess.run([*RIG, "replay", "recordings/default.mcap", "--target", "native", "--duration", "3",
+                           "--assert-rmse", "0.3", "--out", str(tmp_path)], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 1 and "no rmse_3d to compare" in proc.stderr, proc.stderr
+    result = json.loads((tmp_path / "metrics.json").read_text())
+    assert result["n_estimates"] == 299 and "scored segment" in result["score_error"]   # windows in 3 s
+    assert result["timing"]["windows"] == 299 and (tmp_path / "report.html").exists()

@@ -95,9 +95,10 @@ def test_a_board_lost_mid_run_keeps_the_record_and_says_so(tmp_path: Path) -> No
     bridge = _start(sys.executable, "-m", "bridge", "--target", "native", "--name", "b0", "--connect", endpoint)
     try:
         out = tmp_path / "run"
+        # in real time (30 s of flight) the bridge surely goes while windows are flowing
         replay = _start(*RIG, "replay", "recordings/default.mcap", "--target", "zenoh:b0", "--zenoh-connect",
-                        endpoint, "--out", str(out))
-        time.sleep(8.0)                                       # handshake done, windows flowing
+                        endpoint, "--out", str(out), "--mode", "realtime")
+        time.sleep(14.0)                                      # well into the scored segment
         bridge.kill()                                         # the board and its bridge vanish
         assert replay.wait(timeout=60) == 2                   # a clear error, not a crash
         stderr = replay.stderr.read()
