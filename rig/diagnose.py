@@ -635,14 +635,18 @@ class Diagnosis:
                 "model": [e.to_json() for e in self.model] + self.noise_model()}
 
     def noise_model(self) -> list[dict]:
-        """The noise the fitted model leaves, so `model` simulates data like the recording."""
-        s = self.problem.scales
+        """The noise the fitted model leaves, per sample, so `model` simulates data like
+        the recording: the TDOA residual after the effects, the raw IMU samples' spread
+        around the ground truth (for the gyroscope mostly the ground truth's own
+        attitude noise, differentiated: an upper bound)."""
         out = []
-        if "tdoa" in s:
-            out.append({"effect": "tdoa_noise", "params": {"std_m": float(s["tdoa"][0])}})
-        if "accel" in s and "gyro" in s:
-            out.append({"effect": "imu_noise", "params": {"accel_std": float(np.mean(s["accel"][:3])),
-                                                          "gyro_std": float(np.mean(s["gyro"][:3]))}})
+        if "tdoa" in self.residual_after:
+            out.append({"effect": "tdoa_noise", "params": {"std_m": _mad_scale(self.residual_after["tdoa"])}})
+        p, rec = self.problem.predictor, self.problem.rec
+        if len(rec.accel) and len(rec.gyro):
+            spread = {name: float(np.mean([_mad_scale(series.xyz[:, a] - true[:, a]) for a in range(3)]))
+                      for name, series, true in (("accel", rec.accel, p.accel_true), ("gyro", rec.gyro, p.gyro_true))}
+            out.append({"effect": "imu_noise", "params": {"accel_std": spread["accel"], "gyro_std": spread["gyro"]}})
         return out
 
 

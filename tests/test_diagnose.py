@@ -244,3 +244,11 @@ def test_bad_effects_are_refused_clearly(tmp_path: Path) -> None:
                           capture_output=True, text=True)
     assert proc.returncode == 2 and "unknown effect 'warp_drive'" in proc.stderr
     assert not (tmp_path / "x.mcap").exists()
+
+
+def test_the_fitted_model_carries_the_per_sample_noise(survey) -> None:
+    """model.json simulates data like the recording: its noise is per sample (not the
+    block means the IMU channels are compared on)."""
+    model = {e["effect"]: e["params"] for e in diagnose(simulate(sim_config(survey, []))).to_json()["model"]}
+    assert model["tdoa_noise"]["std_m"] == pytest.approx(0.15, rel=0.1)
+    assert model["imu_noise"]["accel_std"] == pytest.approx(0.5, rel=0.1)
