@@ -44,6 +44,7 @@ FOLDS = 5                      # contiguous time blocks for cross-validation
 PENALTY_PER_PARAMETER = 2.0    # held-out gain a parameter must pay for (AIC-like)
 MIN_EVIDENCE = 8.0             # held-out gain, in half chi-square units, to keep an effect
 MAX_EFFECTS = 24
+LOOK_ALIKE_MARGIN = 10.0       # candidates whose held-out gain came this close to the chosen one
 TIME_BLOCKS = 10               # resolution of "only in part of the flight"
 MIN_SAMPLES = 50
 EDGE_S = 0.5                   # ignore samples this close to the ends of the ground truth
@@ -307,6 +308,7 @@ class Term:
     theta: np.ndarray | None = None
     evidence: float = 0.0
     window_cost: bool = False                        # confined in time: its two ends are parameters too
+    look_alikes: list = field(default_factory=list)  # (key, held-out gain) of candidates that did nearly as well
 
     @property
     def key(self) -> str:
@@ -365,6 +367,8 @@ def select(problem: Problem, channel: Channel, pool: list[Candidate]) -> list[Te
             gain, best = max(trials, key=lambda gt: gt[0] - gt[1].cost)
             if gain - best.cost < MIN_EVIDENCE:
                 break
+            best.look_alikes = [(t.key, round(g, 1)) for g, t in trials
+                                if t.key != best.key and g - t.cost >= gain - best.cost - LOOK_ALIKE_MARGIN]
             kept.append(best)
             left = _refit(z, kept)
             for term in [t for t in kept if np.abs(t.theta).max() > t.candidate.bound]:
@@ -380,7 +384,20 @@ def select(problem: Problem, channel: Channel, pool: list[Candidate]) -> list[Te
     _simplify(z, folds, kept, pool)
     _confine_in_time(channel, kept)
     _refit(z, kept)
+    _within_bounds(z, kept)
     return _prune(z, folds, kept)
+
+
+def _within_bounds(z: np.ndarray, kept: list[Term]) -> None:
+    """After the replacements and windows, drop whatever left its physical bounds (the
+    furthest out first): no report of a 1.3 m anchor displacement."""
+    while kept:
+        excess = [np.abs(t.theta).max() / t.candidate.bound for t in kept]
+        if max(excess) <= 1.0:
+            return
+        out = kept.pop(int(np.argmax(excess)))
+        log.info("- %s (out of bounds: %s)", out.key, out.theta)
+        _refit(z, kept)
 
 
 SIMPLER = {"anchor_position": ("anchor_delay",), "antenna_pattern": ("anchor_delay", "anchor_position")}
@@ -403,6 +420,7 @@ def _simplify(z: np.ndarray, folds: np.ndarray, kept: list[Term], pool: list[Can
             alternative = Term(simple, simple.columns)
             if held_out_gain(z, simple.columns, alternative.prior, folds, base) - alternative.cost >= score - 2.0:
                 log.info("%s reads as the simpler %s", term.key, simple.key)
+                alternative.look_alikes = [(term.key, round(score + term.cost, 1))] + term.look_alikes
                 kept[kept.index(term)] = alternative
                 _refit(z, kept)
                 break
@@ -604,12 +622,16 @@ class Finding:
     fit_before: float
     fit_after: float
     where: dict
+    look_alikes: list = field(default_factory=list)
+
 
     def to_json(self) -> dict:
         out = {"effect": self.effect, "channel": self.channel, "params": self.params, "evidence": self.evidence,
                "fit_before": self.fit_before, "fit_after": self.fit_after, "where": self.where}
         if self.anchors:
             out["anchors"] = self.anchors
+        if self.look_alikes:
+            out["look_alikes"] = self.look_alikes
         return out
 
 
@@ -694,7 +716,8 @@ def _finding(problem: Problem, channel: Channel, term: Term, effect: fx.Effect, 
     anchors = [term.candidate.fixed["anchor"]] if "anchor" in term.candidate.fixed else []
     return Finding(effect.name, channel.name, anchors, _rounded(effect.params()), round(float(term.evidence), 2),
                    robust_rms(z_without[rows] * scale, scale), robust_rms(z_after[rows] * scale, scale),
-                   _where(problem, channel, term, rows, z_after))
+                   _where(problem, channel, term, rows, z_after),
+                   [{"candidate": key, "held_out_gain": gain} for key, gain in term.look_alikes])
 
 
 def _floor_finding(problem: Problem, residual: np.ndarray) -> Finding | None:

@@ -75,8 +75,10 @@ def _markdown(diagnosis: Diagnosis, report: dict, images: list[tuple[str, str]])
     if not diagnosis.findings:
         lines.append("Nothing: no catalog effect is supported by held-out data.")
     for k, f in enumerate(diagnosis.findings, 1):
+        alike = (" Nearly as good an explanation: " + ", ".join(a["candidate"] for a in f.look_alikes) + "."
+                 if f.look_alikes else "")
         lines.append(f"{k}. **{f.effect}**: {describe(f)}. Evidence {f.evidence:.1f}; the affected "
-                     f"{f.channel} samples' mismatch goes from {f.fit_before:.4g} to {f.fit_after:.4g}.")
+                     f"{f.channel} samples' mismatch goes from {f.fit_before:.4g} to {f.fit_after:.4g}.{alike}")
     lines += ["", "Evidence is the held-out gain in robust loss (five contiguous time blocks, each predicted "
               "from the other four); larger is stronger. Look-alikes: an anchor displacement along the line "
               "of sight reads as a delay, and a second-order antenna pattern over a small range of viewing "
