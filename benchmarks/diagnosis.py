@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import subprocess
 import sys
 from collections import Counter
@@ -24,8 +25,11 @@ from rig import paths  # noqa: E402
 def run(flight: Path, out: Path, reuse: bool) -> None:
     if reuse and (out / "report.json").is_file():
         return
+    # one BLAS thread per process: two processes with spinning BLAS threads each on two
+    # cores run several times slower than one after the other
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
     subprocess.run([sys.executable, "-m", "rig", "diagnose", str(flight), "--out", str(out)], cwd=ROOT, check=True,
-                   stdout=subprocess.DEVNULL)
+                   stdout=subprocess.DEVNULL, env=env)
 
 
 def main() -> None:
