@@ -232,9 +232,14 @@ class Problem:
         return self._block_means(name, (accel if name == "accel" else gyro)[self.imu_rows[name]])
 
     def _scales(self, name: str, residual: np.ndarray) -> np.ndarray:
+        """Noise scale of each row. IMU block means follow each other in time, so the
+        spread of their differences (/√2) measures the noise without the slowly varying
+        effects the diagnosis looks for (an effect larger than the noise would otherwise
+        inflate the scale and hide itself). Consecutive TDOA rows are different anchor
+        pairs, whose biases differ: there the plain robust spread is used."""
         if name == "tdoa":
             return np.full(len(residual), _mad_scale(residual))
-        per_axis = [_mad_scale(residual[axis::3]) for axis in range(3)]
+        per_axis = [_mad_scale(np.diff(residual[axis::3])) / np.sqrt(2.0) for axis in range(3)]
         return np.tile(per_axis, len(residual) // 3)
 
     def times(self, name: str) -> np.ndarray:
