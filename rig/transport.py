@@ -172,9 +172,19 @@ class Link(BoardLink):
         """Reset the emulated board as its reset pin would (QEMU's `system_reset`)."""
         if self.monitor_port is None:
             raise LinkError(f"{self.name}: no way to reset this board from the rig")
-        with socket.create_connection(("127.0.0.1", self.monitor_port), timeout=5) as monitor:
-            monitor.sendall(b"system_reset\n")
-            monitor.recv(4096)
+        try:
+            with socket.create_connection(("127.0.0.1", self.monitor_port), timeout=5) as monitor:
+                monitor.sendall(b"system_reset\n")
+                # the monitor prompts once on connection and again once the command has
+                # run: closing before that may drop the command
+                said = b""
+                while said.count(b"(qemu)") < 2:
+                    chunk = monitor.recv(4096)
+                    if not chunk:
+                        raise LinkError(f"{self.name}: the QEMU monitor closed before confirming the reset")
+                    said += chunk
+        except OSError as exc:
+            raise LinkError(f"{self.name}: cannot reset through the QEMU monitor: {exc}") from exc
 
 
 CRTP_APP_PORT, CRTP_APP_CHANNEL = 13, 2
