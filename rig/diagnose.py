@@ -187,8 +187,10 @@ class Problem:
         self.anchor_ids = sorted(int(k) for k in np.unique(np.concatenate([d.id_a[self.tdoa_rows],
                                                                           d.id_b[self.tdoa_rows]]))
                                  if self._anchor_rows(k).sum() >= MIN_SAMPLES)
-        base = self.predict([])
-        self.scales = {name: self._scales(name, self.recorded(name) - base[name]) for name in base}
+        # the untouched simulation, used throughout: residual and tag positions once
+        self.residual_before = {name: self.recorded(name) - pred for name, pred in self.predict([]).items()}
+        self.scales = {name: self._scales(name, r) for name, r in self.residual_before.items()}
+        self._tag_positions = self.predictor.tdoa([]).tag_position[self.tdoa_rows]
 
     def _anchor_rows(self, k: int) -> np.ndarray:
         d = self.rec.tdoa
@@ -249,11 +251,12 @@ class Problem:
         return np.repeat(self._block_means(name, series.t[self.imu_rows[name]]), 3)
 
     def tag_positions(self) -> np.ndarray:
-        return self.predictor.tdoa([]).tag_position[self.tdoa_rows]
+        """The tag's true position at each TDOA row (untouched simulation)."""
+        return self._tag_positions
 
-    def channel(self, name: str, effects: list[fx.Effect]) -> Channel:
-        residual = self.recorded(name) - self.predict_channel(name, effects)
-        return Channel(name, self.times(name), residual, self.scales[name])
+    def channel(self, name: str) -> Channel:
+        """The channel's rows against the untouched simulation."""
+        return Channel(name, self.times(name), self.residual_before[name], self.scales[name])
 
 
 # ----------------------------------------------------------------------------- candidates
@@ -680,10 +683,10 @@ class Diagnosis:
 def diagnose(rec: Recording, progress=None) -> Diagnosis:
     problem = Problem(rec)
     pool = candidates(problem)
-    before = {name: problem.recorded(name) - pred for name, pred in problem.predict([]).items()}
+    before = problem.residual_before
     findings, model, names = [], [], list(before)
     for name in progress(names) if progress else names:
-        channel = problem.channel(name, [])
+        channel = problem.channel(name)
         terms = select(problem, channel, pool)
         z_after = _refit(channel.z, terms)
         for term in terms:

@@ -56,8 +56,13 @@ class TdoaBatch:
     value: np.ndarray          # distance_diff being built up (m)
 
     def range_to(self, world: World, ids: np.ndarray) -> np.ndarray:
-        anchors = np.array([world.anchor_positions[int(k)] for k in ids]).reshape(-1, 3)
-        return np.linalg.norm(self.tag_position - anchors, axis=1)
+        return ranges(self.tag_position, world, ids)
+
+
+def ranges(tag_position: np.ndarray, world: World, ids: np.ndarray) -> np.ndarray:
+    """Distance from each tag position to the true position of the matching anchor."""
+    anchors = np.array([world.anchor_positions[int(k)] for k in ids]).reshape(-1, 3)
+    return np.linalg.norm(tag_position - anchors, axis=1)
 
 
 class Effect:
@@ -253,10 +258,19 @@ def _anchor_id(anchor) -> int:
     return int(anchor)
 
 
-class TimeOffset(Effect):
+class _UwbClock(Effect):
+    """A timing effect: moves the UWB stamps by `stamp`."""
+
+    stage = TIMING
+
+    def apply_tdoa(self, tdoa: TdoaBatch, world: World, rng: np.random.Generator | None) -> None:
+        tdoa.t = self.stamp(tdoa.t)
+
+
+class TimeOffset(_UwbClock):
     """UWB timestamps are late by `seconds` relative to the IMU and ground-truth clock."""
 
-    name, stage = "time_offset", TIMING
+    name = "time_offset"
 
     def __init__(self, seconds: float = 0.0):
         self.seconds = float(seconds)
@@ -267,15 +281,12 @@ class TimeOffset(Effect):
     def stamp(self, t: np.ndarray) -> np.ndarray:
         return t + self.seconds
 
-    def apply_tdoa(self, tdoa: TdoaBatch, world: World, rng: np.random.Generator | None) -> None:
-        tdoa.t = self.stamp(tdoa.t)
 
-
-class ClockDrift(Effect):
+class ClockDrift(_UwbClock):
     """The UWB timestamps run fast by `ppm` relative to the IMU clock (zero at t = 0 of
     the recording's clock)."""
 
-    name, stage = "clock_drift", TIMING
+    name = "clock_drift"
 
     def __init__(self, ppm: float = 0.0):
         self.ppm = float(ppm)
@@ -285,9 +296,6 @@ class ClockDrift(Effect):
 
     def stamp(self, t: np.ndarray) -> np.ndarray:
         return t * (1.0 + self.ppm * 1e-6)
-
-    def apply_tdoa(self, tdoa: TdoaBatch, world: World, rng: np.random.Generator | None) -> None:
-        tdoa.t = self.stamp(tdoa.t)
 
 
 class AnchorPosition(Effect):

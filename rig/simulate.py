@@ -204,8 +204,8 @@ class Predictor:
                              np.zeros(len(d.t)))
         known = np.isin(d.id_a, list(world.anchor_positions)) & np.isin(d.id_b, list(world.anchor_positions))
         batch.value = np.full(len(d.t), np.nan)
-        batch.value[known] = (_ranges(batch.tag_position[known], world, d.id_b[known])
-                              - _ranges(batch.tag_position[known], world, d.id_a[known]))
+        batch.value[known] = (fx.ranges(batch.tag_position[known], world, d.id_b[known])
+                              - fx.ranges(batch.tag_position[known], world, d.id_a[known]))
         for effect in _staged(effects):
             if effect.stage != fx.TIMING:
                 effect.apply_tdoa(batch, world, rng)
@@ -234,11 +234,6 @@ class Predictor:
 
 def _staged(effects: list[fx.Effect]) -> list[fx.Effect]:
     return sorted(effects, key=lambda e: e.stage)
-
-
-def _ranges(tag: np.ndarray, world: fx.World, ids: np.ndarray) -> np.ndarray:
-    anchors = np.array([world.anchor_positions[int(k)] for k in ids]).reshape(-1, 3)
-    return np.linalg.norm(tag - anchors, axis=1)
 
 
 def inject(rec: Recording, effects: list[dict], seed: int = 0, predictor: Predictor | None = None) -> Recording:
