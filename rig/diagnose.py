@@ -11,15 +11,23 @@ Method, per channel (TDOA, accelerometer, gyroscope):
    design columns: the derivative of the prediction with respect to its parameters,
    taken numerically through the effect's own simulator code, so the diagnosis and
    the simulator share one definition of every physical effect.
-3. Forward selection: the candidate whose parameters, fitted robustly (Huber IRLS)
-   on four of five contiguous time blocks, most reduce the robust loss on the fifth
-   (summed over the five folds) joins the model, if that held-out gain beats a
-   threshold after a penalty per parameter (look-alikes: the simpler one wins a tie).
-   Kept effects are refitted jointly after each step. The held-out gain is the
-   `evidence` (half a chi-square in the Gaussian limit; it grows with the recording's
-   length and so compares runs of equal length).
+3. Backward elimination: all candidates of a channel start in one model, fitted
+   robustly (Huber IRLS with weak priors). A term's `evidence` is its held-out gain:
+   the robust loss it removes on each of five contiguous time blocks when the model is
+   fitted on the other four (weights frozen from the full fit), summed; half a
+   chi-square in the Gaussian limit, so it grows with the recording's length and
+   compares runs of equal length. It is judged given all other terms except its richer
+   look-alikes (ORDER: a delay before a displacement before a pattern before NLOS),
+   so the simplest explanation takes the signal it can. Terms beyond their physical
+   bounds go first, then the weakest while below a bar (a penalty per parameter).
+   The model's structure does not depend on the order in which effects were found, so
+   the same flight with and without an added effect mostly keeps the same terms and
+   the added effect shows as the difference of the two fits (a comparison with a
+   control recording needs that). Delays are reported relative to their median: TDOA
+   does not see a delay common to all anchors.
 4. Effects that may be confined in time are tried on windows of the flight; NLOS
-   candidates get a region found on the training blocks only; the floor multipath is
+   candidates get a region found on the training blocks only, on what the others
+   leave, and the elimination is repeated with them; the floor multipath is
    a noise-level effect tested the same held-out way on the TDOA noise below a height.
 5. The kept effects re-simulate the recording (each channel's mismatch before and
    after); each finding's `fit_before`/`fit_after` is the robust RMS mismatch of its
@@ -43,7 +51,6 @@ HUBER_C = 1.345                # Huber threshold, in noise standard deviations
 FOLDS = 5                      # contiguous time blocks for cross-validation
 PENALTY_PER_PARAMETER = 2.0    # held-out gain a parameter must pay for (AIC-like)
 MIN_EVIDENCE = 8.0             # held-out gain, in half chi-square units, to keep an effect
-MAX_EFFECTS = 24
 LOOK_ALIKE_MARGIN = 10.0       # candidates whose held-out gain came this close to the chosen one
 TIME_BLOCKS = 10               # resolution of "only in part of the flight"
 MIN_SAMPLES = 50
@@ -127,26 +134,6 @@ def irls(z: np.ndarray, x: np.ndarray, prior: np.ndarray | None = None, iteratio
             return new
         theta = new
     return theta
-
-
-def held_out_gain(z: np.ndarray, x: np.ndarray, prior: np.ndarray, folds: np.ndarray,
-                  base: tuple[np.ndarray, np.ndarray] | None = None) -> float:
-    """Sum over folds of the held-out robust loss removed by fitting `x` (on top of the
-    columns `base` = (columns, prior), which are refitted too) on the other folds."""
-    gain = 0.0
-    full_x = x if base is None else np.hstack([base[0], x])
-    full_prior = prior if base is None else np.concatenate([base[1], prior])
-    for k in range(FOLDS):
-        train, test = folds != k, folds == k
-        if train.sum() < MIN_SAMPLES or not test.any():
-            continue
-        with_x = huber_loss(z[test] - full_x[test] @ irls(z[train], full_x[train], full_prior)).sum()
-        if base is None:
-            without = huber_loss(z[test]).sum()
-        else:
-            without = huber_loss(z[test] - base[0][test] @ irls(z[train], base[0][train], base[1])).sum()
-        gain += without - with_x
-    return float(gain)
 
 
 def robust_rms(residual: np.ndarray, scale: np.ndarray) -> float:
@@ -267,7 +254,7 @@ def candidates(problem: Problem) -> list[Candidate]:
     if len(problem.tdoa_rows):
         out += [Candidate("time_offset", "tdoa", "seconds", 1, step=0.005, prior=0.2, bound=0.5),
                 Candidate("clock_drift", "tdoa", "ppm", 1, step=200.0, prior=2000.0, bound=20000.0),
-                Candidate("lever_arm", "tdoa", "offset_m", 3, prior=0.1, bound=0.3)]
+                Candidate("lever_arm", "tdoa", "offset_m", 3, prior=0.3, bound=0.5)]
         for k in problem.anchor_ids:
             out += [Candidate("anchor_delay", "tdoa", "meters", 1, {"anchor": k}, bound=1.5),
                     Candidate("anchor_position", "tdoa", "offset_m", 3, {"anchor": k}, prior=0.3, bound=1.0,
@@ -347,134 +334,210 @@ def _refit(z: np.ndarray, terms: list[Term]) -> np.ndarray:
     for t in terms:
         t.theta = theta[at:at + t.columns.shape[1]]
         at += t.columns.shape[1]
+    _median_gauge(terms)
     return z - x @ theta
 
 
+def _delay_family(terms: list[Term]) -> list[Term]:
+    """The delay terms, if they are every anchor's for the whole flight: then the same
+    delay added to all of them changes no TDOA (their columns sum to zero)."""
+    delays = [t for t in terms if t.candidate.effect == "anchor_delay"]
+    if len(delays) < 2 or np.abs(sum(t.columns[:, 0] for t in delays)).max() > 1e-6:
+        return []
+    return delays
+
+
+def _median_gauge(terms: list[Term]) -> None:
+    """TDOA sees delays only relative to each other: they are reported relative to
+    their median, so one anchor's delay shows on that anchor alone (a fit of the
+    minimum norm would spread it as −1/n over all the others)."""
+    family = _delay_family(terms)
+    if family:
+        shift = np.median([t.theta[0] for t in family])
+        for t in family:
+            t.theta = t.theta - shift
+
+
+# Simplest first: a term's evidence is judged given all other terms but the richer
+# ones of its own group, so the simpler explanation gets the signal it can explain and
+# a richer one only what is left: an anchor displaced along the line of sight is a
+# delay; a lever arm at a constant attitude is every anchor displaced the same way; a
+# pattern over a narrow cone of viewing angles is partly a delay and a displacement.
+# On a repeated path the velocity is a function of the position, so a time offset is
+# too: the timing effects come before the position-dependent ones. In TDOA a delay of
+# one anchor is the opposite delay of all the others, so the order holds across
+# anchors. Effects of equal rank are judged given each other: of two
+# look-alikes, backward elimination drops the one that adds less (a scale factor in
+# hover reads as a bias unless the thrust varies enough to tell them apart).
+ORDER = {"time_offset": ("tdoa", 0), "clock_drift": ("tdoa", 0),
+         "anchor_delay": ("tdoa", 0), "lever_arm": ("tdoa", 0), "anchor_position": ("tdoa", 1),
+         "antenna_pattern": ("tdoa", 2), "nlos": ("tdoa", 3),
+         "imu_accel_bias": ("accel", 0), "imu_accel_scale": ("accel", 0),
+         "imu_gyro_bias": ("gyro", 0), "imu_gyro_scale": ("gyro", 0)}
+
+
+def _richer(term: Term, terms: list[Term]) -> list[Term]:
+    group, rank = ORDER[term.candidate.effect]
+    return [t for t in terms if ORDER[t.candidate.effect][0] == group and ORDER[t.candidate.effect][1] > rank]
+
+
+NLOS_ROUNDS = 3
+# Delays are measured relative to each other (TDOA does not see a delay common to all
+# anchors): once one anchor's delay is supported, every anchor's is kept and reported,
+# so the delays of two recordings of the same flight compare anchor by anchor.
+FAMILIES = {"anchor_delay"}
+
+
+class _Design:
+    """All terms fitted jointly (Huber IRLS), then the weights frozen: per-fold sums
+    of the weighted normal equations give the held-out fit of any subset of the terms
+    in a few small solves, so every term can be judged given all the others."""
+
+    def __init__(self, z: np.ndarray, folds: np.ndarray, terms: list[Term]):
+        self.z, self.terms = z, terms
+        self.x, prior = _stack(terms)
+        self.ridge = 1.0 / prior ** 2
+        theta = irls(z, self.x, prior)
+        w = huber_weight(z - self.x @ theta)
+        self.slices, at = {}, 0
+        for t in terms:
+            self.slices[id(t)] = np.arange(at, at + t.columns.shape[1])
+            t.theta = theta[self.slices[id(t)]]
+            at += t.columns.shape[1]
+        self.tests = [np.flatnonzero(folds == k) for k in range(FOLDS)]
+        self.tests = [rows for rows in self.tests if len(rows) and len(z) - len(rows) >= MIN_SAMPLES]
+        xw = self.x * w[:, None]
+        self.gram = [xw[rows].T @ self.x[rows] for rows in self.tests]
+        self.moment = [xw[rows].T @ z[rows] for rows in self.tests]
+        self.total_gram, self.total_moment = xw.T @ self.x, xw.T @ z
+
+    def _columns(self, terms: list[Term]) -> np.ndarray:
+        return np.concatenate([self.slices[id(t)] for t in terms]) if terms else np.zeros(0, int)
+
+    def _held_out_loss(self, cols: np.ndarray, fold: int) -> float:
+        rows = self.tests[fold]
+        if not len(cols):
+            return float(huber_loss(self.z[rows]).sum())
+        gram = (self.total_gram - self.gram[fold])[np.ix_(cols, cols)] + np.diag(self.ridge[cols])
+        theta = np.linalg.solve(gram, (self.total_moment - self.moment[fold])[cols])
+        return float(huber_loss(self.z[rows] - self.x[np.ix_(rows, cols)] @ theta).sum())
+
+    def gain(self, term: Term, leave_out: list[Term] = ()) -> float:
+        """Held-out loss removed by `term` on top of all terms but it and `leave_out`."""
+        base = [t for t in self.terms if t is not term and all(t is not o for o in leave_out)]
+        with_cols, without_cols = self._columns(base + [term]), self._columns(base)
+        return sum(self._held_out_loss(without_cols, k) - self._held_out_loss(with_cols, k)
+                   for k in range(len(self.tests)))
+
+
+def _eliminate(z: np.ndarray, folds: np.ndarray, terms: list[Term]) -> list[Term]:
+    """Backward elimination: a term fitted beyond its physical bounds goes first (the
+    furthest out: it bends to fit something else, and takes others with it); then
+    every term's evidence is its held-out gain given all the others but its richer
+    look-alikes, and the weakest goes while below the bar."""
+    terms = list(terms)
+    while terms:
+        design = _Design(z, folds, terms)
+        _median_gauge(terms)
+        excess = [np.abs(t.theta).max() / t.candidate.bound for t in terms]
+        if max(excess) > 1.0:
+            out = terms.pop(int(np.argmax(excess)))
+            log.debug("- %s (out of bounds: %s)", out.key, out.theta)
+            continue
+        _judge(z, folds, terms, design)
+        supported = {t.candidate.effect for t in terms if t.evidence - t.cost >= MIN_EVIDENCE}
+        removable = [t for t in terms if t.candidate.effect not in FAMILIES & supported]
+        weakest = min(removable, key=lambda t: t.evidence - t.cost, default=None)
+        if weakest is None or weakest.evidence - weakest.cost >= MIN_EVIDENCE:
+            break
+        log.debug("- %s (evidence %.1f given the others)", weakest.key, weakest.evidence)
+        terms.remove(weakest)
+    _refit(z, terms)
+    return terms
+
+
+def _judge(z: np.ndarray, folds: np.ndarray, terms: list[Term], design: _Design) -> None:
+    """Every term's evidence given the others but its richer look-alikes. A complete
+    delay family is judged against a reference anchor, the median one (against all
+    the others an anchor's delay adds nothing: they can all move together), and the
+    reference against the next one."""
+    family = sorted(_delay_family(terms), key=lambda t: t.theta[0])
+    judges = {id(t): design for t in terms}
+    if family:
+        middle = len(family) // 2
+        reference, second = family[middle], family[middle - 1]
+        without_reference = _Design(z, folds, [t for t in terms if t is not reference])
+        judges.update({id(t): without_reference for t in family if t is not reference})
+        judges[id(reference)] = _Design(z, folds, [t for t in terms if t is not second])
+    for t in terms:
+        t.evidence = judges[id(t)].gain(t, _richer(t, terms))
+
+
 def select(problem: Problem, channel: Channel, pool: list[Candidate]) -> list[Term]:
-    """Forward selection by held-out gain (see the module's description)."""
-    z, folds, kept, banned = channel.z, channel.folds(), [], set()
-    # Parametric effects first, then NLOS (whose region adapts to the data) on what
-    # they leave, then parametric again on what NLOS leaves, until nothing joins: the
-    # flexible candidate must not swallow the rigid ones, nor hide them.
-    stages = ["parametric", "nlos"] * 3 if channel.name == "tdoa" else ["parametric"]
-    for number, stage in enumerate(stages):
-        before = len(kept)
-        left = _refit(z, kept)
-        while len(kept) < MAX_EFFECTS:
-            taken = {t.key for t in kept} | banned
-            if stage == "parametric":
-                open_pool = [c for c in pool if c.channel == channel.name and c.key not in taken]
-                trials = [(held_out_gain(left, c.columns, np.full(c.size, c.prior), folds), Term(c, c.columns))
-                          for c in open_pool]
-                trials += [_window_trial(channel, left, folds, c) for c in open_pool if c.effect in WINDOWABLE]
-            else:
-                trials = [trial for k in problem.anchor_ids if f"nlos:{k}" not in taken
-                          for trial in [_nlos_trial(problem, channel, left, folds, k)] if trial is not None]
-            if not trials:
-                break
-            gain, best = max(trials, key=lambda gt: gt[0] - gt[1].cost)
-            if gain - best.cost < MIN_EVIDENCE:
-                break
-            best.look_alikes = [(t.key, round(g, 1)) for g, t in trials
-                                if t.key != best.key and g - t.cost >= gain - best.cost - LOOK_ALIKE_MARGIN]
-            kept.append(best)
-            left = _refit(z, kept)
-            for term in [t for t in kept if np.abs(t.theta).max() > t.candidate.bound]:
-                # beyond physical size: the term is bending to fit something else
-                log.info("%s: %s fitted out of bounds (%s); not this effect", channel.name, term.key, term.theta)
-                kept.remove(term)
-                banned.add(term.key)
-                left = _refit(z, kept)
-            if best in kept:
-                log.info("%s: + %s (held-out gain %.1f)", channel.name, best.key, gain)
-        if number and len(kept) == before and stage == "parametric":
+    """All candidate effects of the channel fitted together, the unsupported ones
+    eliminated (see _eliminate), then NLOS regions searched on what the rest leaves,
+    and the elimination repeated with them; effects confined in time where that
+    explains clearly more; nothing outside its physical bounds."""
+    z, folds = channel.z, channel.folds()
+    parametric = [Term(c, c.columns) for c in pool if c.channel == channel.name]
+    kept, nlos = _eliminate(z, folds, parametric), []
+    for _ in range(NLOS_ROUNDS if channel.name == "tdoa" else 0):
+        found = _nlos_terms(problem, channel, folds, kept)
+        if not found:
             break
-    _simplify(z, folds, kept, pool)
+        nlos += found
+        kept = _eliminate(z, folds, [Term(t.candidate, t.columns) for t in parametric] + nlos)
+        nlos = [t for t in kept if t.candidate.effect == "nlos"]
     _confine_in_time(channel, kept)
-    _refit(z, kept)
-    _within_bounds(z, kept)
-    return _prune(z, folds, kept)
-
-
-def _within_bounds(z: np.ndarray, kept: list[Term]) -> None:
-    """After the replacements and windows, drop whatever left its physical bounds (the
-    furthest out first): no report of a 1.3 m anchor displacement."""
-    while kept:
-        excess = [np.abs(t.theta).max() / t.candidate.bound for t in kept]
-        if max(excess) <= 1.0:
-            return
-        out = kept.pop(int(np.argmax(excess)))
-        log.info("- %s (out of bounds: %s)", out.key, out.theta)
-        _refit(z, kept)
-
-
-SIMPLER = {"anchor_position": ("anchor_delay",), "antenna_pattern": ("anchor_delay", "anchor_position")}
-
-
-def _simplify(z: np.ndarray, folds: np.ndarray, kept: list[Term], pool: list[Candidate]) -> None:
-    """Given everything else that was found, would a simpler look-alike on the same
-    anchor do as well (an anchor displaced along the line of sight is a delay)? Then
-    it replaces the richer effect, which picked up some of the others' signal while
-    they were not yet in the model."""
-    by_key = {c.key: c for c in pool}
-    for term in list(kept):
-        others = [t for t in kept if t is not term]
-        base = _stack(others)
-        score = held_out_gain(z, term.columns, term.prior, folds, base) - term.cost
-        for name in SIMPLER.get(term.candidate.effect, ()):
-            simple = by_key.get(name + "".join(f":{v}" for v in term.candidate.fixed.values()))
-            if simple is None or simple.key in {t.key for t in others}:
-                continue
-            alternative = Term(simple, simple.columns)
-            if held_out_gain(z, simple.columns, alternative.prior, folds, base) - alternative.cost >= score - 2.0:
-                log.info("%s reads as the simpler %s", term.key, simple.key)
-                alternative.look_alikes = [(term.key, round(score + term.cost, 1))] + term.look_alikes
-                kept[kept.index(term)] = alternative
-                _refit(z, kept)
-                break
-
-
-def _prune(z: np.ndarray, folds: np.ndarray, kept: list[Term]) -> list[Term]:
-    """Each term's evidence is its held-out gain given all the others; the weakest goes
-    while it is below the bar (an effect that an added look-alike made redundant)."""
-    while kept:
-        for term in kept:
-            term.evidence = held_out_gain(z, term.columns, term.prior, folds,
-                                          _stack([t for t in kept if t is not term]))
-        weakest = min(kept, key=lambda t: t.evidence - t.cost)
-        if weakest.evidence - weakest.cost >= MIN_EVIDENCE:
-            break
-        log.info("- %s (evidence %.1f given the others)", weakest.key, weakest.evidence)
-        kept.remove(weakest)
-        _refit(z, kept)
+    kept = _eliminate(z, folds, kept)
+    _note_look_alikes(z, folds, kept, parametric)
     return kept
 
 
-def _window_trial(channel: Channel, z: np.ndarray, folds: np.ndarray, c: Candidate) -> tuple[float, Term]:
-    """The candidate confined to the run of time blocks where it explains most (from
-    per-block sufficient statistics of a weighted least-squares fit), then judged on
-    held-out blocks like any candidate; its two ends cost two more parameters."""
-    edges = np.quantile(channel.t, np.linspace(0, 1, TIME_BLOCKS + 1))
-    block = np.clip(np.searchsorted(edges, channel.t, side="right") - 1, 0, TIME_BLOCKS - 1)
-    w = huber_weight(z)[:, None]
-    sxz = np.stack([np.bincount(block, (w * c.columns * z[:, None])[:, j], TIME_BLOCKS) for j in range(c.size)], 1)
-    sxx = np.stack([np.bincount(block, (w * c.columns ** 2)[:, j], TIME_BLOCKS) for j in range(c.size)], 1)
-    best, window = -np.inf, (0, TIME_BLOCKS)
-    for i in range(TIME_BLOCKS):
-        for j in range(i + 1, TIME_BLOCKS + 1):
-            if j - i < TIME_BLOCKS:
-                gain = np.sum(sxz[i:j].sum(0) ** 2 / (sxx[i:j].sum(0) + 1.0 / c.prior ** 2))
-                if gain > best:
-                    best, window = gain, (i, j)
-    inside = (channel.t >= edges[window[0]]) & ((channel.t < edges[window[1]]) if window[1] < TIME_BLOCKS else True)
-    columns = c.columns * inside[:, None]
-    term = Term(c, columns, {"during": [float(edges[window[0]]), float(edges[window[1]])]}, window_cost=True)
-    return held_out_gain(z, columns, np.full(c.size, c.prior), folds), term
+def _nlos_terms(problem: Problem, channel: Channel, folds: np.ndarray, kept: list[Term]) -> list[Term]:
+    """NLOS regions, strongest first, on what the kept effects leave."""
+    found = []
+    while True:
+        left = _refit(channel.z, kept + found)
+        taken = {t.key for t in kept + found}
+        trials = [trial for k in problem.anchor_ids if f"nlos:{k}" not in taken
+                  for trial in [_nlos_trial(problem, channel, left, folds, k)] if trial is not None]
+        if not trials:
+            return found
+        gain, best = max(trials, key=lambda gt: gt[0] - gt[1].cost)
+        if gain - best.cost < MIN_EVIDENCE:
+            return found
+        log.info("%s: + %s (held-out gain %.1f)", channel.name, best.key, gain)
+        found.append(best)
+
+
+LOOK_ALIKES = {"anchor_delay": ("anchor_position", "antenna_pattern"),
+               "anchor_position": ("anchor_delay", "antenna_pattern"),
+               "antenna_pattern": ("anchor_delay", "anchor_position"),
+               "time_offset": ("clock_drift",), "clock_drift": ("time_offset",),
+               "imu_accel_bias": ("imu_accel_scale",), "imu_accel_scale": ("imu_accel_bias",),
+               "imu_gyro_bias": ("imu_gyro_scale",), "imu_gyro_scale": ("imu_gyro_bias",)}
+
+
+def _note_look_alikes(z: np.ndarray, folds: np.ndarray, kept: list[Term], pool: list[Term]) -> None:
+    """For each kept effect, the look-alikes left out (on the same anchor) that would
+    have explained nearly as much in its place."""
+    keys = {t.key for t in kept}
+    for term in kept:
+        anchor = term.candidate.fixed.get("anchor")
+        others = [t for t in kept if t is not term and t not in _richer(term, kept)]
+        for alt in [Term(t.candidate, t.columns) for t in pool if t.key not in keys
+                    and t.candidate.effect in LOOK_ALIKES.get(term.candidate.effect, ())
+                    and t.candidate.fixed.get("anchor") == anchor]:
+            gain = _Design(z, folds, others + [alt]).gain(alt)
+            if gain - alt.cost >= term.evidence - term.cost - LOOK_ALIKE_MARGIN:
+                term.look_alikes.append((alt.key, round(gain, 1)))
 
 
 def _confine_in_time(channel: Channel, kept: list[Term]) -> None:
     """An effect present in part of the flight only: try every run of whole time
-    blocks; keep the best window when it explains clearly more than the whole flight."""
+    blocks; keep the best window when it explains clearly more than the whole flight
+    (a delay so confined leaves the family of delays: it is then absolute)."""
     if not kept:
         return
     edges = np.quantile(channel.t, np.linspace(0, 1, TIME_BLOCKS + 1))
@@ -484,7 +547,10 @@ def _confine_in_time(channel: Channel, kept: list[Term]) -> None:
         others = [t for t in kept if t is not term]
         z = channel.z if not others else channel.z - _stack(others)[0] @ np.concatenate([t.theta for t in others])
         full = huber_loss(z - term.columns @ irls(z, term.columns, term.prior)).sum()
-        best = (full - MIN_EVIDENCE - 2 * PENALTY_PER_PARAMETER, None)
+        # a window must add half again what the whole flight explains: slowly varying
+        # real errors always make some window fit a little better
+        margin = max(MIN_EVIDENCE + 2 * PENALTY_PER_PARAMETER, 0.5 * (huber_loss(z).sum() - full))
+        best = (full - margin, None)
         for i in range(TIME_BLOCKS):
             for j in range(i + 1, TIME_BLOCKS + 1):
                 if j - i == TIME_BLOCKS:
