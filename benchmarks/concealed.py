@@ -1,0 +1,73 @@
+"""The concealed-effect cases of tests/test_diagnose.py on more flights than the suite
+runs: each catalog effect injected alone into a flight, diagnosed, compared with the
+untouched flight as control, judged by the suite's own tolerances.
+
+    .venv/bin/python benchmarks/concealed.py [--flights sim 0426-traj1 ...] [--out out/concealed.json]
+
+`sim` is the suite's simulated flight. Prints a line per effect and flight (found or
+missed, the recovered parameters after subtracting the control) and a count per flight."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from multiprocessing import Pool
+from pathlib import Path
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")       # two processes on two cores
+ROOT = Path(__file__).resolve().parent.parent
+sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
+
+import test_diagnose as cases  # noqa: E402  - the cases and their tolerances are the suite's
+
+from rig import paths  # noqa: E402
+from rig.importer import load_any  # noqa: E402
+from rig.simulate import Predictor, inject, simulate  # noqa: E402
+
+
+def diagnosed(job: tuple[str, str]) -> tuple[str, str, dict]:
+    flight, name = job
+    effects = [] if name == "control" else [{"effect": name, "params": cases.CASES[name][0]}]
+    if flight == "sim":
+        rec = simulate(cases.sim_config(paths.data_dir() / "surveys" / "anchor_0425.txt", effects))
+    else:
+        rec = load_any(paths.data_dir() / "flights" / flight)
+        if effects:
+            rec = inject(rec, effects, seed=1, predictor=Predictor(rec))
+    return flight, name, cases.findings(cases.diagnose(rec))
+
+
+def judge(found: dict, control: dict, name: str, real: bool) -> tuple[bool, str]:
+    params, check = cases.CASES[name]
+    try:
+        cases._check(found, control, name, params, check, real=real)
+        return True, "found"
+    except AssertionError as error:
+        return False, str(error).split(";")[0][:160]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--flights", nargs="+", default=["sim", "0426-traj1", "0426-traj4", "0425-traj5", "0422-log01"])
+    parser.add_argument("--out", type=Path, default=ROOT / "out" / "concealed.json")
+    args = parser.parse_args()
+    jobs = [(f, n) for f in args.flights for n in ["control", *cases.CASES]]
+    with Pool(2) as pool:
+        results = {(f, n): found for f, n, found in pool.imap_unordered(diagnosed, jobs)}
+    summary = {}
+    for flight in args.flights:
+        control, rows = results[(flight, "control")], {}
+        for name in cases.CASES:
+            ok, how = judge(results[(flight, name)], control, name, real=flight != "sim")
+            rows[name] = {"found": ok, "detail": how}
+            print(f"{flight:12s} {name:16s} {'found ' if ok else 'MISSED'} {'' if ok else how}")
+        summary[flight] = {"found": sum(r["found"] for r in rows.values()), "of": len(rows), "cases": rows}
+        print(f"{flight}: {summary[flight]['found']} of {len(rows)}")
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(summary, indent=1))
+
+
+if __name__ == "__main__":
+    main()
