@@ -34,7 +34,7 @@ MODEL = ROOT / "out" / "ablation" / "d14" / "bias_net.json"
 CACHE = ROOT / "out" / "cache" / "all.npz"
 TEST_DAY = "0426"
 TDOA_STDS = (0.25, 0.3, 0.5)
-DROPPED = (0.1, 0.2)
+DROPPED = (0.1, 0.2, 0.3)
 
 
 def quality_network(features: np.ndarray, residual: np.ndarray, seed: int = 0, epochs: int = 6):
