@@ -402,8 +402,8 @@ class _Design:
         self.slices, at = {}, 0
         for t in terms:
             self.slices[id(t)] = np.arange(at, at + t.columns.shape[1])
-            t.theta = theta[self.slices[id(t)]]
             at += t.columns.shape[1]
+        self.theta = theta
         self.tests = [np.flatnonzero(folds == k) for k in range(FOLDS)]
         self.tests = [rows for rows in self.tests if len(rows) and len(z) - len(rows) >= MIN_SAMPLES]
         xw = self.x * w[:, None]
@@ -438,6 +438,8 @@ def _eliminate(z: np.ndarray, folds: np.ndarray, terms: list[Term]) -> list[Term
     terms = list(terms)
     while terms:
         design = _Design(z, folds, terms)
+        for t in terms:
+            t.theta = design.theta[design.slices[id(t)]]
         _median_gauge(terms)
         excess = [np.abs(t.theta).max() / t.candidate.bound for t in terms]
         if max(excess) > 1.0:
