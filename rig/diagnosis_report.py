@@ -22,7 +22,8 @@ PLAIN = {
     "time_offset": "the UWB timestamps are late by {seconds:.3f} s against the IMU and ground-truth clock",
     "clock_drift": "the UWB clock runs fast by {ppm:.0f} ppm against the IMU clock",
     "anchor_position": "anchor {anchor} is really {offset_m} m from where the survey puts it",
-    "anchor_delay": "every range from anchor {anchor} reads {meters:+.3f} m long (antenna delay)",
+    "anchor_delay": "every range from anchor {anchor} reads {meters:+.3f} m long (antenna delay; relative to the "
+                    "anchors' median delay, which TDOA cannot see)",
     "antenna_pattern": "anchor {anchor}'s ranges are biased with the viewing angle (antenna pattern {coeffs_m} m)",
     "nlos": "ranges to anchor {anchor} carry an excess delay (NLOS: {fraction:.0%} of them, {mean_excess_m:.3f} m "
             "on average) while the tag is inside {region}",
@@ -82,7 +83,9 @@ def _markdown(diagnosis: Diagnosis, report: dict, images: list[tuple[str, str]])
     lines += ["", "Evidence is the held-out gain in robust loss (five contiguous time blocks, each predicted "
               "from the other four); larger is stronger. Look-alikes: an anchor displacement along the line "
               "of sight reads as a delay, and a second-order antenna pattern over a small range of viewing "
-              "angles as a displacement; an accelerometer scale on z reads as a bias in hover.", ""]
+              "angles as a displacement; an accelerometer scale on z reads as a bias in hover. Once one "
+              "anchor's delay is supported, every anchor's delay is reported (some with little evidence of "
+              "their own): TDOA measures them relative to each other.", ""]
     for title, name in images:
         lines += [f"## {title}", "", f"![{title}]({name})", ""]
     return "\n".join(lines)
