@@ -23,8 +23,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from rig import metrics, native, paths  # noqa: E402
-from rig.bias_dataset import _anchor_arrays, tag_rotations, truth_latency  # noqa: E402
+from rig import paths  # noqa: E402
+from rig.bias_dataset import _known_pairs, measurement_features, truth_latency  # noqa: E402
 from rig.bias_model import BiasNet  # noqa: E402
 from rig.evaluate import evaluate  # noqa: E402
 from rig.importer import load_any  # noqa: E402
@@ -66,23 +66,13 @@ def quality_network(features: np.ndarray, residual: np.ndarray, seed: int = 0, e
     return predict
 
 
-def measurement_features(rec) -> tuple[np.ndarray, np.ndarray]:
-    """Features of every TDOA row with known anchors (ground-truth pose), and those rows."""
-    d, known = rec.tdoa, [a.id for a in rec.anchors]
-    rows = np.flatnonzero(np.isin(d.id_a, known) & np.isin(d.id_b, known))
-    a_pos, a_rot = _anchor_arrays(rec, d.id_a[rows])
-    b_pos, b_rot = _anchor_arrays(rec, d.id_b[rows])
-    t = d.t[rows] + truth_latency(rec)
-    tag = metrics.interpolate_positions(rec.truth, t)
-    return native.features_batch(tag, tag_rotations(rec.truth, t), a_pos, a_rot, b_pos, b_rot), rows
-
-
 def flight_job(name: str, quality) -> dict:
     rec = load_any(paths.data_dir() / "flights" / name)
     out = {"without": evaluate(rec, use_nn=False)["rmse_3d"], "with": evaluate(rec, model_path=MODEL)["rmse_3d"]}
     for std in TDOA_STDS:
         out[f"tdoa_std {std}"] = evaluate(rec, model_path=MODEL, tdoa_std=std)["rmse_3d"]
-    features, rows = measurement_features(rec)
+    rows = np.flatnonzero(_known_pairs(rec))
+    features = measurement_features(rec, rows, truth_latency(rec))[0]
     sigma = quality(features)
     for share in DROPPED:
         keep = np.ones(len(rec.tdoa.t), bool)

@@ -121,18 +121,26 @@ def tag_rotations(truth: PoseSeries, t: np.ndarray) -> np.ndarray:
     return slerp(np.clip(t, times[0], times[-1])).as_matrix()
 
 
+def measurement_features(rec: Recording, sel: np.ndarray, latency: float
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The 14 features of the selected TDOA rows (known anchors) from the ground truth
+    read `latency` later, with the tag's and both anchors' positions they came from."""
+    a_pos, a_rot = _anchor_arrays(rec, rec.tdoa.id_a[sel])
+    b_pos, b_rot = _anchor_arrays(rec, rec.tdoa.id_b[sel])
+    t = rec.tdoa.t[sel] + latency
+    tag_pos = metrics.interpolate_positions(rec.truth, t)
+    feats = native.features_batch(tag_pos, tag_rotations(rec.truth, t), a_pos, a_rot, b_pos, b_rot)
+    return feats, tag_pos, a_pos, b_pos
+
+
 def flight_samples(rec: Recording, name: str, latency: float | None = None) -> Samples:
     """Every in-flight TDOA measurement of `rec` with |error| <= MAX_ABS_ERROR_M."""
     if latency is None:
         latency = truth_latency(rec)
     sel = _airborne_tdoa(rec)
-    id_a, id_b = rec.tdoa.id_a[sel], rec.tdoa.id_b[sel]
-    a_pos, a_rot = _anchor_arrays(rec, id_a)
-    b_pos, b_rot = _anchor_arrays(rec, id_b)
-    t = rec.tdoa.t[sel]
-    tag_pos = metrics.interpolate_positions(rec.truth, t + latency)
+    id_a, id_b, t = rec.tdoa.id_a[sel], rec.tdoa.id_b[sel], rec.tdoa.t[sel]
+    feats, tag_pos, a_pos, b_pos = measurement_features(rec, sel, latency)
     label = rec.tdoa.distance_diff[sel] - true_tdoa(tag_pos, a_pos, b_pos)
-    feats = native.features_batch(tag_pos, tag_rotations(rec.truth, t + latency), a_pos, a_rot, b_pos, b_rot)
     keep = np.abs(label) <= MAX_ABS_ERROR_M
     log.info("%s: %d samples (%d outliers dropped), ground-truth latency %.0f ms", name, keep.sum(),
              (~keep).sum(), latency * 1e3)

@@ -329,13 +329,22 @@ def _refit(z: np.ndarray, terms: list[Term]) -> np.ndarray:
     if not terms:
         return z
     x, prior = _stack(terms)
-    theta = irls(z, x, prior)
+    _take_fit(terms, irls(z, x, prior))
+    return _left(z, terms)
+
+
+def _take_fit(terms: list[Term], theta: np.ndarray) -> None:
+    """Hand each term its slice of a joint fit of `terms` (stacked in that order)."""
     at = 0
     for t in terms:
         t.theta = theta[at:at + t.columns.shape[1]]
         at += t.columns.shape[1]
     _median_gauge(terms)
-    return z - x @ theta
+
+
+def _left(z: np.ndarray, terms: list[Term]) -> np.ndarray:
+    """The standardised residual the terms leave, as fitted."""
+    return z - sum((t.columns @ t.theta for t in terms), np.zeros(len(z)))
 
 
 def _delay_family(terms: list[Term]) -> list[Term]:
@@ -438,9 +447,7 @@ def _eliminate(z: np.ndarray, folds: np.ndarray, terms: list[Term]) -> list[Term
     terms = list(terms)
     while terms:
         design = _Design(z, folds, terms)
-        for t in terms:
-            t.theta = design.theta[design.slices[id(t)]]
-        _median_gauge(terms)
+        _take_fit(terms, design.theta)
         excess = [np.abs(t.theta).max() / t.candidate.bound for t in terms]
         if max(excess) > 1.0:
             out = terms.pop(int(np.argmax(excess)))
@@ -454,8 +461,7 @@ def _eliminate(z: np.ndarray, folds: np.ndarray, terms: list[Term]) -> list[Term
             break
         log.debug("- %s (evidence %.1f given the others)", weakest.key, weakest.evidence)
         terms.remove(weakest)
-    _refit(z, terms)
-    return terms
+    return terms      # as fitted by the last design, which held exactly these terms
 
 
 def _judge(z: np.ndarray, folds: np.ndarray, terms: list[Term], design: _Design) -> None:
@@ -547,7 +553,7 @@ def _confine_in_time(channel: Channel, kept: list[Term]) -> None:
         if term.candidate.effect not in WINDOWABLE:
             continue
         others = [t for t in kept if t is not term]
-        z = channel.z if not others else channel.z - _stack(others)[0] @ np.concatenate([t.theta for t in others])
+        z = _left(channel.z, others)
         full = huber_loss(z - term.columns @ irls(z, term.columns, term.prior)).sum()
         # a window must add half again what the whole flight explains: slowly varying
         # real errors always make some window fit a little better
@@ -756,7 +762,7 @@ def diagnose(rec: Recording, progress=None) -> Diagnosis:
     for name in progress(names) if progress else names:
         channel = problem.channel(name)
         terms = select(problem, channel, pool)
-        z_after = _refit(channel.z, terms)
+        z_after = _left(channel.z, terms)
         for term in terms:
             effect = _effect_of(problem, channel, term)
             model.append(effect)
