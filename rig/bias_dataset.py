@@ -2,8 +2,13 @@
 TDOA measurement of real flights.
 
 Features are computed by the C estimator's own `bn_features` (through the native
-library), from ground truth and the surveyed anchor poses, so training and the
-onboard inference share one definition. The label is measured − true TDOA.
+library) with the surveyed anchor poses, so training and the onboard inference share
+one definition. The tag's pose they use is, by default, the estimator's own: a
+replay of the flight without correction, read at each measurement's time. In flight
+the network sees the estimated pose, whose error is of the size of the bias field's
+structure and caused by the bias itself: features from the ground truth teach it a
+function it is never asked for (`FEATURES_FROM`: "estimate" or "truth"). The label
+is measured − true TDOA, from the ground truth.
 
 The ground truth (`estPose`, the motion-capture pose radioed to the drone) is
 stamped with the drone's clock on arrival, so it lags the true motion. The lag is
@@ -26,6 +31,7 @@ from rig.recording import PoseSeries, Recording
 
 log = logging.getLogger(__name__)
 
+FEATURES_FROM = ("estimate", "truth")   # the tag pose the features are computed from
 MAX_ABS_ERROR_M = 1.0      # larger errors are outliers: the robust update's job, not the network's
 LATENCY_GRID_S = np.arange(-0.2, 0.2001, 0.005)
 FLIGHT_RULE = metrics.SegmentRule(min_height=0.3, skip_after_takeoff=0.0)
@@ -121,25 +127,46 @@ def tag_rotations(truth: PoseSeries, t: np.ndarray) -> np.ndarray:
     return slerp(np.clip(t, times[0], times[-1])).as_matrix()
 
 
-def measurement_features(rec: Recording, sel: np.ndarray, latency: float
+def estimated_poses(rec: Recording, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The robust estimator's position and rotation matrix at times `t`, from a replay of
+    `rec` without bias correction (what the network's input is computed from in flight)."""
+    from rig.evaluate import estimator_config, replay
+
+    run = replay(rec, *estimator_config(robust=True, use_nn=False))
+    position = np.stack([np.interp(t, run.t, run.position[:, k]) for k in range(3)], axis=1)
+    times, keep = np.unique(run.t, return_index=True)
+    quaternion = run.outputs["quat"][keep].astype(float)
+    rotation = Slerp(times, Rotation.from_quat(quaternion))(np.clip(t, times[0], times[-1])).as_matrix()
+    return position, rotation
+
+
+def measurement_features(rec: Recording, sel: np.ndarray, latency: float, features_from: str = "estimate"
                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The 14 features of the selected TDOA rows (known anchors) from the ground truth
-    read `latency` later, with the tag's and both anchors' positions they came from."""
+    """The 14 features of the selected TDOA rows (known anchors), with the true tag
+    position (ground truth read `latency` later) and both anchors' positions. The
+    features' tag pose is the estimator's (`features_from="estimate"`) or the truth's."""
+    if features_from not in FEATURES_FROM:
+        raise ValueError(f"features_from must be one of {FEATURES_FROM}, not {features_from!r}")
     a_pos, a_rot = _anchor_arrays(rec, rec.tdoa.id_a[sel])
     b_pos, b_rot = _anchor_arrays(rec, rec.tdoa.id_b[sel])
-    t = rec.tdoa.t[sel] + latency
-    tag_pos = metrics.interpolate_positions(rec.truth, t)
-    feats = native.features_batch(tag_pos, tag_rotations(rec.truth, t), a_pos, a_rot, b_pos, b_rot)
+    t = rec.tdoa.t[sel]
+    tag_pos = metrics.interpolate_positions(rec.truth, t + latency)
+    if features_from == "truth":
+        pos, rot = tag_pos, tag_rotations(rec.truth, t + latency)
+    else:
+        pos, rot = estimated_poses(rec, t)
+    feats = native.features_batch(pos, rot, a_pos, a_rot, b_pos, b_rot)
     return feats, tag_pos, a_pos, b_pos
 
 
-def flight_samples(rec: Recording, name: str, latency: float | None = None) -> Samples:
+def flight_samples(rec: Recording, name: str, latency: float | None = None,
+                   features_from: str = "estimate") -> Samples:
     """Every in-flight TDOA measurement of `rec` with |error| <= MAX_ABS_ERROR_M."""
     if latency is None:
         latency = truth_latency(rec)
     sel = _airborne_tdoa(rec)
     id_a, id_b, t = rec.tdoa.id_a[sel], rec.tdoa.id_b[sel], rec.tdoa.t[sel]
-    feats, tag_pos, a_pos, b_pos = measurement_features(rec, sel, latency)
+    feats, tag_pos, a_pos, b_pos = measurement_features(rec, sel, latency, features_from)
     label = rec.tdoa.distance_diff[sel] - true_tdoa(tag_pos, a_pos, b_pos)
     keep = np.abs(label) <= MAX_ABS_ERROR_M
     log.info("%s: %d samples (%d outliers dropped), ground-truth latency %.0f ms", name, keep.sum(),
@@ -147,26 +174,23 @@ def flight_samples(rec: Recording, name: str, latency: float | None = None) -> S
     return Samples(feats, label, np.full(len(label), name), id_a, id_b, t).select(keep)
 
 
-def shared_flight_samples(flight: Path) -> tuple[Samples, float]:
+def shared_flight_samples(flight: Path, features_from: str = "estimate") -> tuple[Samples, float]:
     """Samples of one shared flight log, and its estimated ground-truth latency."""
     from rig.importer import load_any
 
     rec = load_any(flight)
     latency = truth_latency(rec)
-    return flight_samples(rec, Path(flight).name, latency), latency
+    return flight_samples(rec, Path(flight).name, latency, features_from), latency
 
 
-def _flight_job(flight: Path) -> tuple[Samples, float]:
-    return shared_flight_samples(flight)
-
-
-def build_dataset(flights: list[Path], workers: int = 2, progress=None) -> tuple[Samples, dict[str, float]]:
+def build_dataset(flights: list[Path], workers: int = 2, progress=None, features_from: str = "estimate"
+                  ) -> tuple[Samples, dict[str, float]]:
     """Samples of all `flights` (in parallel) and each flight's ground-truth latency."""
     from concurrent.futures import ProcessPoolExecutor
 
     flights = sorted(Path(f) for f in flights)
     with ProcessPoolExecutor(max_workers=workers) as pool:
-        results = pool.map(_flight_job, flights)
+        results = pool.map(shared_flight_samples, flights, [features_from] * len(flights))
         results = list(progress(results) if progress else results)
     latency = {f.name: lat for f, (_, lat) in zip(flights, results)}
     return Samples.concatenate([s for s, _ in results]), latency

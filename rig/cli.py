@@ -227,7 +227,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     anchors = [int(a) for a in args.exclude_anchors.split(",")] if args.exclude_anchors else []
     prov = run_training(flights, args.out, test_prefixes=args.test, exclude_anchors=anchors, config=config,
                         dataset_cache=args.dataset_cache, command=["rig", *sys.argv[1:]],
-                        progress=_progress(desc="training", total=None))
+                        progress=_progress(desc="training", total=None), features_from=args.features_from)
     t = prov["training"]
     print(f"trained on {len(prov['split']['train'])} flights ({prov['samples']['train']} samples), "
           f"{t['epochs']} epochs in {t['seconds']:.0f} s (best {t['best_epoch']})")
@@ -570,6 +570,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
 # ----------------------------------------------------------------------------- parser
 
 def build_parser() -> argparse.ArgumentParser:
+    from rig.bias_dataset import FEATURES_FROM
     from rig.train import TrainConfig
 
     parser = argparse.ArgumentParser(
@@ -655,7 +656,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_evaluate)
 
     p = sub.add_parser("train", help="train the TDOA bias network on the shared flights (torch, CPU)",
-                       description="Build the dataset (14 features from the C feature code, label = measured - "
+                       description="Build the dataset (14 features from the C feature code at the estimator's own "
+                                   "pose, label = measured - "
                                    "true TDOA, |error| <= 1 m, in flight), split by flight 70/15/15, train the "
                                    "14-30-30-30-1 network with early stopping and write the model JSON and a "
                                    "provenance file. Seeded and reproducible.")
@@ -665,6 +667,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--exclude-anchors", metavar="K,K", help="leave these anchors out of training; test on them")
     p.add_argument("--features", choices=("14", "10"), default="14",
                    help="10 drops the anchors' orientation (the tag's angles in each anchor's frame)")
+    p.add_argument("--features-from", choices=FEATURES_FROM, default=FEATURES_FROM[0],
+                   help="the tag pose the features are computed from: the estimator's own (a replay without "
+                        "correction; what the network sees in flight) or the ground truth")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--max-epochs", type=int, default=TrainConfig().max_epochs)
     p.add_argument("--out", type=Path, default=paths.PROJECT_ROOT / "rig" / "models" / "bias_net.json")

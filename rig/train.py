@@ -191,33 +191,35 @@ def provenance_path(model_path: Path) -> Path:
     return model_path.with_name(model_path.stem + ".provenance.json")
 
 
-def load_or_build_dataset(flights: list[Path], cache: Path | None, progress=None) -> tuple[Samples, dict]:
-    """The samples of `flights`, from `cache` when it holds exactly these flights."""
+def load_or_build_dataset(flights: list[Path], cache: Path | None, progress=None,
+                          features_from: str = "estimate") -> tuple[Samples, dict]:
+    """The samples of `flights`, from `cache` when it holds exactly these flights with
+    features from the same tag pose."""
     from rig.bias_dataset import build_dataset
 
     names = sorted(Path(f).name for f in flights)
-    if cache is not None and cache.exists():
-        samples = Samples.load(cache)
-        meta = json.loads(cache.with_suffix(".json").read_text()) if cache.with_suffix(".json").exists() else {}
-        if meta.get("flights") == names:
+    meta = {"flights": names, "features_from": features_from}
+    if cache is not None and cache.exists() and cache.with_suffix(".json").exists():
+        cached = json.loads(cache.with_suffix(".json").read_text())
+        if all(cached.get(k) == v for k, v in meta.items()):
             log.info("dataset from cache %s", cache)
-            return samples, meta["latency_s"]
-    samples, latency = build_dataset(flights, progress=progress)
+            return Samples.load(cache), cached["latency_s"]
+    samples, latency = build_dataset(flights, progress=progress, features_from=features_from)
     if cache is not None:
         cache.parent.mkdir(parents=True, exist_ok=True)
         samples.save(cache)
-        cache.with_suffix(".json").write_text(json.dumps({"flights": names, "latency_s": latency}) + "\n")
+        cache.with_suffix(".json").write_text(json.dumps({**meta, "latency_s": latency}) + "\n")
     return samples, latency
 
 
 def run_training(flights: list[Path], out: Path, *, test_prefixes: list[str] | None = None,
                  exclude_anchors: list[int] = (), config: TrainConfig = TrainConfig(),
                  dataset_cache: Path | None = None, command: list[str] | None = None,
-                 progress=None) -> dict:
+                 progress=None, features_from: str = "estimate") -> dict:
     """Build the dataset, split by flight, train, write OUT (model JSON) and its provenance."""
     import torch
 
-    samples, latency = load_or_build_dataset(flights, dataset_cache, progress)
+    samples, latency = load_or_build_dataset(flights, dataset_cache, progress, features_from)
     names = sorted(set(samples.flight.tolist()))
     test = [n for n in names if any(n.startswith(p) for p in test_prefixes)] if test_prefixes else None
     if test_prefixes and not test:
@@ -229,6 +231,6 @@ def run_training(flights: list[Path], out: Path, *, test_prefixes: list[str] | N
     provenance = {"model": out.name, "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
                   "command": command or [], "data_dir": str(Path(flights[0]).parent) if flights else "",
                   "flights": names, "ground_truth_latency_s": latency, "torch": torch.__version__,
-                  "features": config.features, **report}
+                  "features": config.features, "features_from": features_from, **report}
     provenance_path(out).write_text(json.dumps(provenance, indent=2) + "\n")
     return provenance

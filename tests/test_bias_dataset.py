@@ -1,0 +1,49 @@
+"""The bias network's dataset: features at the estimator's own pose (what the network
+sees in flight) or at the ground truth's, labels from the ground truth either way."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rig import metrics
+from rig.bias_dataset import estimated_poses, flight_samples, truth_latency
+from rig.importer import load_any
+
+FLIGHT = "0426-traj1"
+
+
+@pytest.fixture(scope="module")
+def flight(data_dir: Path):
+    rec = load_any(data_dir / "flights" / FLIGHT)
+    return rec, truth_latency(rec)
+
+
+def implied_tag(rec, samples) -> np.ndarray:
+    """Features 0-2 are anchor A minus the tag's position."""
+    anchors = rec.anchor_map()
+    return np.array([anchors[int(k)].position for k in samples.id_a]) - samples.features[:, 0:3]
+
+
+def test_features_are_at_the_estimators_pose_and_labels_at_the_truth(flight) -> None:
+    rec, latency = flight
+    at_estimate = flight_samples(rec, FLIGHT, latency)
+    at_truth = flight_samples(rec, FLIGHT, latency, features_from="truth")
+    np.testing.assert_array_equal(at_estimate.label, at_truth.label)
+    np.testing.assert_array_equal(at_estimate.t, at_truth.t)
+
+    estimated, _ = estimated_poses(rec, at_estimate.t)
+    true = metrics.interpolate_positions(rec.truth, at_truth.t + latency)
+    np.testing.assert_allclose(implied_tag(rec, at_estimate), estimated, atol=1e-4)
+    np.testing.assert_allclose(implied_tag(rec, at_truth), true, atol=1e-4)
+    # the estimator's error: what the network must learn to live with in flight
+    apart = np.median(np.linalg.norm(estimated - true, axis=1))
+    assert 0.02 < apart < 0.5
+
+
+def test_an_unknown_feature_source_is_refused(flight) -> None:
+    rec, latency = flight
+    with pytest.raises(ValueError, match="features_from"):
+        flight_samples(rec, FLIGHT, latency, features_from="oracle")
