@@ -23,6 +23,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from bias_ablation import CACHES, OUT, TEST_DAY  # noqa: E402  - ablation (d): its network, test day, dataset
+
 from rig import paths  # noqa: E402
 from rig.bias_dataset import _known_pairs, measurement_features, truth_latency  # noqa: E402
 from rig.bias_model import BiasNet  # noqa: E402
@@ -30,9 +32,7 @@ from rig.evaluate import evaluate  # noqa: E402
 from rig.importer import load_any  # noqa: E402
 from rig.train import load_or_build_dataset  # noqa: E402
 
-MODEL = ROOT / "out" / "ablation" / "d14" / "bias_net.json"
-CACHE = ROOT / "out" / "cache" / "all.npz"
-TEST_DAY = "0426"
+MODEL = OUT / "d14" / "bias_net.json"
 TDOA_STDS = (0.25, 0.3, 0.5)
 DROPPED = (0.1, 0.2, 0.3)
 
@@ -86,7 +86,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--json", type=Path, default=ROOT / "out" / "bias_quality.json")
     args = parser.parse_args()
-    samples, _ = load_or_build_dataset(paths.flights(), CACHE)
+    samples, _ = load_or_build_dataset(paths.flights(), CACHES["estimate"])
     residual = samples.label - BiasNet.load(MODEL).predict(samples.features)
     train = ~np.char.startswith(samples.flight.astype(str), TEST_DAY)
     quality = quality_network(samples.features[train], residual[train])

@@ -32,17 +32,18 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from rig import paths  # noqa: E402
-from rig.bias_dataset import Samples, _known_pairs, measurement_features, truth_latency  # noqa: E402
+from bias_ablation import CACHES, TEST_DAY  # noqa: E402  - the ablations' dataset caches and test day
+
+from rig import metrics, paths  # noqa: E402
+from rig.bias_dataset import Samples, _known_pairs, truth_latency  # noqa: E402
 from rig.evaluate import evaluate  # noqa: E402
 from rig.importer import load_any  # noqa: E402
 from rig.survey import parse_survey  # noqa: E402
 from rig.train import TrainConfig, fit, load_or_build_dataset, split_flights  # noqa: E402
 
-CACHES = {"estimate": ROOT / "out" / "cache" / "all.npz", "truth": ROOT / "out" / "cache" / "all_truth.npz"}
 CELL_M = 0.2
 MIN_CELL_SAMPLES = 5
-TRAIN_DAY, TEST_DAY = "0425", "0426"
+TRAIN_DAY = "0425"
 
 
 def tag_positions(samples: Samples) -> np.ndarray:
@@ -87,17 +88,26 @@ def lookup_spread(keys: np.ndarray, label: np.ndarray, train: np.ndarray, test: 
             "after": float((before - predicted[hit]).std())}
 
 
-def corrected_end_to_end(name: str, correction) -> dict:
-    """The robust estimator's 3D RMSE on flight `name` without and with its TDOA
-    corrected beforehand by `correction(features, tag position, id_a, id_b)`, computed
-    from the ground truth: optimistic, the estimator only knows its own position."""
-    rec = load_any(paths.data_dir() / "flights" / name)
-    rows = np.flatnonzero(_known_pairs(rec))
-    features, tag, _, _ = measurement_features(rec, rows, truth_latency(rec), "truth")
-    corrected = rec.tdoa.distance_diff.copy()
-    corrected[rows] -= correction(features, tag, rec.tdoa.id_a[rows], rec.tdoa.id_b[rows])
-    rec_corrected = dataclasses.replace(rec, tdoa=dataclasses.replace(rec.tdoa, distance_diff=corrected))
-    return {"without": evaluate(rec, use_nn=False)["rmse_3d"], "with": evaluate(rec_corrected, use_nn=False)["rmse_3d"]}
+class Flight:
+    """One test flight, loaded once: the recording, its TDOA rows with known anchors,
+    their lookup-table cells (at the ground truth's tag position) and the robust
+    estimator's 3D RMSE without correction."""
+
+    def __init__(self, name: str):
+        self.name = name
+        self.rec = load_any(paths.data_dir() / "flights" / name)
+        self.rows = np.flatnonzero(_known_pairs(self.rec))
+        tag = metrics.interpolate_positions(self.rec.truth, self.rec.tdoa.t[self.rows] + truth_latency(self.rec))
+        self.keys = cell_keys(tag, self.rec.tdoa.id_a[self.rows], self.rec.tdoa.id_b[self.rows])
+        self.without = evaluate(self.rec, use_nn=False)["rmse_3d"]
+
+    def corrected_by(self, table: LookupTable) -> dict:
+        """The RMSE without and with the TDOA corrected beforehand by `table` (cells found
+        from the ground truth: optimistic, the estimator only knows its own position)."""
+        corrected = self.rec.tdoa.distance_diff.copy()
+        corrected[self.rows] -= table.predict(self.keys)[0]
+        rec = dataclasses.replace(self.rec, tdoa=dataclasses.replace(self.rec.tdoa, distance_diff=corrected))
+        return {"without": self.without, "with": evaluate(rec, use_nn=False)["rmse_3d"]}
 
 
 class Tables:
@@ -118,34 +128,34 @@ class Tables:
     def within_day(self, name: str) -> np.ndarray:
         return self.on(TEST_DAY) & (self.flight != name)
 
-    def row(self, name: str) -> dict:
-        """TDOA error spread and end-to-end RMSE of flight `name` with either table."""
+    def row(self, flight: Flight) -> dict:
+        """TDOA error spread and end-to-end RMSE of `flight` with either table."""
         out = {}
-        for kind, train in (("across days", self.across_days()), ("within day", self.within_day(name))):
-            out[kind] = lookup_spread(self.keys, self.label, train, self.flight == name)
-            table = LookupTable(self.keys[train], self.label[train])
-            out[kind].update(corrected_end_to_end(name, lambda f, tag, a, b: table.predict(cell_keys(tag, a, b))[0]))
+        for kind, train in (("across days", self.across_days()), ("within day", self.within_day(flight.name))):
+            out[kind] = lookup_spread(self.keys, self.label, train, self.flight == flight.name)
+            out[kind].update(flight.corrected_by(LookupTable(self.keys[train], self.label[train])))
         return out
 
 
-def left_out(name: str, features_from: str) -> dict:
-    """The network trained on every flight but `name`, inside the estimator on `name`."""
-    samples, _ = load_or_build_dataset(paths.flights(), CACHES[features_from], features_from=features_from)
-    split = split_flights(sorted(set(samples.flight.astype(str))), 0, [name])
+def left_out(flight: Flight, samples: Samples, features_from: str) -> dict:
+    """The network trained on every flight of `samples` but `flight`, inside the
+    estimator on `flight`."""
+    split = split_flights(sorted(set(samples.flight.astype(str))), 0, [flight.name])
     net, report = fit(samples, split, TrainConfig(seed=0))
-    model = ROOT / "out" / "transfer" / features_from / f"{name}.json"
+    model = ROOT / "out" / "transfer" / features_from / f"{flight.name}.json"
     model.parent.mkdir(parents=True, exist_ok=True)
     net.save(model)
-    rec = load_any(paths.data_dir() / "flights" / name)
     return {"before": report["test"]["before"]["std"], "after": report["test"]["after"]["std"],
-            "without": evaluate(rec, use_nn=False)["rmse_3d"], "with": evaluate(rec, model_path=model)["rmse_3d"]}
+            "without": flight.without, "with": evaluate(flight.rec, model_path=model)["rmse_3d"]}
 
 
 def flight_job(name: str) -> tuple[str, dict]:
-    samples, _ = load_or_build_dataset(paths.flights(), CACHES["truth"], features_from="truth")
-    row = Tables(samples).row(name)
-    row["network, left out"] = left_out(name, "estimate")
-    row["network, left out, features from the ground truth"] = left_out(name, "truth")
+    datasets = {features_from: load_or_build_dataset(paths.flights(), cache, features_from=features_from)[0]
+                for features_from, cache in CACHES.items()}
+    flight = Flight(name)
+    row = Tables(datasets["truth"]).row(flight)
+    row["network, left out"] = left_out(flight, datasets["estimate"], "estimate")
+    row["network, left out, features from the ground truth"] = left_out(flight, datasets["truth"], "truth")
     print(f"  {name}: " + "; ".join(f"{kind} {r['without']:.3f} -> {r['with']:.3f} m" for kind, r in row.items()),
           flush=True)
     return name, row

@@ -133,11 +133,8 @@ def estimated_poses(rec: Recording, t: np.ndarray) -> tuple[np.ndarray, np.ndarr
     from rig.evaluate import estimator_config, replay
 
     run = replay(rec, *estimator_config(robust=True, use_nn=False))
-    position = np.stack([np.interp(t, run.t, run.position[:, k]) for k in range(3)], axis=1)
-    times, keep = np.unique(run.t, return_index=True)
-    quaternion = run.outputs["quat"][keep].astype(float)
-    rotation = Slerp(times, Rotation.from_quat(quaternion))(np.clip(t, times[0], times[-1])).as_matrix()
-    return position, rotation
+    estimate = PoseSeries(run.t, run.position, run.outputs["quat"].astype(float))
+    return metrics.interpolate_positions(estimate, t), tag_rotations(estimate, t)
 
 
 def measurement_features(rec: Recording, sel: np.ndarray, latency: float, features_from: str = "estimate"
