@@ -14,7 +14,7 @@ estimator's 3D RMSE and the TDOA error spread without and with:
 
     .venv/bin/python benchmarks/bias_transfer.py [--flights 0426-traj1 ...] [--json out/bias_transfer.json]
 
-Uses the dataset caches of bias_ablation.py (built if missing). About ten minutes."""
+Uses the dataset caches of bias_ablation.py (built if missing). About seven minutes."""
 
 from __future__ import annotations
 
