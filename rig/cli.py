@@ -223,14 +223,18 @@ def cmd_train(args: argparse.Namespace) -> int:
         if args.flights else paths.flights()
     if not flights:
         raise CliError(f"no flight in {paths.data_dir() / 'flights'} matches {args.flights}")
-    config = TrainConfig(seed=args.seed, max_epochs=args.max_epochs, features=FEATURE_SETS[args.features])
+    if args.restarts < 1:
+        raise CliError(f"--restarts must be at least 1, got {args.restarts}")
+    config = TrainConfig(seed=args.seed, restarts=args.restarts, select_by=args.select_by,
+                         max_epochs=args.max_epochs, features=FEATURE_SETS[args.features])
     anchors = [int(a) for a in args.exclude_anchors.split(",")] if args.exclude_anchors else []
     prov = run_training(flights, args.out, test_prefixes=args.test, exclude_anchors=anchors, config=config,
                         dataset_cache=args.dataset_cache, command=["rig", *sys.argv[1:]],
                         progress=_progress(desc="training", total=None), features_from=args.features_from)
     t = prov["training"]
     print(f"trained on {len(prov['split']['train'])} flights ({prov['samples']['train']} samples), "
-          f"{t['epochs']} epochs in {t['seconds']:.0f} s (best {t['best_epoch']})")
+          f"{len(t['restarts'])} restarts in {t['seconds']:.0f} s; kept restart {t['restart']} by {t['selected_by']} "
+          f"({t[t['selected_by']]:.3f}; best epoch {t['best_epoch']} of {t['epochs']})")
     for part in ("validation", "test"):
         stats = prov[part]
         if stats:
@@ -571,7 +575,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     from rig.bias_dataset import FEATURES_FROM
-    from rig.train import TrainConfig
+    from rig.train import SELECT_BY, TrainConfig
 
     parser = argparse.ArgumentParser(
         prog="rig",
@@ -659,7 +663,8 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Build the dataset (14 features from the C feature code at the estimator's own "
                                    "pose, label = measured - "
                                    "true TDOA, |error| <= 1 m, in flight), split by flight 70/15/15, train the "
-                                   "14-30-30-30-1 network with early stopping and write the model JSON and a "
+                                   "14-30-30-30-1 network with early stopping from a few initialisations, keep "
+                                   "the one the estimator does best with on the validation flights and write the model JSON and a "
                                    "provenance file. Seeded and reproducible.")
     p.add_argument("--flights", nargs="+", metavar="PREFIX", help="use flights whose names start with these")
     p.add_argument("--test", nargs="+", metavar="PREFIX",
@@ -670,7 +675,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--features-from", choices=FEATURES_FROM, default=FEATURES_FROM[0],
                    help="the tag pose the features are computed from: the estimator's own (a replay without "
                         "correction; what the network sees in flight) or the ground truth")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0, help="seeds the flight split and the initialisations")
+    p.add_argument("--restarts", type=int, default=TrainConfig().restarts,
+                   help="train from this many initialisations and keep the best on the validation flights "
+                        "(default %(default)s)")
+    p.add_argument("--select-by", choices=SELECT_BY, default=SELECT_BY[0],
+                   help="choose the kept restart by the robust estimator's mean 3D RMSE replaying the validation "
+                        "flights with it (default), or by the validation TDOA error (no replay; always used "
+                        "with --exclude-anchors)")
     p.add_argument("--max-epochs", type=int, default=TrainConfig().max_epochs)
     p.add_argument("--out", type=Path, default=paths.PROJECT_ROOT / "rig" / "models" / "bias_net.json")
     p.add_argument("--dataset-cache", type=Path, help="reuse (or write) the dataset here (.npz)")

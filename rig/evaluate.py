@@ -131,22 +131,26 @@ def counter_summary(counters: np.void) -> dict:
 
 
 def estimator_config(robust: bool = True, use_nn: bool = True, model_path: Path | None = None,
-                     **param_overrides) -> tuple[native.EstimatorParams, BiasNet | None]:
-    """Parameters and bias network of a run (in-process or on a board). An explicit model
-    must exist; without the shipped one the run goes on without correction, with a warning."""
-    model = load_model(model_path) if use_nn else None
-    if use_nn and model is None:
-        if model_path is not None:
-            raise FileNotFoundError(f"no bias network at {model_path}")
-        log.warning("no bias network shipped yet (%s): running without bias correction", DEFAULT_MODEL)
+                     model: BiasNet | None = None, **param_overrides) -> tuple[native.EstimatorParams, BiasNet | None]:
+    """Parameters and bias network of a run (in-process or on a board): `model` when given,
+    else the one at `model_path` or the shipped one. An explicit model path must exist;
+    without the shipped one the run goes on without correction, with a warning."""
+    if not use_nn:
+        model = None
+    elif model is None:
+        model = load_model(model_path)
+        if model is None:
+            if model_path is not None:
+                raise FileNotFoundError(f"no bias network at {model_path}")
+            log.warning("no bias network shipped yet (%s): running without bias correction", DEFAULT_MODEL)
     params = native.params_with(robust=int(robust), use_bias_net=int(model is not None), **param_overrides)
     return params, model
 
 
 def evaluate(rec: Recording, *, robust: bool = True, use_nn: bool = True, model_path: Path | None = None,
-             **param_overrides) -> dict:
+             model: BiasNet | None = None, **param_overrides) -> dict:
     """Replay and score; the dict is what `rig evaluate --json` writes."""
-    params, model = estimator_config(robust, use_nn, model_path, **param_overrides)
+    params, model = estimator_config(robust, use_nn, model_path, model, **param_overrides)
     run = replay(rec, params, model)
     position = run.position
     result = metrics.score(run.t, position, rec.truth)

@@ -1,5 +1,6 @@
 """Bias-network training: a learnable simulated bias is recovered, the split is by
-flight, and the shipped model is reproduced by a fresh training."""
+flight, restarts keep the lowest validation error, and the shipped model is
+reproduced by a fresh training."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import run_rig
 from rig import native
 from rig.bias_dataset import Samples
 from rig.evaluate import DEFAULT_MODEL
@@ -57,6 +59,36 @@ def test_same_seed_same_network_other_seed_other_network() -> None:
     assert np.abs(other.predict(x) - first.predict(x)).max() > 1e-4
 
 
+def test_restarts_keep_the_lowest_validation_error_and_can_be_retrained_alone() -> None:
+    data = synthetic_samples(2, 1000, seed=3)
+    train_set, val_set = data.select(data.flight == "sim0"), data.select(data.flight == "sim1")
+    net, info = train(train_set, val_set, TrainConfig(max_epochs=4, restarts=3, seed=2))
+    scores = [r["validation_mse"] for r in info["restarts"]]
+    assert [r["init_seed"] for r in info["restarts"]] == [2000, 2001, 2002]
+    assert len(set(scores)) == 3 and info["validation_mse"] == min(scores)
+    alone, alone_info = train(train_set, val_set, TrainConfig(max_epochs=4, seed=2, first_restart=info["restart"],
+                                                               restarts=1))
+    x = val_set.features[:50]
+    assert alone.predict(x) == pytest.approx(net.predict(x), abs=1e-9)
+    assert alone_info["validation_mse"] == info["validation_mse"]
+    with pytest.raises(ValueError, match="restarts"):
+        train(train_set, val_set, TrainConfig(restarts=0))
+    refused = run_rig("train", "--restarts", "0")
+    assert refused.returncode == 2 and "--restarts must be at least 1" in refused.stderr
+
+
+def test_a_score_chooses_the_kept_restart() -> None:
+    data = synthetic_samples(2, 1000, seed=3)
+    train_set, val_set = data.select(data.flight == "sim0"), data.select(data.flight == "sim1")
+    probe = val_set.features[:1]
+    # A score that prefers the largest prediction on one sample: unrelated to the validation error.
+    net, info = train(train_set, val_set, TrainConfig(max_epochs=2, restarts=3),
+                      score=lambda n: -float(n.predict(probe)[0]))
+    assert info["selected_by"] == "validation_rmse_3d"
+    assert info["validation_rmse_3d"] == min(r["validation_rmse_3d"] for r in info["restarts"])
+    assert net.predict(probe)[0] == pytest.approx(-info["validation_rmse_3d"], abs=1e-9)
+
+
 def test_split_is_by_flight_and_seeded() -> None:
     names = [f"f{k}" for k in range(35)]
     split = split_flights(names, seed=0)
@@ -67,12 +99,39 @@ def test_split_is_by_flight_and_seeded() -> None:
     assert held.test == ["f0", "f1"] and "f0" not in held.train + held.validation
 
 
+def test_restarts_are_chosen_by_the_estimator_replaying_the_validation_flights(tmp_path: Path,
+                                                                              data_dir: Path) -> None:
+    from rig.bias_dataset import build_dataset
+    from rig.evaluate import evaluate
+    from rig.importer import load_any
+    from rig.train import Split, fit
+
+    names = ["0425-traj1", "0425-traj2", "0426-traj1"]
+    samples, _ = build_dataset([data_dir / "flights" / n for n in names])
+    split = Split(train=names[:1], validation=names[1:2], test=names[2:])
+    net, report = fit(samples, split, TrainConfig(max_epochs=2, restarts=2), flight_dir=data_dir / "flights")
+    kept = report["training"]
+    assert kept["selected_by"] == "validation_rmse_3d"
+    net.save(tmp_path / "kept.json")
+    replayed = evaluate(load_any(data_dir / "flights" / names[1]), model_path=tmp_path / "kept.json")
+    assert kept["validation_rmse_3d"] == pytest.approx(replayed["rmse_3d"], rel=1e-9)
+    assert kept["validation_rmse_3d"] == min(r["validation_rmse_3d"] for r in kept["restarts"])
+    without = fit(samples, split, TrainConfig(max_epochs=2, restarts=2), exclude_anchors=[0])[1]["training"]
+    assert without["selected_by"] == "validation_mse"  # the replays would correct anchor 0 too
+
+
 def test_fresh_training_reproduces_the_shipped_model(tmp_path: Path, data_dir: Path) -> None:
     shipped = json.loads(provenance_path(DEFAULT_MODEL).read_text())
     flights = sorted((data_dir / "flights").iterdir())
     assert [f.name for f in flights] == shipped["flights"]
-    prov = run_training(flights, tmp_path / "bias_net.json", config=TrainConfig(seed=0))
+    kept = shipped["training"]
+    assert kept["selected_by"] == "validation_rmse_3d" and len(kept["restarts"]) == 3
+    assert kept["validation_rmse_3d"] == min(r["validation_rmse_3d"] for r in kept["restarts"])
+    # The kept restart alone (the others only lost the selection): a third of the training time.
+    config = TrainConfig(seed=kept["config"]["seed"], first_restart=kept["restart"], restarts=1)
+    prov = run_training(flights, tmp_path / "bias_net.json", config=config)
     assert prov["split"] == shipped["split"]
+    assert prov["training"]["validation_mse"] == pytest.approx(kept["validation_mse"], abs=0.01)
     assert prov["validation"]["after"]["std"] == pytest.approx(shipped["validation"]["after"]["std"], abs=0.003)
     assert prov["validation"]["after"]["std"] < prov["validation"]["before"]["std"] - 0.02
     assert prov["test"]["after_int8"]["std"] == pytest.approx(prov["test"]["after"]["std"], abs=0.001)
