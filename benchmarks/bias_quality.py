@@ -8,7 +8,7 @@ network rates worst. Uses ablation (d)'s network, trained without the 0426 fligh
 The quality network has the bias network's shape (14 features, 3 x 30 ReLU) and one
 output, the log-variance of the corrected measurement's error (Gaussian likelihood),
 trained on the 0425 and 0422 flights. Not part of the estimator: an estimate of what
-weighting measurements by their predicted quality could gain. About 6 minutes."""
+weighting measurements by their predicted quality could gain. About a minute."""
 
 from __future__ import annotations
 

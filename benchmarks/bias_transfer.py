@@ -14,7 +14,8 @@ estimator's 3D RMSE and the TDOA error spread without and with:
 
     .venv/bin/python benchmarks/bias_transfer.py [--flights 0426-traj1 ...] [--json out/bias_transfer.json]
 
-Uses the dataset caches of bias_ablation.py (built if missing). About seven minutes."""
+Uses the dataset caches of bias_ablation.py (built if missing). About eighteen minutes (each left-out network is trained from three
+initialisations, chosen by replaying its validation flights)."""
 
 from __future__ import annotations
 
