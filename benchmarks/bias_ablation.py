@@ -58,6 +58,10 @@ def end_to_end(model: Path) -> list[dict]:
     return rows
 
 
+def mean_rmse(rows: list[dict], column: str = "with") -> float:
+    return float(np.mean([r[column] for r in rows]))
+
+
 def histogram(samples: Samples, models: dict[str, Path], png: Path) -> None:
     import matplotlib
 
@@ -103,10 +107,12 @@ def main() -> None:
     runs[held_out["10"]] = train("d10", "10", test_prefixes=[TEST_DAY])
     runs[held_out["14, from the ground truth"]] = train("d14-truth", "14", "truth", test_prefixes=[TEST_DAY])
     e2e = {column: end_to_end(Path(runs[name]["path"])) for column, name in held_out.items()}
-    seeds = {0: float(np.mean([r["with"] for r in e2e["14"]]))}
+    means = {column: mean_rmse(rows) for column, rows in e2e.items()}
+    base = mean_rmse(e2e["14"], "without")
+    seeds = {0: means["14"]}
     for seed in OTHER_SEEDS:
         model = Path(train(f"d14-seed{seed}", "14", seed=seed, test_prefixes=[TEST_DAY])["path"])
-        seeds[seed] = float(np.mean([r["with"] for r in end_to_end(model)]))
+        seeds[seed] = mean_rmse(end_to_end(model))
     samples = Samples.load(CACHES["estimate"])
     test = samples.select(np.char.startswith(samples.flight.astype(str), TEST_DAY))
     histogram(test, {"14 features": Path(runs[held_out["14"]]["path"]),
@@ -119,8 +125,6 @@ def main() -> None:
     for rows in zip(*e2e.values()):
         e2e_table.append(f"| {rows[0]['flight']} | {rows[0]['without']:.3f} | "
                          + " | ".join(f"{r['with']:.3f}" for r in rows) + " |")
-    means = {k: float(np.mean([r["with"] for r in rows])) for k, rows in e2e.items()}
-    base = float(np.mean([r["without"] for r in e2e["14"]]))
     e2e_table.append(f"| **mean** | **{base:.3f}** | " + " | ".join(
         f"**{m:.3f}** ({1 - m / base:.0%} lower)" for m in means.values()) + " |")
     seed_table = ["| seed | " + " | ".join(map(str, seeds)) + " |", "|---|" + "---|" * len(seeds),

@@ -50,10 +50,17 @@ class TrainConfig:
     patience: int = 5           # epochs without validation improvement before stopping
     features: list[int] = field(default_factory=lambda: list(range(INPUTS)))  # others are zeroed
 
+    def __post_init__(self) -> None:
+        if self.restarts < 1:
+            raise ValueError(f"restarts must be at least 1, got {self.restarts}")
+        if not 0 <= self.first_restart <= RESTART_STRIDE - self.restarts:
+            raise ValueError(f"restarts {self.first_restart}..{self.first_restart + self.restarts - 1} "
+                             f"are outside 0..{RESTART_STRIDE - 1}")
+        if self.select_by not in SELECT_BY:
+            raise ValueError(f"select_by must be one of {SELECT_BY}, got {self.select_by!r}")
+
     def init_seed(self, restart: int) -> int:
         """Restart i of seed s initialises with s * RESTART_STRIDE + i: two seeds never share one."""
-        if not 0 <= restart < RESTART_STRIDE:
-            raise ValueError(f"restart must be in [0, {RESTART_STRIDE}), got {restart}")
         return self.seed * RESTART_STRIDE + restart
 
 
@@ -128,8 +135,6 @@ def train(train_set: Samples, validation_set: Samples, config: TrainConfig = Tra
     """Fit `config.restarts` networks from different initialisations and keep the one with the
     lowest `score` (default: the validation error); returns it with its training history and
     every restart's result."""
-    if config.restarts < 1:
-        raise ValueError(f"restarts must be at least 1, got {config.restarts}")
     torch = _torch()
     x_train = _masked(train_set.features, config.features)
     in_mean, in_scale = _normalisation(x_train, config.features)
@@ -227,8 +232,6 @@ def fit(samples: Samples, split: Split, config: TrainConfig = TrainConfig(), exc
     involving them and the test set is exactly the test flights' measurements that do. The
     validation flights' recordings (for selecting a restart in closed loop) are read from
     `flight_dir`, by default the shared flights."""
-    if config.select_by not in SELECT_BY:
-        raise ValueError(f"select_by must be one of {SELECT_BY}, got {config.select_by!r}")
     exclude_anchors = list(exclude_anchors)
     hit = involves(samples, exclude_anchors) if exclude_anchors else np.zeros(len(samples), bool)
     in_flights = lambda names: np.isin(samples.flight, names)  # noqa: E731
