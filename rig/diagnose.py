@@ -11,27 +11,24 @@ Method, per channel (TDOA, accelerometer, gyroscope):
    design columns: the derivative of the prediction with respect to its parameters,
    taken numerically through the effect's own simulator code, so the diagnosis and
    the simulator share one definition of every physical effect.
-3. Backward elimination: all candidates of a channel start in one model, fitted
-   robustly (Huber IRLS with weak priors). A term's `evidence` is its held-out gain:
-   the robust loss it removes on each of five contiguous time blocks when the model is
-   fitted on the other four (weights frozen from the full fit), summed; half a
-   chi-square in the Gaussian limit, so it grows with the recording's length and
-   compares runs of equal length. It is judged given all other terms except its richer
-   look-alikes (ORDER: a delay before a displacement before a pattern before NLOS),
-   so the simplest explanation takes the signal it can. Terms beyond their physical
-   bounds go first, then the weakest while below a bar (a penalty per parameter).
-   The model's structure does not depend on the order in which effects were found, so
-   the same flight with and without an added effect mostly keeps the same terms and
-   the added effect shows as the difference of the two fits (a comparison with a
-   control recording needs that). Delays are reported relative to their median: TDOA
-   does not see a delay common to all anchors.
-4. Effects that may be confined in time are tried on windows of the flight; NLOS
-   candidates get a region found on the training blocks only, on what the others
-   leave, and the elimination is repeated with them; the floor multipath is
-   a noise-level effect tested the same held-out way on the TDOA noise below a height.
-5. The kept effects re-simulate the recording (each channel's mismatch before and
-   after); each finding's `fit_before`/`fit_after` is the robust RMS mismatch of its
-   affected samples under the fitted model without and with it.
+3. Naming: backward elimination. A term's `evidence` is the robust loss it removes
+   given all remaining terms but its richer look-alikes (half a chi-square in the
+   Gaussian limit, so it grows with the recording's length and compares runs of
+   equal length); the weakest goes while below a bar (a penalty per parameter).
+   Delays are reported relative to their median: TDOA does not see a delay common
+   to all anchors.
+4. Estimates (Huber IRLS with weak priors): a named term's estimate is its value in
+   the joint fit of the named terms of its rank or a simpler one (ORDER: a delay
+   before a displacement before a pattern before NLOS), so the simplest explanation
+   takes the signal it can, and a richer effect named or not does not move the
+   simpler ones (a comparison with a control recording needs that).
+5. Effects that may be confined in time are tried on windows of the flight; NLOS
+   candidates get a region found on the training blocks only (held out), on what
+   the parametric candidates leave; the floor multipath is a noise-level effect
+   tested held out on the TDOA noise below a height.
+6. The named effects, fitted jointly, re-simulate the recording (each channel's
+   mismatch before and after); each finding's `fit_before`/`fit_after` is the
+   robust RMS mismatch of its affected samples under that model without and with it.
 """
 
 from __future__ import annotations
@@ -49,9 +46,9 @@ log = logging.getLogger(__name__)
 
 HUBER_C = 1.345                # Huber threshold, in noise standard deviations
 FOLDS = 5                      # contiguous time blocks for cross-validation
-PENALTY_PER_PARAMETER = 2.0    # held-out gain a parameter must pay for (AIC-like)
-MIN_EVIDENCE = 8.0             # held-out gain, in half chi-square units, to keep an effect
-LOOK_ALIKE_MARGIN = 10.0       # candidates whose held-out gain came this close to the chosen one
+PENALTY_PER_PARAMETER = 2.0    # evidence a parameter must pay for (AIC-like)
+MIN_EVIDENCE = 8.0             # evidence, in half chi-square units, to name an effect
+LOOK_ALIKE_MARGIN = 10.0       # candidates whose evidence came this close to the chosen one
 TIME_BLOCKS = 10               # resolution of "only in part of the flight"
 MIN_SAMPLES = 50
 EDGE_S = 0.5                   # ignore samples this close to the ends of the ground truth
@@ -94,7 +91,7 @@ class Candidate:
     step: float = 0.01                              # finite-difference step
     prior: float = 0.5                              # plausible size of the parameter (a weak ridge)
     bound: float = 1.0                              # largest physical size: a fit beyond is a misfit
-    penalty: float = PENALTY_PER_PARAMETER          # held-out gain each parameter must pay for
+    penalty: float = PENALTY_PER_PARAMETER          # evidence each parameter must pay for
     columns: np.ndarray | None = None               # design columns (standardised), rows x size
     key: str = ""
 
@@ -300,10 +297,11 @@ class Term:
     candidate: Candidate
     columns: np.ndarray
     extra: dict = field(default_factory=dict)       # during, region, ...
-    theta: np.ndarray | None = None
+    theta: np.ndarray | None = None                  # in the model: the named terms fitted jointly
+    estimate: np.ndarray | None = None               # as reported: given the simpler explanations
     evidence: float = 0.0
     window_cost: bool = False                        # confined in time: its two ends are parameters too
-    look_alikes: list = field(default_factory=list)  # (key, held-out gain) of candidates that did nearly as well
+    look_alikes: list = field(default_factory=list)  # (key, evidence) of candidates that did nearly as well
 
     @property
     def key(self) -> str:
@@ -390,7 +388,6 @@ def _richer(term: Term, terms: list[Term]) -> list[Term]:
     return [t for t in terms if ORDER[t.candidate.effect][0] == group and ORDER[t.candidate.effect][1] > rank]
 
 
-NLOS_ROUNDS = 3
 # Delays are measured relative to each other (TDOA does not see a delay common to all
 # anchors): once one anchor's delay is supported, every anchor's is kept and reported,
 # so the delays of two recordings of the same flight compare anchor by anchor.
@@ -398,73 +395,84 @@ FAMILIES = {"anchor_delay"}
 
 
 class _Design:
-    """All terms fitted jointly (Huber IRLS), then the weights frozen: per-fold sums
-    of the weighted normal equations give the held-out fit of any subset of the terms
-    in a few small solves, so every term can be judged given all the others."""
+    """All terms fitted jointly (Huber IRLS), then the weights frozen: the weighted
+    normal equations give the fit of any subset of the terms in a small solve, so
+    every term can be judged given all the others."""
 
-    def __init__(self, z: np.ndarray, folds: np.ndarray, terms: list[Term]):
+    def __init__(self, z: np.ndarray, terms: list[Term]):
         self.z, self.terms = z, terms
         self.x, prior = _stack(terms)
         self.ridge = 1.0 / prior ** 2
-        theta = irls(z, self.x, prior)
-        w = huber_weight(z - self.x @ theta)
+        self.theta = irls(z, self.x, prior)
+        w = huber_weight(z - self.x @ self.theta)
         self.slices, at = {}, 0
         for t in terms:
             self.slices[id(t)] = np.arange(at, at + t.columns.shape[1])
             at += t.columns.shape[1]
-        self.theta = theta
-        self.tests = [np.flatnonzero(folds == k) for k in range(FOLDS)]
-        self.tests = [rows for rows in self.tests if len(rows) and len(z) - len(rows) >= MIN_SAMPLES]
         xw = self.x * w[:, None]
-        self.gram = [xw[rows].T @ self.x[rows] for rows in self.tests]
-        self.moment = [xw[rows].T @ z[rows] for rows in self.tests]
-        self.total_gram, self.total_moment = xw.T @ self.x, xw.T @ z
+        self.gram, self.moment = xw.T @ self.x, xw.T @ z
 
     def _columns(self, terms: list[Term]) -> np.ndarray:
         return np.concatenate([self.slices[id(t)] for t in terms]) if terms else np.zeros(0, int)
 
-    def _held_out_loss(self, cols: np.ndarray, fold: int) -> float:
-        rows = self.tests[fold]
+    def _loss(self, cols: np.ndarray) -> float:
         if not len(cols):
-            return float(huber_loss(self.z[rows]).sum())
-        gram = (self.total_gram - self.gram[fold])[np.ix_(cols, cols)] + np.diag(self.ridge[cols])
-        theta = np.linalg.solve(gram, (self.total_moment - self.moment[fold])[cols])
-        return float(huber_loss(self.z[rows] - self.x[np.ix_(rows, cols)] @ theta).sum())
+            return float(huber_loss(self.z).sum())
+        theta = np.linalg.solve(self.gram[np.ix_(cols, cols)] + np.diag(self.ridge[cols]), self.moment[cols])
+        return float(huber_loss(self.z - self.x[:, cols] @ theta).sum())
 
     def gain(self, term: Term, leave_out: list[Term] = ()) -> float:
-        """Held-out loss removed by `term` on top of all terms but it and `leave_out`."""
+        """Robust loss removed by `term` on top of all terms but it and `leave_out`."""
         base = [t for t in self.terms if t is not term and all(t is not o for o in leave_out)]
-        with_cols, without_cols = self._columns(base + [term]), self._columns(base)
-        return sum(self._held_out_loss(without_cols, k) - self._held_out_loss(with_cols, k)
-                   for k in range(len(self.tests)))
+        return self._loss(self._columns(base)) - self._loss(self._columns(base + [term]))
 
 
-def _eliminate(z: np.ndarray, folds: np.ndarray, terms: list[Term]) -> list[Term]:
-    """Backward elimination: a term fitted beyond its physical bounds goes first (the
-    furthest out: it bends to fit something else, and takes others with it); then
-    every term's evidence is its held-out gain given all the others but its richer
-    look-alikes, and the weakest goes while below the bar."""
+def _rank(term: Term) -> int:
+    return ORDER[term.candidate.effect][1]
+
+
+def _estimate(z: np.ndarray, terms: list[Term]) -> None:
+    """Each named term's estimate given the simpler explanations: its value in the
+    joint fit of the named terms of its rank or a simpler one (see select)."""
+    for rank in sorted({_rank(t) for t in terms}):
+        nested = [t for t in terms if _rank(t) <= rank]
+        x, prior = _stack(nested)
+        theta, at = irls(z, x, prior), 0
+        for t in nested:
+            if _rank(t) == rank:
+                t.estimate = theta[at:at + t.columns.shape[1]]
+            at += t.columns.shape[1]
+    family = _delay_family(terms)
+    if family:
+        shift = np.median([t.estimate[0] for t in family])
+        for t in family:
+            t.estimate = t.estimate - shift
+
+
+def _name(z: np.ndarray, terms: list[Term]) -> list[Term]:
+    """Backward elimination: every term's evidence is the robust loss it removes given
+    all the others but its richer look-alikes, and the weakest goes while it does not
+    pay for its parameters. Look-alikes of equal rank are judged given each other, so
+    of two the one that adds less goes first and the other keeps the signal they
+    share (a scale factor in hover reads as a bias unless the thrust varies enough
+    to tell them apart). A supported delay keeps every anchor's delay: they are
+    measured against each other."""
     terms = list(terms)
     while terms:
-        design = _Design(z, folds, terms)
+        design = _Design(z, terms)
         _take_fit(terms, design.theta)
-        excess = [np.abs(t.theta).max() / t.candidate.bound for t in terms]
-        if max(excess) > 1.0:
-            out = terms.pop(int(np.argmax(excess)))
-            log.debug("- %s (out of bounds: %s)", out.key, out.theta)
-            continue
-        _judge(z, folds, terms, design)
+        _judge(z, terms, design)
         supported = {t.candidate.effect for t in terms if t.evidence - t.cost >= MIN_EVIDENCE}
         removable = [t for t in terms if t.candidate.effect not in FAMILIES & supported]
         weakest = min(removable, key=lambda t: t.evidence - t.cost, default=None)
         if weakest is None or weakest.evidence - weakest.cost >= MIN_EVIDENCE:
-            break
+            return terms
         log.debug("- %s (evidence %.1f given the others)", weakest.key, weakest.evidence)
         terms.remove(weakest)
-    return terms      # as fitted by the last design, which held exactly these terms
+    return terms
 
 
-def _judge(z: np.ndarray, folds: np.ndarray, terms: list[Term], design: _Design) -> None:
+def _judge(z: np.ndarray, terms: list[Term], design: _Design) -> None:
     """Every term's evidence given the others but its richer look-alikes. A complete
     delay family is judged against a reference anchor, the median one (against all
     the others an anchor's delay adds nothing: they can all move together), and the
@@ -474,32 +482,41 @@ def _judge(z: np.ndarray, folds: np.ndarray, terms: list[Term], design: _Design)
     if family:
         middle = len(family) // 2
         reference, second = family[middle], family[middle - 1]
-        without_reference = _Design(z, folds, [t for t in terms if t is not reference])
+        without_reference = _Design(z, [t for t in terms if t is not reference])
         judges.update({id(t): without_reference for t in family if t is not reference})
-        judges[id(reference)] = _Design(z, folds, [t for t in terms if t is not second])
+        judges[id(reference)] = _Design(z, [t for t in terms if t is not second])
     for t in terms:
         t.evidence = judges[id(t)].gain(t, _richer(t, terms))
 
 
 def select(problem: Problem, channel: Channel, pool: list[Candidate]) -> list[Term]:
-    """All candidate effects of the channel fitted together, the unsupported ones
-    eliminated (see _eliminate), then NLOS regions searched on what the rest leaves,
-    and the elimination repeated with them; effects confined in time where that
-    explains clearly more; nothing outside its physical bounds."""
+    """The channel's effects, named and measured.
+
+    Which terms are named is decided by backward elimination (_name). A named term's
+    estimate is its value in the joint fit of the named terms of its rank or a
+    simpler one (ORDER): the simplest explanation takes the signal it can, a richer
+    one only what is left (by Frisch-Waugh-Lovell, its fit on the part the simpler
+    ones cannot explain), and whether a richer effect is named or not does not move
+    the simpler ones' estimates; so what an effect added to a recording changes in
+    them is mostly that effect (a comparison with a control recording needs that).
+    NLOS regions are searched on what all parametric candidates leave; named effects
+    are tried confined in time; the named effects, fitted jointly, are the model that
+    re-simulates the recording."""
     z, folds = channel.z, channel.folds()
-    parametric = [Term(c, c.columns) for c in pool if c.channel == channel.name]
-    kept, nlos = _eliminate(z, folds, parametric), []
-    for _ in range(NLOS_ROUNDS if channel.name == "tdoa" else 0):
-        found = _nlos_terms(problem, channel, folds, kept)
-        if not found:
-            break
-        nlos += found
-        kept = _eliminate(z, folds, [Term(t.candidate, t.columns) for t in parametric] + nlos)
-        nlos = [t for t in kept if t.candidate.effect == "nlos"]
-    _confine_in_time(channel, kept)
-    kept = _eliminate(z, folds, kept)
-    _note_look_alikes(z, folds, kept, parametric)
-    return kept
+    terms = [Term(c, c.columns) for c in pool if c.channel == channel.name]
+    named = _name(z, terms)
+    if channel.name == "tdoa":
+        nlos = _nlos_terms(problem, channel, folds, terms)
+        if nlos:
+            terms += nlos
+            named = _name(z, named + nlos)
+    _refit(z, named)
+    if _confine_in_time(channel, named):
+        named = _name(z, named)
+        _refit(z, named)
+    _estimate(z, named)
+    _note_look_alikes(z, named, terms)
+    return named
 
 
 def _nlos_terms(problem: Problem, channel: Channel, folds: np.ndarray, kept: list[Term]) -> list[Term]:
@@ -527,7 +544,7 @@ LOOK_ALIKES = {"anchor_delay": ("anchor_position", "antenna_pattern"),
                "imu_gyro_bias": ("imu_gyro_scale",), "imu_gyro_scale": ("imu_gyro_bias",)}
 
 
-def _note_look_alikes(z: np.ndarray, folds: np.ndarray, kept: list[Term], pool: list[Term]) -> None:
+def _note_look_alikes(z: np.ndarray, kept: list[Term], pool: list[Term]) -> None:
     """For each kept effect, the look-alikes left out (on the same anchor) that would
     have explained nearly as much in its place."""
     keys = {t.key for t in kept}
@@ -537,17 +554,18 @@ def _note_look_alikes(z: np.ndarray, folds: np.ndarray, kept: list[Term], pool: 
         for alt in [Term(t.candidate, t.columns) for t in pool if t.key not in keys
                     and t.candidate.effect in LOOK_ALIKES.get(term.candidate.effect, ())
                     and t.candidate.fixed.get("anchor") == anchor]:
-            gain = _Design(z, folds, others + [alt]).gain(alt)
+            gain = _Design(z, others + [alt]).gain(alt)
             if gain - alt.cost >= term.evidence - term.cost - LOOK_ALIKE_MARGIN:
                 term.look_alikes.append((alt.key, round(gain, 1)))
 
 
-def _confine_in_time(channel: Channel, kept: list[Term]) -> None:
+def _confine_in_time(channel: Channel, kept: list[Term]) -> bool:
     """An effect present in part of the flight only: try every run of whole time
     blocks; keep the best window when it explains clearly more than the whole flight
     (a delay so confined leaves the family of delays: it is then absolute)."""
+    confined = False
     if not kept:
-        return
+        return confined
     edges = np.quantile(channel.t, np.linspace(0, 1, TIME_BLOCKS + 1))
     for term in kept:
         if term.candidate.effect not in WINDOWABLE:
@@ -570,6 +588,8 @@ def _confine_in_time(channel: Channel, kept: list[Term]) -> None:
                     best = (loss, (float(edges[i]), float(edges[j])), cols)
         if best[1] is not None:
             term.columns, term.extra["during"], term.window_cost = best[2], list(best[1]), True
+            confined = True
+    return confined
 
 
 # ----------------------------------------------------------------------------- NLOS
@@ -653,7 +673,7 @@ def nlos_shape(excess: np.ndarray, outside: np.ndarray, mean_shift: float) -> tu
 # ----------------------------------------------------------------------------- floor multipath
 
 FLOOR_HEIGHTS_M = (0.25, 0.4, 0.6, 0.8, 1.0)
-ON_GROUND_M = 0.1             # a tag this low is sitting on the floor: its own regime, left out
+ON_GROUND_M = 0.2             # a tag this low sits on the floor or is taking off or landing (transients): left out
 
 
 def _nll(r: np.ndarray, sigma: np.ndarray | float) -> np.ndarray:
@@ -705,7 +725,7 @@ class Finding:
     fit_after: float
     where: dict
     look_alikes: list = field(default_factory=list)
-
+    beyond_bound: bool = False      # larger than the effect can physically be: stands for something else, not simulated
 
     def to_json(self) -> dict:
         out = {"effect": self.effect, "channel": self.channel, "params": self.params, "evidence": self.evidence,
@@ -714,6 +734,8 @@ class Finding:
             out["anchors"] = self.anchors
         if self.look_alikes:
             out["look_alikes"] = self.look_alikes
+        if self.beyond_bound:
+            out["beyond_physical_bound"] = True
         return out
 
 
@@ -762,11 +784,13 @@ def diagnose(rec: Recording, progress=None) -> Diagnosis:
     for name in progress(names) if progress else names:
         channel = problem.channel(name)
         terms = select(problem, channel, pool)
-        z_after = _left(channel.z, terms)
+        simulated = {id(t) for t in _model_terms(channel.z, terms)}
+        z_after = _left(channel.z, [t for t in terms if id(t) in simulated])
         for term in terms:
-            effect = _effect_of(problem, channel, term)
-            model.append(effect)
-            findings.append(_finding(problem, channel, term, effect, z_after))
+            if id(term) in simulated:
+                model.append(_effect_of(problem, channel, term, term.theta))
+            findings.append(_finding(problem, channel, term, _effect_of(problem, channel, term, term.estimate),
+                                     z_after, id(term) in simulated))
     after = {name: problem.recorded(name) - pred for name, pred in problem.predict(model).items()}
     if "tdoa" in after:
         floor = _floor_finding(problem, after["tdoa"])
@@ -777,11 +801,12 @@ def diagnose(rec: Recording, progress=None) -> Diagnosis:
     return Diagnosis(problem, findings, model, before, after)
 
 
-def _effect_of(problem: Problem, channel: Channel, term: Term) -> fx.Effect:
+def _effect_of(problem: Problem, channel: Channel, term: Term, theta: np.ndarray) -> fx.Effect:
+    """The effect with parameters `theta` (the term's model fit, or its estimate)."""
     c = term.candidate
     if c.effect != "nlos":
-        return c.make(term.theta, term.extra)
-    k, shift = c.fixed["anchor"], float(term.theta[0])
+        return c.make(theta, term.extra)
+    k, shift = c.fixed["anchor"], float(theta[0])
     sign, inside = problem.anchor_sign(k), term.columns[:, 0] != 0
     signed = sign * channel.residual          # before any effect
     fraction, mean_excess = nlos_shape(signed[inside], signed[(sign != 0) & ~inside], shift)
@@ -789,32 +814,80 @@ def _effect_of(problem: Problem, channel: Channel, term: Term) -> fx.Effect:
                                    "region": term.extra["region"]})
 
 
-def _finding(problem: Problem, channel: Channel, term: Term, effect: fx.Effect, z_after: np.ndarray) -> Finding:
-    """fit_before/fit_after: the affected rows' mismatch under the fitted model without
-    and with this effect (the whole model re-simulated is in Diagnosis.channel_fits)."""
+def _model_terms(z: np.ndarray, named: list[Term]) -> list[Term]:
+    """The named terms that re-simulate the recording, refitted jointly. One fitted
+    beyond its physical bounds stands for something the catalog does not model, and
+    its linearised fit does not re-simulate (an anchor moved by metres), so it is
+    left out, the furthest out first."""
+    kept = list(named)
+    while kept:
+        _refit(z, kept)
+        excess = [np.abs(t.theta).max() / t.candidate.bound for t in kept]
+        if max(excess) <= 1.0:
+            break
+        kept.pop(int(np.argmax(excess)))
+    return kept
+
+
+def _finding(problem: Problem, channel: Channel, term: Term, effect: fx.Effect, z_after: np.ndarray,
+             simulated: bool) -> Finding:
+    """The effect as estimated (given the simpler explanations); fit_before/fit_after:
+    the affected rows' mismatch under the re-simulating model without and with this
+    effect (the whole model re-simulated is in Diagnosis.channel_fits); an effect
+    beyond its physical bounds, which the model leaves out, is added to it."""
     rows = np.any(term.columns != 0, axis=1)
     scale = channel.scale[rows]
-    z_without = z_after + term.columns @ term.theta
+    z_with = z_after if simulated else z_after - term.columns @ term.theta
+    z_without = z_with + term.columns @ term.theta
     anchors = [term.candidate.fixed["anchor"]] if "anchor" in term.candidate.fixed else []
     return Finding(effect.name, channel.name, anchors, _rounded(effect.params()), round(float(term.evidence), 2),
-                   robust_rms(z_without[rows] * scale, scale), robust_rms(z_after[rows] * scale, scale),
-                   _where(problem, channel, term, rows, z_after),
-                   [{"candidate": key, "held_out_gain": gain} for key, gain in term.look_alikes])
+                   robust_rms(z_without[rows] * scale, scale), robust_rms(z_with[rows] * scale, scale),
+                   _where(problem, channel, term, rows, z_with),
+                   [{"candidate": key, "evidence": gain} for key, gain in term.look_alikes],
+                   not simulated or bool(np.abs(term.estimate).max() > term.candidate.bound))
 
 
 def _floor_finding(problem: Problem, residual: np.ndarray) -> Finding | None:
+    """Floor multipath on what is left of each measurement after the running median of
+    its anchor pair's (local_noise): the extra noise stays, every slowly varying
+    mismatch (a bias the model leaves, or one it adds where it extrapolates) goes, so
+    the finding does not depend on the rest of the model."""
+    noise = local_noise(problem, residual)
     heights = problem.tag_positions()[:, 2]
-    channel = Channel("tdoa", problem.times("tdoa"), residual, problem.scales["tdoa"])
+    channel = Channel("tdoa", problem.times("tdoa"), noise, problem.scales["tdoa"])
     floor = floor_multipath(channel, heights)
     if floor is None:
         return None
     low = floor["low"]
-    before = float(np.mean(_nll(residual[low], _mad_scale(residual[heights >= ON_GROUND_M]))))
-    after = float(np.mean(_nll(residual[low], floor["sigma_low"])))
+    before = float(np.mean(_nll(noise[low], _mad_scale(noise[heights >= ON_GROUND_M]))))
+    after = float(np.mean(_nll(noise[low], floor["sigma_low"])))
     return Finding("multipath_floor", "tdoa", [], {"height_m": floor["height_m"], "std_m": round(floor["std_m"], 4)},
                    round(floor["evidence"], 2), before, after,
                    {"below_height_m": floor["height_m"], "time": _span(channel.t[low]),
                     "fit_unit": "mean negative log-likelihood per sample (a noise-level effect)"})
+
+
+LOCAL_SAMPLES = 4              # neighbours on each side, in measurements of one anchor pair
+
+
+def local_noise(problem: Problem, residual: np.ndarray) -> np.ndarray:
+    """Each TDOA residual minus the median of its anchor pair's 2 x LOCAL_SAMPLES
+    neighbouring measurements (itself left out), scaled so that white noise keeps its
+    standard deviation (a median of n samples varies about pi/2n times as much)."""
+    d, rows = problem.rec.tdoa, problem.tdoa_rows
+    pair = d.id_a[rows].astype(np.int64) * 65536 + d.id_b[rows]
+    out = np.zeros(len(residual))
+    k = LOCAL_SAMPLES
+    for key in np.unique(pair):
+        idx = np.flatnonzero(pair == key)
+        idx = idx[np.argsort(d.t[rows][idx], kind="stable")]
+        values = residual[idx]
+        if len(values) <= 2 * k:
+            out[idx] = values - np.median(values)
+            continue
+        windows = np.lib.stride_tricks.sliding_window_view(np.pad(values, k, mode="reflect"), 2 * k + 1)
+        out[idx] = values - np.median(np.delete(windows, k, axis=1), axis=1)
+    return out / np.sqrt(1.0 + np.pi / (4 * k))
 
 
 def _rounded(params: dict) -> dict:

@@ -80,8 +80,9 @@ def _markdown(diagnosis: Diagnosis, report: dict, images: list[tuple[str, str]])
                  if f.look_alikes else "")
         lines.append(f"{k}. **{f.effect}**: {describe(f)}. Evidence {f.evidence:.1f}; the affected "
                      f"{f.channel} samples' mismatch goes from {f.fit_before:.4g} to {f.fit_after:.4g}.{alike}")
-    lines += ["", "Evidence is the held-out gain in robust loss (five contiguous time blocks, each predicted "
-              "from the other four); larger is stronger. Look-alikes: an anchor displacement along the line "
+    lines += ["", "Evidence is the robust loss an effect removes given the others but its richer look-alikes "
+              "(about half a chi-square); larger is stronger. Parameters are estimated given the simpler "
+              "explanations only, so they compare between recordings of the same flight. Look-alikes: an anchor displacement along the line "
               "of sight reads as a delay, and a second-order antenna pattern over a small range of viewing "
               "angles as a displacement; an accelerometer scale on z reads as a bias in hover. Once one "
               "anchor's delay is supported, every anchor's delay is reported (some with little evidence of "

@@ -119,12 +119,11 @@ WHERE = {"imu_accel_bias": ("axes", ["y"]), "imu_gyro_bias": ("axes", ["z"]), "i
 NOT_ON_SIM = {
     "antenna_pattern": "over this flight's viewing angles the pattern reads as a displaced anchor (look-alike)",
     "nlos": "a half-space NLOS region is fitted as a displaced anchor before the NLOS search",
+    "multipath_floor": "the simulated flight spends about 4 s below 0.6 m (take-off and landing): the local noise "
+                       "there does not give held-out evidence enough",
 }
 NOT_ON_REAL = {
-    "anchor_position": "the flight's own pose-dependent bias on anchor 3 already reads as a displacement beyond "
-                       "physical bounds; the added 0.28 m is left in the delays and the other anchors' terms",
     "antenna_pattern": "real flights already carry larger pattern-like biases on every anchor",
-    "nlos": "a half-space NLOS region on top of the flight's own NLOS regions is fitted as displaced anchors",
     "imu_gyro_scale": "these flights hardly rotate: the ground truth's rotation increments do not excite a scale",
 }
 
@@ -234,8 +233,10 @@ def test_cli_writes_the_report_contract(tmp_path: Path, survey) -> None:
     for image in (tmp_path / "d").glob("*.png"):
         assert image.stat().st_size > 1000
     model = json.loads((tmp_path / "d" / "model.json").read_text())["effects"]
+    # the model fits the named effects jointly; a finding is estimated given the simpler
+    # explanations only: the two agree where no richer look-alike shares the signal
     fitted = next(e for e in model if e["effect"] == "anchor_delay" and e["params"]["anchor"] == 2)
-    assert fitted["params"]["meters"] == pytest.approx(delay["params"]["meters"], abs=1e-6)
+    assert fitted["params"]["meters"] == pytest.approx(delay["params"]["meters"], abs=0.01)
 
 
 def test_bad_effects_are_refused_clearly(tmp_path: Path) -> None:
