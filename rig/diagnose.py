@@ -834,15 +834,16 @@ def _finding(problem: Problem, channel: Channel, term: Term, effect: fx.Effect, 
     """The effect as estimated (given the simpler explanations); fit_before/fit_after:
     the affected rows' mismatch under the re-simulating model without and with this
     effect (the whole model re-simulated is in Diagnosis.channel_fits); an effect
-    beyond its physical bounds, which the model leaves out, is added to it."""
+    beyond its physical bounds, which the model leaves out, is fitted on top of it."""
     rows = np.any(term.columns != 0, axis=1)
     scale = channel.scale[rows]
-    z_with = z_after if simulated else z_after - term.columns @ term.theta
-    z_without = z_with + term.columns @ term.theta
+    theta = term.theta if simulated else irls(z_after, term.columns, term.prior)    # on top of the model
+    z_with = z_after if simulated else z_after - term.columns @ theta
+    z_without = z_with + term.columns @ theta
     anchors = [term.candidate.fixed["anchor"]] if "anchor" in term.candidate.fixed else []
     return Finding(effect.name, channel.name, anchors, _rounded(effect.params()), round(float(term.evidence), 2),
                    robust_rms(z_without[rows] * scale, scale), robust_rms(z_with[rows] * scale, scale),
-                   _where(problem, channel, term, rows, z_with),
+                   _where(problem, channel, term, rows, z_with, theta),
                    [{"candidate": key, "evidence": gain} for key, gain in term.look_alikes],
                    not simulated or bool(np.abs(term.estimate).max() > term.candidate.bound))
 
@@ -906,7 +907,8 @@ def _span(t: np.ndarray) -> list[float]:
     return [round(float(t.min()), 3), round(float(t.max()), 3)] if len(t) else []
 
 
-def _where(problem: Problem, channel: Channel, term: Term, rows: np.ndarray, z_after: np.ndarray) -> dict:
+def _where(problem: Problem, channel: Channel, term: Term, rows: np.ndarray, z_after: np.ndarray,
+           theta: np.ndarray) -> dict:
     where: dict = {"time": _span(channel.t[rows])}
     if channel.name == "tdoa":
         positions = problem.tag_positions()[rows]
@@ -915,17 +917,17 @@ def _where(problem: Problem, channel: Channel, term: Term, rows: np.ndarray, z_a
         if "anchor" in term.candidate.fixed:
             where["anchors"] = [term.candidate.fixed["anchor"]]
         return where
-    where["axes"] = [AXES[j] for j in _significant_axes(term, z_after)]
+    where["axes"] = [AXES[j] for j in _significant_axes(term.columns, theta, z_after)]
     return where
 
 
-def _significant_axes(term: Term, z_after: np.ndarray) -> list[int]:
+def _significant_axes(columns: np.ndarray, theta: np.ndarray, z_after: np.ndarray) -> list[int]:
     """Axes whose parameter matters: zeroing it (all else as fitted) raises the robust
     loss by more than 4 (about 2.8 standard errors)."""
     best = huber_loss(z_after).sum()
     out = []
-    for j in range(term.columns.shape[1]):
-        if huber_loss(z_after + term.columns[:, j] * term.theta[j]).sum() - best > 4.0:
+    for j in range(columns.shape[1]):
+        if huber_loss(z_after + columns[:, j] * theta[j]).sum() - best > 4.0:
             out.append(j)
     return out
 

@@ -42,6 +42,9 @@ def describe(finding: Finding) -> str:
     text = PLAIN.get(finding.effect, finding.effect + " {}").format(**params)
     if "during" in finding.params:
         text += f", from {finding.params['during'][0]:.1f} s to {finding.params['during'][1]:.1f} s only"
+    if finding.beyond_bound:
+        text += (" — beyond what this effect can physically be: it stands for something the catalog does not "
+                 "model, and the re-simulation leaves it out")
     return text
 
 
@@ -71,10 +74,11 @@ def _markdown(diagnosis: Diagnosis, report: dict, images: list[tuple[str, str]])
         lines.append(f"| {name} | {c['samples']} | {c['noise_scale']:.4g} {UNITS[name]} | "
                      f"{c['fit_before']:.4g} | {c['fit_after']:.4g} ({_change(c)}) |")
     lines += ["", "Mismatch is a robust RMS of recorded − simulated in the channel's unit (IMU channels as "
-              "block means); the *after* column re-simulates the recording with every kept effect.", "",
+              "block means); the *after* column re-simulates the recording with every named effect within its "
+              "physical bounds.", "",
               "## What physics the simulation left out", ""]
     if not diagnosis.findings:
-        lines.append("Nothing: no catalog effect is supported by held-out data.")
+        lines.append("Nothing: no catalog effect removes enough of the mismatch to pay for its parameters.")
     for k, f in enumerate(diagnosis.findings, 1):
         alike = (" Nearly as good an explanation: " + ", ".join(a["candidate"] for a in f.look_alikes) + "."
                  if f.look_alikes else "")
