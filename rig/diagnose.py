@@ -25,7 +25,7 @@ Method, per channel (TDOA, accelerometer, gyroscope):
 5. Effects that may be confined in time are tried on windows of the flight; NLOS
    candidates get a region found on the training blocks only (held out), on what
    the parametric candidates leave; the floor multipath is a noise-level effect
-   tested held out on the TDOA noise below a height.
+   judged on the local TDOA noise (what a running median leaves) below a height.
 6. The named effects, fitted jointly, re-simulate the recording (each channel's
    mismatch before and after); each finding's `fit_before`/`fit_after` is the
    robust RMS mismatch of its affected samples under that model without and with it.
@@ -682,24 +682,19 @@ def _nll(r: np.ndarray, sigma: np.ndarray | float) -> np.ndarray:
 
 
 def floor_multipath(channel: Channel, heights: np.ndarray) -> dict | None:
-    """Is the TDOA noise larger below some height? Held-out gain of a two-level noise
-    model (below/above h) over one level, best h; None when not supported."""
-    folds, r, best = channel.folds(), channel.residual, None
+    """Is the TDOA noise larger below some height? Robust log-likelihood gained by a
+    two-level noise model (below/above h) over one level, at the best h, judged like
+    the other effects' evidence; None when not supported."""
+    r, best = channel.residual, None
     airborne = heights >= ON_GROUND_M
-    folds, r, heights = folds[airborne], r[airborne], heights[airborne]
+    r, heights = r[airborne], heights[airborne]
+    one = _mad_scale(r)
     for h in FLOOR_HEIGHTS_M:
         low = heights < h
         if low.sum() < MIN_SAMPLES or (~low).sum() < MIN_SAMPLES:
             continue
-        gain = 0.0
-        for k in range(FOLDS):
-            train, test = folds != k, folds == k
-            if (train & low).sum() < MIN_SAMPLES // 2 or (train & ~low).sum() < MIN_SAMPLES:
-                continue
-            one = _mad_scale(r[train])
-            two = np.where(low, _mad_scale(r[train & low]), _mad_scale(r[train & ~low]))
-            gain += float((_nll(r[test], one) - _nll(r[test], two[test])).sum())
         sigma_low, sigma_high = _mad_scale(r[low]), _mad_scale(r[~low])
+        gain = float((_nll(r, one) - _nll(r, np.where(low, sigma_low, sigma_high))).sum())
         if sigma_low > sigma_high and (best is None or gain > best["evidence"]):
             rows = np.zeros(len(airborne), bool)
             rows[np.flatnonzero(airborne)[low]] = True
@@ -784,13 +779,18 @@ def diagnose(rec: Recording, progress=None) -> Diagnosis:
     for name in progress(names) if progress else names:
         channel = problem.channel(name)
         terms = select(problem, channel, pool)
+        z_named = _refit(channel.z, terms)
+        named_theta = {id(t): t.theta for t in terms}
         simulated = {id(t) for t in _model_terms(channel.z, terms)}
-        z_after = _left(channel.z, [t for t in terms if id(t) in simulated])
+        z_model = _left(channel.z, [t for t in terms if id(t) in simulated])
         for term in terms:
             if id(term) in simulated:
                 model.append(_effect_of(problem, channel, term, term.theta))
+                z_with, theta = z_model, term.theta
+            else:
+                z_with, theta = z_named, named_theta[id(term)]
             findings.append(_finding(problem, channel, term, _effect_of(problem, channel, term, term.estimate),
-                                     z_after, id(term) in simulated))
+                                     z_with, theta, id(term) in simulated))
     after = {name: problem.recorded(name) - pred for name, pred in problem.predict(model).items()}
     if "tdoa" in after:
         floor = _floor_finding(problem, after["tdoa"])
@@ -829,16 +829,15 @@ def _model_terms(z: np.ndarray, named: list[Term]) -> list[Term]:
     return kept
 
 
-def _finding(problem: Problem, channel: Channel, term: Term, effect: fx.Effect, z_after: np.ndarray,
-             simulated: bool) -> Finding:
+def _finding(problem: Problem, channel: Channel, term: Term, effect: fx.Effect, z_with: np.ndarray,
+             theta: np.ndarray, simulated: bool) -> Finding:
     """The effect as estimated (given the simpler explanations); fit_before/fit_after:
     the affected rows' mismatch under the re-simulating model without and with this
-    effect (the whole model re-simulated is in Diagnosis.channel_fits); an effect
-    beyond its physical bounds, which the model leaves out, is fitted on top of it."""
+    effect (the whole model re-simulated is in Diagnosis.channel_fits); for an effect
+    beyond its physical bounds, which the model leaves out, under all named effects
+    fitted jointly (`z_with` and `theta` are the fit it is judged in)."""
     rows = np.any(term.columns != 0, axis=1)
     scale = channel.scale[rows]
-    theta = term.theta if simulated else irls(z_after, term.columns, term.prior)    # on top of the model
-    z_with = z_after if simulated else z_after - term.columns @ theta
     z_without = z_with + term.columns @ theta
     anchors = [term.candidate.fixed["anchor"]] if "anchor" in term.candidate.fixed else []
     return Finding(effect.name, channel.name, anchors, _rounded(effect.params()), round(float(term.evidence), 2),

@@ -119,8 +119,6 @@ WHERE = {"imu_accel_bias": ("axes", ["y"]), "imu_gyro_bias": ("axes", ["z"]), "i
 NOT_ON_SIM = {
     "antenna_pattern": "over this flight's viewing angles the pattern reads as a displaced anchor (look-alike)",
     "nlos": "a half-space NLOS region is fitted as a displaced anchor before the NLOS search",
-    "multipath_floor": "the simulated flight spends about 4 s below 0.6 m (take-off and landing): the local noise "
-                       "there does not give held-out evidence enough",
 }
 NOT_ON_REAL = {
     "antenna_pattern": "real flights already carry larger pattern-like biases on every anchor",
