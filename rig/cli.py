@@ -662,11 +662,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("train", help="train the TDOA bias network on the shared flights (torch, CPU)",
                        description="Build the dataset (14 features from the C feature code at the estimator's own "
-                                   "pose, label = measured - "
-                                   "true TDOA, |error| <= 1 m, in flight), split by flight 70/15/15, train the "
-                                   "14-30-30-30-1 network with early stopping from a few initialisations, keep "
-                                   "the one the estimator does best with on the validation flights and write the model JSON and a "
-                                   "provenance file. Seeded and reproducible.")
+                                   "pose, label = measured - true TDOA, |error| <= 1 m, in flight), split by "
+                                   "flight 70/15/15, train the 14-30-30-30-1 network with early stopping from a "
+                                   "few initialisations, keep the one the estimator does best with on the "
+                                   "validation flights and write the model JSON and a provenance file. Seeded "
+                                   "and reproducible.")
     p.add_argument("--flights", nargs="+", metavar="PREFIX", help="use flights whose names start with these")
     p.add_argument("--test", nargs="+", metavar="PREFIX",
                    help="these flights are the test set (default: a seeded 15%% of the flights)")

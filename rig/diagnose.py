@@ -331,12 +331,16 @@ def _refit(z: np.ndarray, terms: list[Term]) -> np.ndarray:
     return _left(z, terms)
 
 
+def _split(terms: list[Term], theta: np.ndarray) -> list[tuple[Term, np.ndarray]]:
+    """Each term with its slice of a joint fit of `terms` (stacked in that order)."""
+    ends = np.cumsum([t.columns.shape[1] for t in terms])
+    return [(t, theta[end - t.columns.shape[1]:end]) for t, end in zip(terms, ends)]
+
+
 def _take_fit(terms: list[Term], theta: np.ndarray) -> None:
-    """Hand each term its slice of a joint fit of `terms` (stacked in that order)."""
-    at = 0
-    for t in terms:
-        t.theta = theta[at:at + t.columns.shape[1]]
-        at += t.columns.shape[1]
+    """Hand each term its slice of a joint fit of `terms`."""
+    for t, part in _split(terms, theta):
+        t.theta = part
     _median_gauge(terms)
 
 
@@ -354,15 +358,15 @@ def _delay_family(terms: list[Term]) -> list[Term]:
     return delays
 
 
-def _median_gauge(terms: list[Term]) -> None:
+def _median_gauge(terms: list[Term], attribute: str = "theta") -> None:
     """TDOA sees delays only relative to each other: they are reported relative to
     their median, so one anchor's delay shows on that anchor alone (a fit of the
     minimum norm would spread it as −1/n over all the others)."""
     family = _delay_family(terms)
     if family:
-        shift = np.median([t.theta[0] for t in family])
+        shift = np.median([getattr(t, attribute)[0] for t in family])
         for t in family:
-            t.theta = t.theta - shift
+            setattr(t, attribute, getattr(t, attribute) - shift)
 
 
 # Simplest first: a term's evidence is judged given all other terms but the richer
@@ -437,16 +441,10 @@ def _estimate(z: np.ndarray, terms: list[Term]) -> None:
     for rank in sorted({_rank(t) for t in terms}):
         nested = [t for t in terms if _rank(t) <= rank]
         x, prior = _stack(nested)
-        theta, at = irls(z, x, prior), 0
-        for t in nested:
+        for t, part in _split(nested, irls(z, x, prior)):
             if _rank(t) == rank:
-                t.estimate = theta[at:at + t.columns.shape[1]]
-            at += t.columns.shape[1]
-    family = _delay_family(terms)
-    if family:
-        shift = np.median([t.estimate[0] for t in family])
-        for t in family:
-            t.estimate = t.estimate - shift
+                t.estimate = part
+    _median_gauge(terms, "estimate")
 
 
 def _name(z: np.ndarray, terms: list[Term]) -> list[Term]:
@@ -510,10 +508,9 @@ def select(problem: Problem, channel: Channel, pool: list[Candidate]) -> list[Te
         if nlos:
             terms += nlos
             named = _name(z, named + nlos)
-    _refit(z, named)
+    _refit(z, named)                 # the NLOS search refits every candidate
     if _confine_in_time(channel, named):
-        named = _name(z, named)
-        _refit(z, named)
+        named = _name(z, named)      # leaves them fitted jointly
     _estimate(z, named)
     _note_look_alikes(z, named, terms)
     return named
@@ -563,9 +560,9 @@ def _confine_in_time(channel: Channel, kept: list[Term]) -> bool:
     """An effect present in part of the flight only: try every run of whole time
     blocks; keep the best window when it explains clearly more than the whole flight
     (a delay so confined leaves the family of delays: it is then absolute)."""
-    confined = False
     if not kept:
-        return confined
+        return False
+    confined = False
     edges = np.quantile(channel.t, np.linspace(0, 1, TIME_BLOCKS + 1))
     for term in kept:
         if term.candidate.effect not in WINDOWABLE:
@@ -778,8 +775,8 @@ def diagnose(rec: Recording, progress=None) -> Diagnosis:
     findings, model, names = [], [], list(before)
     for name in progress(names) if progress else names:
         channel = problem.channel(name)
-        terms = select(problem, channel, pool)
-        z_named = _refit(channel.z, terms)
+        terms = select(problem, channel, pool)          # fitted jointly
+        z_named = _left(channel.z, terms)
         named_theta = {id(t): t.theta for t in terms}
         simulated = {id(t) for t in _model_terms(channel.z, terms)}
         z_model = _left(channel.z, [t for t in terms if id(t) in simulated])

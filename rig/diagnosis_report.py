@@ -86,11 +86,11 @@ def _markdown(diagnosis: Diagnosis, report: dict, images: list[tuple[str, str]])
                      f"{f.channel} samples' mismatch goes from {f.fit_before:.4g} to {f.fit_after:.4g}.{alike}")
     lines += ["", "Evidence is the robust loss an effect removes given the others but its richer look-alikes "
               "(about half a chi-square); larger is stronger. Parameters are estimated given the simpler "
-              "explanations only, so they compare between recordings of the same flight. Look-alikes: an anchor displacement along the line "
-              "of sight reads as a delay, and a second-order antenna pattern over a small range of viewing "
-              "angles as a displacement; an accelerometer scale on z reads as a bias in hover. Once one "
-              "anchor's delay is supported, every anchor's delay is reported (some with little evidence of "
-              "their own): TDOA measures them relative to each other.", ""]
+              "explanations only, so they compare between recordings of the same flight. Look-alikes: an "
+              "anchor displacement along the line of sight reads as a delay, and a second-order antenna "
+              "pattern over a small range of viewing angles as a displacement; an accelerometer scale on z "
+              "reads as a bias in hover. Once one anchor's delay is supported, every anchor's delay is reported "
+              "(some with little evidence of their own): TDOA measures them relative to each other.", ""]
     for title, name in images:
         lines += [f"## {title}", "", f"![{title}]({name})", ""]
     return "\n".join(lines)
