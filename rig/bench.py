@@ -22,8 +22,7 @@ from rig.recording import Recording
 log = logging.getLogger(__name__)
 
 THRESHOLDS = {"instructions": 0.05, "cycles": 0.05, "ns": 0.50}
-# Nanosecond extremes (CPU time of the native program) vary with caches, frequency and
-# the host: printed, never compared.
+# Wall-clock extremes are one preemption away from anything: printed, never compared.
 UNCOMPARED = {"ns": {"window_p99", "window_max", "tdoa_update_max"}}
 
 

@@ -9,11 +9,8 @@
  *                               the app channel (port 13, channel 2) without framing, and
  *                               the null packet (0xFF) is echoed so cflib's scan finds us
  *
- * Costs are measured in nanoseconds of this thread's CPU time
- * (CLOCK_THREAD_CPUTIME_ID): the estimator's own work, not the time the host's
- * scheduler gave to other processes (a QEMU run beside it on two cores doubled the
- * wall-clock cost of some windows). Exits at end of input or when the pty's other
- * side closes. */
+ * Costs are measured in nanoseconds (CLOCK_MONOTONIC). Exits at end of input or
+ * when the pty's other side closes. */
 #define _DEFAULT_SOURCE
 #define _XOPEN_SOURCE 600
 #include <arpa/inet.h>
@@ -56,7 +53,7 @@ static void write_all(const uint8_t *data, size_t n)
 static uint32_t now_ns(void)
 {
     struct timespec ts;
-    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+    clock_gettime(CLOCK_MONOTONIC, &ts);
     return (uint32_t)((uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec);
 }
 
