@@ -37,6 +37,7 @@ import logging
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.ndimage import uniform_filter1d
 
 from rig import effects as fx
 from rig.recording import Recording
@@ -58,6 +59,7 @@ EDGE_S = 0.5                   # ignore samples this close to the ends of the gr
 IMU_BLOCK_S = {"accel": 0.2, "gyro": 1.0}
 IMU_MIN_BLOCK = 5              # samples a block needs
 AXES = "xyz"
+VIBRATION_WINDOW_S = 0.2       # IMU noise: spread around a running mean this long
 
 
 @dataclass
@@ -754,18 +756,30 @@ class Diagnosis:
 
     def noise_model(self) -> list[dict]:
         """The noise the fitted model leaves, per sample, so `model` simulates data like
-        the recording: the TDOA residual after the effects, the raw IMU samples' spread
-        around the ground truth (for the gyroscope mostly the ground truth's own
-        attitude noise, differentiated: an upper bound)."""
+        the recording: the TDOA residual after the effects; for the IMU, the raw
+        samples' spread around their own running mean (VIBRATION_WINDOW_S): the
+        vibration and sensor noise. Not the spread around the ground truth, whose
+        attitude noise, differentiated, is 10–50 times the gyroscope's own noise."""
         out = []
         if "tdoa" in self.residual_after:
             out.append({"effect": "tdoa_noise", "params": {"std_m": _mad_scale(self.residual_after["tdoa"])}})
-        p, rec = self.problem.predictor, self.problem.rec
+        rec = self.problem.rec
         if len(rec.accel) and len(rec.gyro):
-            spread = {name: float(np.mean([_mad_scale(series.xyz[:, a] - true[:, a]) for a in range(3)]))
-                      for name, series, true in (("accel", rec.accel, p.accel_true), ("gyro", rec.gyro, p.gyro_true))}
-            out.append({"effect": "imu_noise", "params": {"accel_std": spread["accel"], "gyro_std": spread["gyro"]}})
+            out.append({"effect": "imu_noise", "params": {"accel_std": vibration_spread(rec.accel),
+                                                          "gyro_std": vibration_spread(rec.gyro)}})
         return out
+
+
+def vibration_spread(series) -> float:
+    """Robust spread of an IMU series around its own running mean, averaged over the
+    axes: what the slow motion of a flight leaves out."""
+    values = series.xyz[np.all(np.isfinite(series.xyz), axis=1)]
+    if len(values) < 3:
+        return 0.0
+    rate = (len(series.t) - 1) / max(float(series.t[-1] - series.t[0]), 1e-9)
+    window = int(np.clip(VIBRATION_WINDOW_S * rate, 3, len(values)))
+    fast = values - uniform_filter1d(values, window, axis=0, mode="nearest")
+    return float(np.mean([_mad_scale(fast[:, axis]) for axis in range(3)]))
 
 
 def diagnose(rec: Recording, progress=None) -> Diagnosis:

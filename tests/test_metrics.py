@@ -89,7 +89,7 @@ def test_cli_demo_runs_the_main_job(tmp_path: Path) -> None:
     proc = run_rig("demo", "--out", str(tmp_path), check=True)
     native = json.loads((tmp_path / "native" / "metrics.json").read_text())
     qemu = json.loads((tmp_path / "qemu" / "metrics.json").read_text())
-    assert 0.0 < native["rmse_3d"] < 0.3, "the estimator must track the default flight"
+    assert 0.0 < native["rmse_3d"] < 0.4, "the estimator must track the default flight"
     assert abs(native["rmse_3d"] - qemu["rmse_3d"]) < 0.002
     assert native["timing"]["unit"] == "ns" and qemu["timing"]["unit"] == "instructions"
     assert "native and QEMU RMSE differ" in proc.stdout

@@ -1,0 +1,112 @@
+"""One simulator model from the models `rig diagnose` fitted on several real flights
+of one room, to fly another trajectory there (the shipped default recording).
+
+An effect transfers to another trajectory if it belongs to the hardware or the room
+(a delay, a clock, an IMU error, the TDOA noise), not to one flight's path: NLOS regions,
+anchor displacements, antenna patterns and lever arms, as the diagnosis fits them on
+real flights, are mostly the pose-dependent bias seen along that path
+(docs/diagnosis.md) and are left out. An effect enters when the diagnosis named it on
+at least half of the flights (a property of the room, not of one flight); its
+parameters are the medians over those flights. Confinement in time (`during`) is
+dropped: it belongs to one flight's clock."""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+# in the order they are listed in a config
+TRANSFERABLE = ("time_offset", "clock_drift", "anchor_delay", "multipath_floor", "imu_accel_bias", "imu_gyro_bias",
+                "imu_accel_scale", "imu_gyro_scale", "tdoa_noise")
+MIN_SHARE = 0.5
+
+
+def read_models(paths: list[Path]) -> list[list[dict]]:
+    """The effect lists of `rig diagnose` model files (DIR/model.json)."""
+    models = []
+    for path in paths:
+        try:
+            effects = json.loads(Path(path).read_text())["effects"]
+            if not all(isinstance(e, dict) and "effect" in e and isinstance(e.get("params"), dict) for e in effects):
+                raise ValueError("an effect without a name or parameters")
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise ValueError(f"{path}: not a model.json written by rig diagnose ({exc})") from exc
+        models.append(effects)
+    return models
+
+
+def combine(models: list[list[dict]]) -> list[dict]:
+    """The transferable effects named on at least MIN_SHARE of `models`, each with the
+    median of its parameters; delays relative to their median (TDOA sees no common
+    delay)."""
+    if not models:
+        raise ValueError("no fitted models to combine")
+    groups: dict[tuple[str, int | None], list[dict]] = {}
+    for model in models:
+        for item in model:
+            if item["effect"] in TRANSFERABLE:
+                key = (item["effect"], item["params"].get("anchor"))
+                groups.setdefault(key, []).append(item["params"])
+    out = []
+    for (effect, anchor), params in sorted(groups.items(), key=lambda kv: (TRANSFERABLE.index(kv[0][0]),
+                                                                          kv[0][1] if kv[0][1] is not None else -1)):
+        if len(params) < MIN_SHARE * len(models):
+            log.info("%s%s: named on %d of %d flights, left out", effect, "" if anchor is None else f":{anchor}",
+                     len(params), len(models))
+            continue
+        out.append({"effect": effect, "params": _median_params(params)})
+    _centre_delays(out)
+    return out
+
+
+def _median_params(params: list[dict]) -> dict:
+    merged = {}
+    for field, value in params[0].items():
+        if field == "during":
+            continue
+        if field == "anchor" or not isinstance(value, (int, float, list)):
+            merged[field] = value
+            continue
+        values = np.array([p[field] for p in params if field in p], float)
+        merged[field] = float(np.median(values)) if values.ndim == 1 else np.median(values, axis=0).tolist()
+    return merged
+
+
+def _centre_delays(effects: list[dict]) -> None:
+    delays = [e["params"] for e in effects if e["effect"] == "anchor_delay"]
+    if delays:
+        shift = float(np.median([d["meters"] for d in delays]))
+        for d in delays:
+            d["meters"] = round(d["meters"] - shift, 4)
+
+
+def rounded(effects: list[dict], digits: int = 4) -> list[dict]:
+    """Parameters rounded for a config a person reads (the fit is not that precise)."""
+    def tidy(value):
+        if isinstance(value, float):
+            return round(value, digits)
+        if isinstance(value, list):
+            return [tidy(v) for v in value]
+        return value
+    return [{"effect": e["effect"], "params": {k: tidy(v) for k, v in e["params"].items()}} for e in effects]
+
+
+# kept from the config when its fitted effects are replaced: the heavy tails beyond the
+# diagnosis's robust noise scale (not fitted), and the IMU noise: the diagnosis
+# measures the recorded vibration (0.3-1.3 m/s2 on the accelerometer), which the
+# board's low-pass filter leaves below about 50 Hz; the simulator's noise is white,
+# and white at that size would differ from the recording sample to sample (and more
+# than double the bytes a replay sends per window)
+KEPT_FROM_CONFIG = ("outliers", "imu_noise")
+
+
+def replace_fitted(config: dict, effects: list[dict]) -> dict:
+    """`config` (a `rig simulate` config) with `effects` in place of its effects,
+    keeping those of KEPT_FROM_CONFIG."""
+    kept = [e for e in config.get("effects", []) if e["effect"] in KEPT_FROM_CONFIG]
+    return {**config, "effects": rounded(effects) + kept}

@@ -1,0 +1,74 @@
+"""Combining the models diagnosed on several flights into one simulation config
+(`rig combine-models`, how the shipped default recording gets its effects)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from conftest import run_rig
+from rig.fitted_model import combine, replace_fitted
+from rig.recording import read_recording
+
+
+def _model(offset: float, delays: dict[int, float], nlos: bool = False, drift: float | None = None) -> list[dict]:
+    effects = [{"effect": "time_offset", "params": {"seconds": offset}}]
+    effects += [{"effect": "anchor_delay", "params": {"anchor": k, "meters": m}} for k, m in delays.items()]
+    if nlos:
+        effects.append({"effect": "nlos", "params": {"anchor": 2, "fraction": 1.0, "mean_excess_m": 0.3,
+                                                     "region": {"min": [0, 0, 0], "max": [1, 1, 1]}}})
+    if drift is not None:
+        effects.append({"effect": "clock_drift", "params": {"ppm": drift}})
+    effects.append({"effect": "imu_accel_bias", "params": {"bias_mps2": [offset, 0.0, 1.0], "during": [1.0, 2.0]}})
+    return effects
+
+
+MODELS = [_model(-0.05, {0: 0.1, 1: -0.1, 2: 0.0}, nlos=True, drift=500.0),
+          _model(-0.07, {0: 0.3, 1: -0.1, 2: 0.0}),
+          _model(-0.06, {0: 0.2, 1: -0.3, 2: 0.1})]
+
+
+def test_effects_named_on_most_flights_enter_with_their_medians() -> None:
+    combined = {(e["effect"], e["params"].get("anchor")): e["params"] for e in combine(MODELS)}
+    assert combined[("time_offset", None)]["seconds"] == pytest.approx(-0.06)
+    # medians 0.2, -0.1, 0.0 -> relative to their median (0.0)
+    assert [combined[("anchor_delay", k)]["meters"] for k in (0, 1, 2)] == pytest.approx([0.2, -0.1, 0.0])
+    assert combined[("imu_accel_bias", None)] == {"bias_mps2": pytest.approx([-0.06, 0.0, 1.0])}   # no "during"
+    assert ("clock_drift", None) not in combined, "named on one flight of three: not a property of the room"
+    assert ("nlos", 2) not in combined, "an NLOS region belongs to one flight's path"
+
+
+def test_the_config_keeps_what_the_diagnosis_does_not_fit() -> None:
+    own = [{"effect": "outliers", "params": {"fraction": 0.05}}, {"effect": "imu_noise", "params": {"accel_std": 0.1}}]
+    config = {"trajectory": "circle", "effects": [*own, {"effect": "tdoa_noise", "params": {"std_m": 0.1}}]}
+    effects = replace_fitted(config, combine(MODELS + [[{"effect": "imu_noise", "params": {"accel_std": 0.9}}]]))
+    effects = effects["effects"]
+    assert effects[-2:] == own, "heavy tails and the IMU's white noise stay the config's own"
+    assert all(e["effect"] != "tdoa_noise" for e in effects), "the config's own noise is replaced by none fitted"
+
+
+def test_cli_combines_models_into_a_config_that_simulates(tmp_path: Path) -> None:
+    paths = []
+    for k, model in enumerate(MODELS):
+        (tmp_path / f"f{k}").mkdir()
+        paths.append(tmp_path / f"f{k}" / "model.json")
+        paths[-1].write_text(json.dumps({"effects": model}))
+    config = tmp_path / "sim.json"
+    config.write_text(json.dumps({"trajectory": "circle", "duration": 3.0, "seed": 1, "effects": []}))
+    run_rig("combine-models", *map(str, paths), "--config", str(config), check=True)
+    effects = json.loads(config.read_text())["effects"]
+    assert {e["effect"] for e in effects} == {"time_offset", "anchor_delay", "imu_accel_bias"}
+    run_rig("simulate", "--config", str(config), "-o", str(tmp_path / "out.mcap"), check=True)
+    assert len(read_recording(tmp_path / "out.mcap").tdoa) > 100
+
+
+def test_a_file_that_is_not_a_model_is_refused_clearly(tmp_path: Path) -> None:
+    bad = tmp_path / "model.json"
+    bad.write_text("[1, 2]")
+    config = tmp_path / "sim.json"
+    config.write_text('{"effects": []}')
+    proc = run_rig("combine-models", str(bad), "--config", str(config))
+    assert proc.returncode == 2 and "not a model.json written by rig diagnose" in proc.stderr
+    assert config.read_text() == '{"effects": []}', "the config is untouched"
