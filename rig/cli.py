@@ -659,11 +659,11 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("combine-models", help="one simulation model from the models diagnosed on several flights",
                        description="Combine the model.json files `rig diagnose` wrote for several real flights of "
                                    "one room into the effects of a `rig simulate` config: the effects of the "
-                                   "hardware and the room (delays, clocks, IMU errors, noise) named on at least "
-                                   "half of the flights, each with its median parameters; path-bound ones (NLOS "
-                                   "regions, displacements, patterns, lever arms) are left out. Replaces the "
-                                   "config's effects, keeping those the diagnosis does not fit (outliers). "
-                                   "See docs/diagnosis.md.")
+                                   "hardware and the room (delays, clocks, IMU errors, TDOA noise) named on at "
+                                   "least half of the flights, each with its median parameters; path-bound ones "
+                                   "(NLOS regions, displacements, patterns, lever arms) are left out. Replaces "
+                                   "the config's effects, keeping its own outliers and IMU white noise (the "
+                                   "recorded vibration is low-pass filtered, not white). See docs/diagnosis.md.")
     p.add_argument("models", type=Path, nargs="+", help="DIR/model.json files of `rig diagnose`")
     p.add_argument("--config", type=Path, required=True, help="the simulation config to update")
     p.set_defaults(func=cmd_combine_models)

@@ -40,7 +40,7 @@ import numpy as np
 from scipy.ndimage import uniform_filter1d
 
 from rig import effects as fx
-from rig.recording import Recording
+from rig.recording import Recording, Vec3Series
 from rig.simulate import Predictor
 
 log = logging.getLogger(__name__)
@@ -770,7 +770,7 @@ class Diagnosis:
         return out
 
 
-def vibration_spread(series) -> float:
+def vibration_spread(series: Vec3Series) -> float:
     """Robust spread of an IMU series around its own running mean, averaged over the
     axes: what the slow motion of a flight leaves out."""
     values = series.xyz[np.all(np.isfinite(series.xyz), axis=1)]
@@ -851,7 +851,7 @@ def _finding(problem: Problem, channel: Channel, term: Term, effect: fx.Effect, 
     scale = channel.scale[rows]
     z_without = z_with + term.columns @ theta
     anchors = [term.candidate.fixed["anchor"]] if "anchor" in term.candidate.fixed else []
-    return Finding(effect.name, channel.name, anchors, _rounded(effect.params()), round(float(term.evidence), 2),
+    return Finding(effect.name, channel.name, anchors, rounded_floats(effect.params()), round(float(term.evidence), 2),
                    robust_rms(z_without[rows] * scale, scale), robust_rms(z_with[rows] * scale, scale),
                    _where(problem, channel, term, rows, z_with, theta),
                    [{"candidate": key, "evidence": gain} for key, gain in term.look_alikes],
@@ -901,16 +901,16 @@ def local_noise(problem: Problem, residual: np.ndarray) -> np.ndarray:
     return out / np.sqrt(1.0 + np.pi / (4 * k))
 
 
-def _rounded(params: dict) -> dict:
-    def r(v):
-        if isinstance(v, float):
-            return round(v, 6)
-        if isinstance(v, list):
-            return [r(x) for x in v]
-        if isinstance(v, dict):
-            return {k: r(x) for k, x in v.items()}
-        return v
-    return r(params)
+def rounded_floats(value, digits: int = 6):
+    """`value` with every float inside (lists and dicts included) rounded: parameters as
+    reported (the fit is not more precise than that)."""
+    if isinstance(value, float):
+        return round(value, digits)
+    if isinstance(value, list):
+        return [rounded_floats(v, digits) for v in value]
+    if isinstance(value, dict):
+        return {k: rounded_floats(v, digits) for k, v in value.items()}
+    return value
 
 
 def _span(t: np.ndarray) -> list[float]:

@@ -18,12 +18,15 @@ from pathlib import Path
 
 import numpy as np
 
+from rig.diagnose import rounded_floats
+
 log = logging.getLogger(__name__)
 
 # in the order they are listed in a config
 TRANSFERABLE = ("time_offset", "clock_drift", "anchor_delay", "multipath_floor", "imu_accel_bias", "imu_gyro_bias",
                 "imu_accel_scale", "imu_gyro_scale", "tdoa_noise")
 MIN_SHARE = 0.5
+CONFIG_DIGITS = 4            # a config a person reads: the fit is not more precise
 
 
 def read_models(paths: list[Path]) -> list[list[dict]]:
@@ -82,18 +85,7 @@ def _centre_delays(effects: list[dict]) -> None:
     if delays:
         shift = float(np.median([d["meters"] for d in delays]))
         for d in delays:
-            d["meters"] = round(d["meters"] - shift, 4)
-
-
-def rounded(effects: list[dict], digits: int = 4) -> list[dict]:
-    """Parameters rounded for a config a person reads (the fit is not that precise)."""
-    def tidy(value):
-        if isinstance(value, float):
-            return round(value, digits)
-        if isinstance(value, list):
-            return [tidy(v) for v in value]
-        return value
-    return [{"effect": e["effect"], "params": {k: tidy(v) for k, v in e["params"].items()}} for e in effects]
+            d["meters"] -= shift
 
 
 # kept from the config when its fitted effects are replaced: the heavy tails beyond the
@@ -109,4 +101,4 @@ def replace_fitted(config: dict, effects: list[dict]) -> dict:
     """`config` (a `rig simulate` config) with `effects` in place of its effects,
     keeping those of KEPT_FROM_CONFIG."""
     kept = [e for e in config.get("effects", []) if e["effect"] in KEPT_FROM_CONFIG]
-    return {**config, "effects": rounded(effects) + kept}
+    return {**config, "effects": rounded_floats(effects, CONFIG_DIGITS) + kept}

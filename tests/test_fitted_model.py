@@ -40,7 +40,7 @@ def test_effects_named_on_most_flights_enter_with_their_medians() -> None:
     assert ("nlos", 2) not in combined, "an NLOS region belongs to one flight's path"
 
 
-def test_the_config_keeps_what_the_diagnosis_does_not_fit() -> None:
+def test_the_config_keeps_its_own_outliers_and_imu_noise() -> None:
     own = [{"effect": "outliers", "params": {"fraction": 0.05}}, {"effect": "imu_noise", "params": {"accel_std": 0.1}}]
     config = {"trajectory": "circle", "effects": [*own, {"effect": "tdoa_noise", "params": {"std_m": 0.1}}]}
     effects = replace_fitted(config, combine(MODELS + [[{"effect": "imu_noise", "params": {"accel_std": 0.9}}]]))
