@@ -368,15 +368,20 @@ def _score_run(run, rec) -> dict:
         return {"n_estimates": len(run.estimates), "timing": replay.timing_summary(run), "score_error": str(exc)}
 
 
-def _assertions(result: dict, max_rmse: float | None, max_budget: float | None) -> list[str]:
+def _assertions(result: dict, max_rmse: float | None, max_budget: float | None,
+                figure: str = "window_max") -> list[str]:
+    """What failed of an accuracy bar (m) and a budget bar (fraction of the 10 ms budget,
+    on the timing `figure`: the worst window unless said otherwise)."""
     failed = []
     if max_rmse is not None and "rmse_3d" not in result:
         failed.append(f"no rmse_3d to compare with {max_rmse} m ({result.get('score_error')})")
     elif max_rmse is not None and not result["rmse_3d"] <= max_rmse:
         failed.append(f"rmse_3d {result['rmse_3d']:.3f} m > {max_rmse} m")
-    fraction = result["timing"]["window_max_fraction_of_budget"]
+    timing = result["timing"]
+    fraction = timing[figure] / timing["budget"]
     if max_budget is not None and not fraction <= max_budget:
-        failed.append(f"worst window {fraction:.1%} of the budget > {max_budget:.1%}")
+        name = "worst window" if figure == "window_max" else figure.replace("_", " ")
+        failed.append(f"{name} {fraction:.1%} of the budget > {max_budget:.1%}")
     return failed
 
 
@@ -579,6 +584,12 @@ DEMO_TARGETS = ("native", "qemu")
 # flights of that room (docs/accuracy.md), 0.30 m on it
 DEMO_MAX_RMSE_M = 0.40
 DEMO_MAX_BUDGET = 0.20
+# The real-time bar is the worst window under QEMU, whose instruction counts are
+# deterministic. The native program's wall clock also counts the host scheduler's
+# preemptions: its worst window is 50-100x its p99 on a quiet machine and crossed the
+# bar when other work shared the two cores, so there the p99 is judged (it still
+# catches any slowdown of the estimator itself).
+DEMO_BUDGET_FIGURE = {"native": "window_p99", "qemu": "window_max"}
 DEMO_AGREEMENT_M = 0.002
 
 
@@ -588,7 +599,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
     results, failed = {}, []
     for target in DEMO_TARGETS:
         results[target] = _replay(args.recording, target, args.out / target, use_nn=args.nn)
-        failed += [f"{target}: {r}" for r in _assertions(results[target], DEMO_MAX_RMSE_M, DEMO_MAX_BUDGET)]
+        failed += [f"{target}: {r}" for r in _assertions(results[target], DEMO_MAX_RMSE_M, DEMO_MAX_BUDGET,
+                                                                   DEMO_BUDGET_FIGURE[target])]
     gap = abs(results["native"]["rmse_3d"] - results["qemu"]["rmse_3d"])
     print(f"native and QEMU RMSE differ by {gap * 1e3:.2f} mm")
     if gap > DEMO_AGREEMENT_M:
@@ -829,8 +841,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("demo", help="the main job: the default recording into the native and QEMU targets",
                        description="Replay the default recording into the native program and the STM32F405 "
-                                   "firmware in QEMU in lock-step; assert RMSE <= 0.30 m, the worst 10 ms window "
-                                   "<= 20%% of the budget and native/QEMU agreement within 2 mm; write "
+                                   "firmware in QEMU in lock-step; assert RMSE <= 0.40 m, the worst 10 ms window "
+                                   "under QEMU (the p99 window of the native program, whose wall clock counts "
+                                   "the host's preemptions) <= 20%% of the budget and native/QEMU agreement "
+                                   "within 2 mm; write "
                                    "OUT/<target>/metrics.json. The default recording is simulated without the "
                                    "real anchors' biases, so the bias network is off unless --nn.")
     p.add_argument("--recording", type=Path, default=paths.default_recording())
