@@ -4,7 +4,8 @@ untouched flight as control, judged by the suite's own tolerances.
 
     .venv/bin/python benchmarks/concealed.py [--flights sim 0426-traj1 ...] [--out out/concealed.json]
 
-`sim` is the suite's simulated flight. Prints a line per effect and flight (found or
+`sim` is the suite's simulated flight (or, for an effect the suite flies on its own
+circle, that circle, with its own control). Prints a line per effect and flight (found or
 missed, the recovered parameters after subtracting the control) and a count per flight."""
 
 from __future__ import annotations
@@ -27,16 +28,21 @@ from rig.importer import load_any  # noqa: E402
 from rig.simulate import Predictor, inject, simulate  # noqa: E402
 
 
-def diagnosed(job: tuple[str, str]) -> tuple[str, str, dict]:
+def diagnosed(job: tuple[str, str]) -> tuple[str, str, dict, dict | None]:
+    """The findings on the flight with the effect injected, and on its own untouched
+    flight when it is not the flight's shared control (a simulated case with its own
+    circle)."""
     flight, name = job
     effects = [] if name == "control" else [{"effect": name, "params": cases.CASES[name][0]}]
     if flight == "sim":
-        rec = simulate(cases.sim_config(paths.data_dir() / "surveys" / "anchor_0425.txt", effects))
-    else:
-        rec = load_any(paths.data_dir() / "flights" / flight)
-        if effects:
-            rec = inject(rec, effects, seed=1, predictor=Predictor(rec))
-    return flight, name, cases.findings(cases.diagnose(rec))
+        survey, own = paths.data_dir() / "surveys" / "anchor_0425.txt", cases.SIM_FLIGHT.get(name)
+        found = cases.findings(cases.diagnose(simulate(cases.sim_config(survey, effects, own))))
+        control = cases.findings(cases.diagnose(simulate(cases.sim_config(survey, [], own)))) if own else None
+        return flight, name, found, control
+    rec = load_any(paths.data_dir() / "flights" / flight)
+    if effects:
+        rec = inject(rec, effects, seed=1, predictor=Predictor(rec))
+    return flight, name, cases.findings(cases.diagnose(rec)), None
 
 
 def judge(found: dict, control: dict, name: str, real: bool) -> tuple[bool, str]:
@@ -55,12 +61,13 @@ def main() -> None:
     args = parser.parse_args()
     jobs = [(f, n) for f in args.flights for n in ["control", *cases.CASES]]
     with Pool(2) as pool:
-        results = {(f, n): found for f, n, found in pool.imap_unordered(diagnosed, jobs)}
+        results = {(f, n): (found, own) for f, n, found, own in pool.imap_unordered(diagnosed, jobs)}
     summary = {}
     for flight in args.flights:
-        control, rows = results[(flight, "control")], {}
+        rows = {}
         for name in cases.CASES:
-            ok, how = judge(results[(flight, name)], control, name, real=flight != "sim")
+            found, own = results[(flight, name)]
+            ok, how = judge(found, own or results[(flight, "control")][0], name, real=flight != "sim")
             rows[name] = {"found": ok, "detail": how}
             print(f"{flight:12s} {name:16s} {'found ' if ok else 'MISSED'} {'' if ok else how}")
         summary[flight] = {"found": sum(r["found"] for r in rows.values()), "of": len(rows), "cases": rows}

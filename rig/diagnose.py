@@ -21,7 +21,10 @@ Method, per channel (TDOA, accelerometer, gyroscope):
    the joint fit of the named terms of its rank or a simpler one (ORDER: a delay
    before a displacement before a pattern before NLOS), so the simplest explanation
    takes the signal it can, and a richer effect named or not does not move the
-   simpler ones (a comparison with a control recording needs that).
+   simpler ones (a comparison with a control recording needs that). Each estimate
+   carries its standard error (the posterior's, in that fit); a parameter whose
+   standard error is more than half its prior's is reported as not identified by
+   this trajectory: the data hardly told it apart from the simpler explanations.
 5. Effects that may be confined in time are tried on windows of the flight; NLOS
    candidates get a region found on the training blocks only (held out), on what
    the parametric candidates leave; the floor multipath is a noise-level effect
@@ -50,6 +53,7 @@ FOLDS = 5                      # contiguous time blocks for cross-validation
 PENALTY_PER_PARAMETER = 2.0    # evidence a parameter must pay for (AIC-like)
 MIN_EVIDENCE = 8.0             # evidence, in half chi-square units, to name an effect
 LOOK_ALIKE_MARGIN = 10.0       # candidates whose evidence came this close to the chosen one
+IDENTIFIED_SD_SHARE = 0.5      # a parameter is identified when its standard error is below this share of its prior
 TIME_BLOCKS = 10               # resolution of "only in part of the flight"
 MIN_SAMPLES = 50
 EDGE_S = 0.5                   # ignore samples this close to the ends of the ground truth
@@ -301,6 +305,7 @@ class Term:
     extra: dict = field(default_factory=dict)       # during, region, ...
     theta: np.ndarray | None = None                  # in the model: the named terms fitted jointly
     estimate: np.ndarray | None = None               # as reported: given the simpler explanations
+    std_err: np.ndarray | None = None                # of the estimate (posterior standard deviation)
     evidence: float = 0.0
     window_cost: bool = False                        # confined in time: its two ends are parameters too
     look_alikes: list = field(default_factory=list)  # (key, evidence) of candidates that did nearly as well
@@ -439,14 +444,36 @@ def _rank(term: Term) -> int:
 
 def _estimate(z: np.ndarray, terms: list[Term]) -> None:
     """Each named term's estimate given the simpler explanations: its value in the
-    joint fit of the named terms of its rank or a simpler one (see select)."""
+    joint fit of the named terms of its rank or a simpler one (see select), and its
+    standard error in that fit."""
     for rank in sorted({_rank(t) for t in terms}):
         nested = [t for t in terms if _rank(t) <= rank]
         x, prior = _stack(nested)
-        for t, part in _split(nested, irls(z, x, prior)):
+        theta = irls(z, x, prior)
+        family = {id(t) for t in _delay_family(nested)}
+        gauge = np.concatenate([np.full(t.columns.shape[1], id(t) in family) for t in nested])
+        std_err = posterior_sd(z, x, prior, theta, gauge)
+        for (t, part), (_, sd) in zip(_split(nested, theta), _split(nested, std_err)):
             if _rank(t) == rank:
-                t.estimate = part
+                t.estimate, t.std_err = part, sd
     _median_gauge(terms, "estimate")
+
+
+GAUGE_WEIGHT = 1e6             # pins the sum of a delay family: TDOA sees delays relative to each other
+
+
+def posterior_sd(z: np.ndarray, x: np.ndarray, prior: np.ndarray, theta: np.ndarray,
+                 gauge: np.ndarray | None = None) -> np.ndarray:
+    """Standard deviations of the parameters of a Huber fit with Gaussian priors, from
+    its weighted normal equations (z is standardised: unit noise). Where the data do
+    not separate a parameter from the others it approaches its prior's. The `gauge`
+    parameters (a family of delays) are taken relative to their mean, as they are
+    reported: the common delay TDOA cannot see does not blur each one."""
+    xw = x * huber_weight(z - x @ theta)[:, None]
+    normal = xw.T @ x + np.diag(1.0 / prior ** 2)
+    if gauge is not None and gauge.any():
+        normal += GAUGE_WEIGHT * np.outer(gauge, gauge).astype(float)
+    return np.sqrt(np.diag(np.linalg.inv(normal)))
 
 
 def _name(z: np.ndarray, terms: list[Term]) -> list[Term]:
@@ -720,10 +747,14 @@ class Finding:
     where: dict
     look_alikes: list = field(default_factory=list)
     beyond_bound: bool = False      # larger than the effect can physically be: stands for something else, not simulated
+    std_err: dict | None = None     # standard errors of the fitted parameter (None: not a fitted term)
+    not_identified: list = field(default_factory=list)   # its components this trajectory does not identify
 
     def to_json(self) -> dict:
         out = {"effect": self.effect, "channel": self.channel, "params": self.params, "evidence": self.evidence,
                "fit_before": self.fit_before, "fit_after": self.fit_after, "where": self.where}
+        if self.std_err is not None:
+            out["std_err"], out["not_identified"] = self.std_err, self.not_identified
         if self.anchors:
             out["anchors"] = self.anchors
         if self.look_alikes:
@@ -851,11 +882,27 @@ def _finding(problem: Problem, channel: Channel, term: Term, effect: fx.Effect, 
     scale = channel.scale[rows]
     z_without = z_with + term.columns @ theta
     anchors = [term.candidate.fixed["anchor"]] if "anchor" in term.candidate.fixed else []
+    std_err, not_identified = _uncertainty(term)
     return Finding(effect.name, channel.name, anchors, rounded_floats(effect.params()), round(float(term.evidence), 2),
                    robust_rms(z_without[rows] * scale, scale), robust_rms(z_with[rows] * scale, scale),
                    _where(problem, channel, term, rows, z_with, theta),
                    [{"candidate": key, "evidence": gain} for key, gain in term.look_alikes],
-                   not simulated or bool(np.abs(term.estimate).max() > term.candidate.bound))
+                   not simulated or bool(np.abs(term.estimate).max() > term.candidate.bound),
+                   std_err, not_identified)
+
+
+def _uncertainty(term: Term) -> tuple[dict, list[str]]:
+    """The estimate's standard errors, keyed like its parameter (an NLOS term fits the
+    mean shift, fraction × mean excess), and the components whose standard error is
+    more than IDENTIFIED_SD_SHARE of the prior: the trajectory does not tell them
+    apart from the simpler explanations, and their values are mostly the prior's."""
+    c = term.candidate
+    name = "mean_shift_m" if c.effect == "nlos" else c.param
+    sd = term.std_err
+    vague = np.flatnonzero(sd > IDENTIFIED_SD_SHARE * c.prior)
+    if c.size == 1:
+        return {name: round(float(sd[0]), 6)}, [name] if len(vague) else []
+    return {name: rounded_floats(sd.tolist())}, [f"{name}[{i}]" for i in vague]
 
 
 def _floor_finding(problem: Problem, residual: np.ndarray) -> Finding | None:

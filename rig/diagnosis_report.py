@@ -82,11 +82,14 @@ def _markdown(diagnosis: Diagnosis, report: dict, images: list[tuple[str, str]])
     for k, f in enumerate(diagnosis.findings, 1):
         alike = (" Nearly as good an explanation: " + ", ".join(a["candidate"] for a in f.look_alikes) + "."
                  if f.look_alikes else "")
+        vague = (" Not identified by this trajectory (standard error most of the prior's, the value is mostly "
+                 "the prior's): " + ", ".join(f.not_identified) + "." if f.not_identified else "")
         lines.append(f"{k}. **{f.effect}**: {describe(f)}. Evidence {f.evidence:.1f}; the affected "
-                     f"{f.channel} samples' mismatch goes from {f.fit_before:.4g} to {f.fit_after:.4g}.{alike}")
+                     f"{f.channel} samples' mismatch goes from {f.fit_before:.4g} to {f.fit_after:.4g}.{alike}{vague}")
     lines += ["", "Evidence is the robust loss an effect removes given the others but its richer look-alikes "
               "(about half a chi-square); larger is stronger. Parameters are estimated given the simpler "
-              "explanations only, so they compare between recordings of the same flight. Look-alikes: an "
+              "explanations only, so they compare between recordings of the same flight; report.json gives "
+              "each one's standard error (`std_err`). Look-alikes: an "
               "anchor displacement along the line of sight reads as a delay, and a second-order antenna "
               "pattern over a small range of viewing angles as a displacement; an accelerometer scale on z "
               "reads as a bias in hover. Once one anchor's delay is supported, every anchor's delay is reported "

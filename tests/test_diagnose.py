@@ -27,10 +27,12 @@ NOISE = [{"effect": "tdoa_noise", "params": {"std_m": 0.15}},
 REAL_FLIGHT = "0426-traj1"
 
 
-def sim_config(survey: Path, effects: list[dict]) -> SimConfig:
-    """A circle with a vertical sine and a yaw swing (so thrust and yaw rate vary)."""
+def sim_config(survey: Path, effects: list[dict], flight: dict | None = None) -> SimConfig:
+    """A circle with a vertical sine and a yaw swing (so thrust and yaw rate vary);
+    `flight` changes the circle (trajectory parameters)."""
     return SimConfig(trajectory="circle-sine", survey=str(survey), duration=40.0, seed=3,
-                     trajectory_params={"yaw_amplitude": 1.0, "yaw_omega": 0.5}, effects=NOISE + effects)
+                     trajectory_params={"yaw_amplitude": 1.0, "yaw_omega": 0.5, **(flight or {})},
+                     effects=NOISE + effects)
 
 
 @pytest.fixture(scope="module")
@@ -116,12 +118,15 @@ CASES = {
 WHERE = {"imu_accel_bias": ("axes", ["y"]), "imu_gyro_bias": ("axes", ["z"]), "imu_accel_scale": ("axes", ["z"]),
          "imu_gyro_scale": ("axes", ["z"])}
 
+# An antenna pattern needs the anchor seen from a wide range of angles: over the few
+# tens of degrees the suite's circle spans it reads as a displaced anchor (see
+# test_a_pattern_seen_in_a_narrow_cone_reads_as_a_displaced_anchor). Its case flies a
+# wider circle that passes within a metre of the anchor (2).
+SIM_FLIGHT = {"antenna_pattern": {"center": [1.5, 1.5], "radius": 2.5, "z_amplitude": 0.8}}
 NOT_ON_SIM = {
-    "antenna_pattern": "over this flight's viewing angles the pattern reads as a displaced anchor (look-alike)",
     "nlos": "a half-space NLOS region is fitted as a displaced anchor before the NLOS search",
 }
 NOT_ON_REAL = {
-    "antenna_pattern": "real flights already carry larger pattern-like biases on every anchor",
     "imu_gyro_scale": "these flights hardly rotate (0.03 rad/s RMS over 1 s blocks): a 10 % scale is a 2-sigma "
                       "signal over the flight, and the flight's own apparent z scale (-0.11, the ground truth's "
                       "rotation noise) nearly cancels the added +0.1",
@@ -144,6 +149,7 @@ def _check(found: dict, control: dict, name: str, params: dict, check, real: boo
             elif isinstance(value, list) and field not in ("during",):
                 neutral = 1.0 if "scale" in name else 0.0
                 got[field] = (np.array(got[field]) - np.array(value) + neutral).tolist()
+    _check_unidentified(found[key], got, params)
     assert check(got, params, REAL_SLACK if real else 1.0), f"{name}: got {got}, injected {params}"
     assert found[key]["fit_after"] < found[key]["fit_before"]
     if name in WHERE:                # on a real flight, the axes of the flight's own biases come too
@@ -154,14 +160,38 @@ def _check(found: dict, control: dict, name: str, params: dict, check, real: boo
         assert found[key]["where"]["anchors"] == [params["anchor"]]
 
 
+UNIDENTIFIED_SE = 2.0      # a component the tool says it cannot identify: within this many standard errors
+
+
+def _check_unidentified(finding: dict, got: dict, params: dict) -> None:
+    """Components of a vector parameter that the tool reports as not identified by the
+    trajectory (their standard error is most of their prior's) must agree with the
+    injected value within their standard error, and are then taken as recovered; at
+    least one component must be identified. Identified ones face the tolerance."""
+    for label in finding.get("not_identified", []):
+        field, _, index = label.partition("[")
+        assert index, f"a whole parameter is not identified: {label}"
+        i = int(index.rstrip("]"))
+        std_err = finding["std_err"][field][i]
+        assert abs(got[field][i] - params[field][i]) <= UNIDENTIFIED_SE * std_err, \
+            f"{label}: got {got[field][i]:.3f} ± {std_err:.3f}, injected {params[field][i]}"
+        got[field] = [params[field][i] if j == i else v for j, v in enumerate(got[field])]
+    for field, value in params.items():
+        if isinstance(value, list):
+            named = [label for label in finding.get("not_identified", []) if label.startswith(f"{field}[")]
+            assert len(named) < len(value), f"no component of {field} is identified"
+
+
 @pytest.mark.parametrize("name", [pytest.param(n, marks=_mark(n, NOT_ON_SIM)) for n in CASES])
 def test_a_concealed_effect_in_a_simulated_flight_is_named_located_and_measured(name, survey, sim_control) -> None:
     params, check = CASES[name]
-    effect = {"effect": name, "params": params}
-    rec = simulate(sim_config(survey, [effect]))
-    concealed(simulate(sim_config(survey, [])), effect)
-    assert sim_control == {} or all(k[0] != name for k in sim_control)
-    _check(findings(diagnose(rec)), sim_control, name, params, check)
+    effect, flight = {"effect": name, "params": params}, SIM_FLIGHT.get(name)
+    rec = simulate(sim_config(survey, [effect], flight))
+    untouched = simulate(sim_config(survey, [], flight))
+    concealed(untouched, effect)
+    control = findings(diagnose(untouched)) if flight else sim_control
+    assert all(k[0] != name for k in control)
+    _check(findings(diagnose(rec)), control, name, params, check)
 
 
 @pytest.mark.parametrize("name", [pytest.param(n, marks=_mark(n, NOT_ON_REAL)) for n in CASES])
@@ -208,6 +238,14 @@ def test_a_displacement_along_the_line_of_sight_reads_as_a_delay(survey) -> None
         {"effect": "anchor_position", "params": {"anchor": 3, "offset_m": offset}}]))))
     assert ("anchor_delay", (3,)) in found and ("anchor_position", (3,)) not in found
     assert 0.08 < found[("anchor_delay", (3,))]["params"]["meters"] < 0.2
+
+
+def test_a_pattern_seen_in_a_narrow_cone_reads_as_a_displaced_anchor(survey) -> None:
+    """Not identifiable from the suite's circle, whose viewing angles of anchor 2 span a
+    few tens of degrees: documented, and the tool names the displaced anchor."""
+    params = CASES["antenna_pattern"][0]
+    found = findings(diagnose(simulate(sim_config(survey, [{"effect": "antenna_pattern", "params": params}]))))
+    assert ("anchor_position", (2,)) in found and ("antenna_pattern", (2,)) not in found
 
 
 def test_cli_writes_the_report_contract(tmp_path: Path, survey) -> None:
