@@ -129,14 +129,19 @@ def irls(z: np.ndarray, x: np.ndarray, prior: np.ndarray | None = None, iteratio
     theta = np.zeros(x.shape[1])
     ridge = np.diag(np.full(x.shape[1], 1e-9) if prior is None else 1.0 / np.asarray(prior, float) ** 2)
     for _ in range(iterations):
-        w = huber_weight(z - x @ theta)
-        xw = x * w[:, None]
-        a = xw.T @ x + ridge
-        new = np.linalg.solve(a, xw.T @ z)
+        gram, moment = weighted_normal(z, x, theta)
+        new = np.linalg.solve(gram + ridge, moment)
         if np.allclose(new, theta, atol=1e-10, rtol=1e-6):
             return new
         theta = new
     return theta
+
+
+def weighted_normal(z: np.ndarray, x: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The normal equations of z ≈ x theta with the Huber weights of the residual at
+    `theta`: XᵀWX and XᵀWz."""
+    xw = x * huber_weight(z - x @ theta)[:, None]
+    return xw.T @ x, xw.T @ z
 
 
 def robust_rms(residual: np.ndarray, scale: np.ndarray) -> float:
@@ -415,13 +420,11 @@ class _Design:
         self.x, prior = _stack(terms)
         self.ridge = 1.0 / prior ** 2
         self.theta = irls(z, self.x, prior)
-        w = huber_weight(z - self.x @ self.theta)
         self.slices, at = {}, 0
         for t in terms:
             self.slices[id(t)] = np.arange(at, at + t.columns.shape[1])
             at += t.columns.shape[1]
-        xw = self.x * w[:, None]
-        self.gram, self.moment = xw.T @ self.x, xw.T @ z
+        self.gram, self.moment = weighted_normal(z, self.x, self.theta)
 
     def _columns(self, terms: list[Term]) -> np.ndarray:
         return np.concatenate([self.slices[id(t)] for t in terms]) if terms else np.zeros(0, int)
@@ -469,8 +472,7 @@ def posterior_sd(z: np.ndarray, x: np.ndarray, prior: np.ndarray, theta: np.ndar
     not separate a parameter from the others it approaches its prior's. The `gauge`
     parameters (a family of delays) are taken relative to their mean, as they are
     reported: the common delay TDOA cannot see does not blur each one."""
-    xw = x * huber_weight(z - x @ theta)[:, None]
-    normal = xw.T @ x + np.diag(1.0 / prior ** 2)
+    normal = weighted_normal(z, x, theta)[0] + np.diag(1.0 / prior ** 2)
     if gauge is not None and gauge.any():
         normal += GAUGE_WEIGHT * np.outer(gauge, gauge).astype(float)
     return np.sqrt(np.diag(np.linalg.inv(normal)))
@@ -901,7 +903,7 @@ def _uncertainty(term: Term) -> tuple[dict, list[str]]:
     sd = term.std_err
     vague = np.flatnonzero(sd > IDENTIFIED_SD_SHARE * c.prior)
     if c.size == 1:
-        return {name: round(float(sd[0]), 6)}, [name] if len(vague) else []
+        return {name: rounded_floats(float(sd[0]))}, [name] if len(vague) else []
     return {name: rounded_floats(sd.tolist())}, [f"{name}[{i}]" for i in vague]
 
 
