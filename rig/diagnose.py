@@ -27,8 +27,12 @@ Method, per channel (TDOA, accelerometer, gyroscope):
    this trajectory: the data hardly told it apart from the simpler explanations.
 5. Effects that may be confined in time are tried on windows of the flight; NLOS
    candidates get a region found on the training blocks only (held out), on what
-   the parametric candidates leave; the floor multipath is a noise-level effect
-   judged on the local TDOA noise (what a running median leaves) below a height.
+   the parametric candidates leave; an NLOS the mean shift misses (a region so
+   large that a displacement takes the shift) is found by the shape of the residuals
+   (rig.nlos_mixture: a positive exponential tail, held out), its mean excess taken
+   out and the effects named again on what is left; the floor multipath is a
+   noise-level effect judged on the local TDOA noise (what a running median leaves)
+   below a height.
 6. The named effects, fitted jointly, re-simulate the recording (each channel's
    mismatch before and after); each finding's `fit_before`/`fit_after` is the
    robust RMS mismatch of its affected samples under that model without and with it.
@@ -37,12 +41,13 @@ Method, per channel (TDOA, accelerometer, gyroscope):
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.ndimage import uniform_filter1d
 
 from rig import effects as fx
+from rig import nlos_mixture
 from rig.recording import Recording, Vec3Series
 from rig.simulate import Predictor
 
@@ -57,6 +62,7 @@ IDENTIFIED_SD_SHARE = 0.5      # a parameter is identified when its standard err
 TIME_BLOCKS = 10               # resolution of "only in part of the flight"
 MIN_SAMPLES = 50
 EDGE_S = 0.5                   # ignore samples this close to the ends of the ground truth
+ON_GROUND_M = 0.2              # a tag this low sits on the floor or is taking off or landing (transients): left out
 # IMU channels compare block means: the gyroscope's against rotation increments of the
 # ground truth, whose attitude noise differentiated over less than a second drowns
 # the small rates of these flights (and would dilute a fitted scale factor).
@@ -518,7 +524,8 @@ def _judge(z: np.ndarray, terms: list[Term], design: _Design) -> None:
         t.evidence = judges[id(t)].gain(t, _richer(t, terms))
 
 
-def select(problem: Problem, channel: Channel, pool: list[Candidate]) -> list[Term]:
+def select(problem: Problem, channel: Channel, pool: list[Candidate]
+           ) -> tuple[list[Term], Channel, list[nlos_mixture.NlosShapeFit]]:
     """The channel's effects, named and measured.
 
     Which terms are named is decided by backward elimination (_name). A named term's
@@ -528,23 +535,36 @@ def select(problem: Problem, channel: Channel, pool: list[Candidate]) -> list[Te
     ones cannot explain), and whether a richer effect is named or not does not move
     the simpler ones' estimates; so what an effect added to a recording changes in
     them is mostly that effect (a comparison with a control recording needs that).
-    NLOS regions are searched on what all parametric candidates leave; named effects
-    are tried confined in time; the named effects, fitted jointly, are the model that
-    re-simulates the recording."""
+    NLOS regions are searched on what all parametric candidates leave, first as a
+    mean shift, then by the shape of the residuals (nlos_mixture); the mean excess
+    of an NLOS found by its shape is taken out of the channel and the named terms
+    named again on what is left (over half the flight a displacement would take it);
+    named effects are tried confined in time; the named effects, fitted jointly, are
+    the model that re-simulates the recording. Returns the terms, the channel they
+    were fitted on and the NLOS found by shape."""
     z, folds = channel.z, channel.folds()
     terms = [Term(c, c.columns) for c in pool if c.channel == channel.name]
     named = _name(z, terms)
+    shapes = []
     if channel.name == "tdoa":
         nlos = _nlos_terms(problem, channel, folds, terms)
         if nlos:
             terms += nlos
             named = _name(z, named + nlos)
     _refit(z, named)                 # the NLOS search refits every candidate
+    if channel.name == "tdoa":
+        taken = {t.candidate.fixed["anchor"] for t in named if t.candidate.effect == "nlos"}
+        shapes = _nlos_shapes(problem, channel, _left(z, named), taken)
+        if shapes:
+            channel = replace(channel, residual=channel.residual - _shape_excess(problem, shapes))
+            z = channel.z
+            named = _name(z, named)
+            _refit(z, named)
     if _confine_in_time(channel, named):
         named = _name(z, named)      # leaves them fitted jointly
     _estimate(z, named)
     _note_look_alikes(z, named, terms)
-    return named
+    return named, channel, shapes
 
 
 def _nlos_terms(problem: Problem, channel: Channel, folds: np.ndarray, kept: list[Term]) -> list[Term]:
@@ -698,10 +718,43 @@ def nlos_shape(excess: np.ndarray, outside: np.ndarray, mean_shift: float) -> tu
     return float(min(1.0, mean_shift / mean_excess)), float(mean_excess)
 
 
+NLOS_SHAPE_PARAMETERS = 6     # fraction, mean excess and the box's four sides
+
+
+def _nlos_shapes(problem: Problem, channel: Channel, z: np.ndarray,
+                 taken: set[int]) -> list[nlos_mixture.NlosShapeFit]:
+    """NLOS found by the shape of each anchor's residuals (z: what the named effects
+    leave), on anchors without an NLOS region already, airborne samples only; kept
+    when the held-out gain pays for its parameters like any other effect's."""
+    cost = MIN_EVIDENCE + PENALTY_PER_PARAMETER * NLOS_SHAPE_PARAMETERS
+    positions, folds = problem.tag_positions(), channel.folds()
+    found = []
+    for k in problem.anchor_ids:
+        sign = problem.anchor_sign(k)
+        rows = (sign != 0) & (positions[:, 2] >= ON_GROUND_M)
+        if k in taken or rows.sum() < MIN_SAMPLES:
+            continue
+        fit = nlos_mixture.fit_anchor(k, positions[rows], (sign * z)[rows], folds[rows], float(channel.scale[0]),
+                                      min_gain=cost)
+        if fit is not None and fit.evidence >= cost:
+            log.info("%s: + nlos:%d by its shape (held-out gain %.1f)", channel.name, k, fit.evidence)
+            found.append(fit)
+    return found
+
+
+def _shape_excess(problem: Problem, shapes: list[nlos_mixture.NlosShapeFit]) -> np.ndarray:
+    """The mean excess the NLOS found by shape adds to each row, in metres."""
+    return problem.predict_channel("tdoa", [_shape_effect(f) for f in shapes]) - problem.predict_channel("tdoa", [])
+
+
+def _shape_effect(fit: nlos_mixture.NlosShapeFit) -> fx.Effect:
+    return fx.make_effect("nlos", {"anchor": fit.anchor, "fraction": fit.fraction,
+                                   "mean_excess_m": fit.mean_excess_m, "region": fit.region.to_json()})
+
+
 # ----------------------------------------------------------------------------- floor multipath
 
 FLOOR_HEIGHTS_M = (0.25, 0.4, 0.6, 0.8, 1.0)
-ON_GROUND_M = 0.2             # a tag this low sits on the floor or is taking off or landing (transients): left out
 
 
 def _nll(r: np.ndarray, sigma: np.ndarray | float) -> np.ndarray:
@@ -821,8 +874,10 @@ def diagnose(rec: Recording, progress=None) -> Diagnosis:
     before = problem.residual_before
     findings, model, names = [], [], list(before)
     for name in progress(names) if progress else names:
-        channel = problem.channel(name)
-        terms = select(problem, channel, pool)          # fitted jointly
+        terms, channel, shapes = select(problem, problem.channel(name), pool)     # fitted jointly
+        for fit in shapes:
+            findings.append(_shape_finding(problem, fit))
+            model.append(_shape_effect(fit))
         z_named = _left(channel.z, terms)
         named_theta = {id(t): t.theta for t in terms}
         simulated = {id(t) for t in _model_terms(channel.z, terms)}
@@ -891,6 +946,18 @@ def _finding(problem: Problem, channel: Channel, term: Term, effect: fx.Effect, 
                    [{"candidate": key, "evidence": gain} for key, gain in term.look_alikes],
                    not simulated or bool(np.abs(term.estimate).max() > term.candidate.bound),
                    std_err, not_identified)
+
+
+def _shape_finding(problem: Problem, fit: nlos_mixture.NlosShapeFit) -> Finding:
+    """An NLOS found by its shape: its fit is the likelihood of the anchor's residuals
+    inside the region (a noise-level effect, like the floor's)."""
+    inside = fit.region.contains(problem.tag_positions()) & (problem.anchor_sign(fit.anchor) != 0)
+    effect = _shape_effect(fit)
+    return Finding("nlos", "tdoa", [fit.anchor], rounded_floats(effect.params()), round(fit.evidence, 2),
+                   fit.nll_before, fit.nll_after,
+                   {"time": _span(problem.times("tdoa")[inside]), "region": fit.region.to_json(),
+                    "anchors": [fit.anchor], "found_by": "shape (a positive exponential tail)",
+                    "fit_unit": "mean negative log-likelihood per sample (a noise-level effect)"})
 
 
 def _uncertainty(term: Term) -> tuple[dict, list[str]]:
