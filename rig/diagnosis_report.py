@@ -39,6 +39,10 @@ UNITS = {"tdoa": "m", "accel": "m/s²", "gyro": "rad/s"}
 
 def describe(finding: Finding) -> str:
     params = {k: (np.round(v, 3).tolist() if isinstance(v, list) else v) for k, v in finding.params.items()}
+    if isinstance(params.get("region"), dict):
+        box = params["region"]
+        params["region"] = ", ".join(f"{axis} {low:.2f}…{high:.2f}" for axis, low, high
+                                     in zip("xyz", box["min"], box["max"])) + " m"
     text = PLAIN.get(finding.effect, finding.effect + " {}").format(**params)
     if "during" in finding.params:
         text += f", from {finding.params['during'][0]:.1f} s to {finding.params['during'][1]:.1f} s only"
@@ -85,7 +89,8 @@ def _markdown(diagnosis: Diagnosis, report: dict, images: list[tuple[str, str]])
         vague = (" Not identified by this trajectory (standard error most of the prior's, the value is mostly "
                  "the prior's): " + ", ".join(f.not_identified) + "." if f.not_identified else "")
         lines.append(f"{k}. **{f.effect}**: {describe(f)}. Evidence {f.evidence:.1f}; the affected "
-                     f"{f.channel} samples' mismatch goes from {f.fit_before:.4g} to {f.fit_after:.4g}.{alike}{vague}")
+                     f"{f.channel} samples' mismatch goes from {f.fit_before:.4g} to {f.fit_after:.4g}"
+                     f"{_unit(f)}.{alike}{vague}")
     lines += ["", "Evidence is the robust loss an effect removes given the others but its richer look-alikes "
               "(about half a chi-square); larger is stronger. Parameters are estimated given the simpler "
               "explanations only, so they compare between recordings of the same flight; report.json gives "
@@ -97,6 +102,12 @@ def _markdown(diagnosis: Diagnosis, report: dict, images: list[tuple[str, str]])
     for title, name in images:
         lines += [f"## {title}", "", f"![{title}]({name})", ""]
     return "\n".join(lines)
+
+
+def _unit(f: Finding) -> str:
+    """Noise-level effects (floor multipath, NLOS found by its shape) measure their
+    fit as a likelihood, not a robust RMS: say so."""
+    return f" ({f.where['fit_unit']})" if "fit_unit" in f.where else ""
 
 
 def _change(c: dict) -> str:
