@@ -556,7 +556,8 @@ def select(problem: Problem, channel: Channel, pool: list[Candidate]
         taken = {t.candidate.fixed["anchor"] for t in named if t.candidate.effect == "nlos"}
         shapes = _nlos_shapes(problem, channel, _left(z, named), taken)
         if shapes:
-            channel = replace(channel, residual=channel.residual - _shape_excess(problem, shapes))
+            residual = problem.recorded("tdoa") - problem.predict_channel("tdoa", [f.effect() for f in shapes])
+            channel = replace(channel, residual=residual)
             z = channel.z
             named = _name(z, named)
             _refit(z, named)
@@ -742,16 +743,6 @@ def _nlos_shapes(problem: Problem, channel: Channel, z: np.ndarray,
     return found
 
 
-def _shape_excess(problem: Problem, shapes: list[nlos_mixture.NlosShapeFit]) -> np.ndarray:
-    """The mean excess the NLOS found by shape adds to each row, in metres."""
-    return problem.predict_channel("tdoa", [_shape_effect(f) for f in shapes]) - problem.predict_channel("tdoa", [])
-
-
-def _shape_effect(fit: nlos_mixture.NlosShapeFit) -> fx.Effect:
-    return fx.make_effect("nlos", {"anchor": fit.anchor, "fraction": fit.fraction,
-                                   "mean_excess_m": fit.mean_excess_m, "region": fit.region.to_json()})
-
-
 # ----------------------------------------------------------------------------- floor multipath
 
 FLOOR_HEIGHTS_M = (0.25, 0.4, 0.6, 0.8, 1.0)
@@ -877,7 +868,7 @@ def diagnose(rec: Recording, progress=None) -> Diagnosis:
         terms, channel, shapes = select(problem, problem.channel(name), pool)     # fitted jointly
         for fit in shapes:
             findings.append(_shape_finding(problem, fit))
-            model.append(_shape_effect(fit))
+            model.append(fit.effect())
         z_named = _left(channel.z, terms)
         named_theta = {id(t): t.theta for t in terms}
         simulated = {id(t) for t in _model_terms(channel.z, terms)}
@@ -952,7 +943,7 @@ def _shape_finding(problem: Problem, fit: nlos_mixture.NlosShapeFit) -> Finding:
     """An NLOS found by its shape: its fit is the likelihood of the anchor's residuals
     inside the region (a noise-level effect, like the floor's)."""
     inside = fit.region.contains(problem.tag_positions()) & (problem.anchor_sign(fit.anchor) != 0)
-    effect = _shape_effect(fit)
+    effect = fit.effect()
     return Finding("nlos", "tdoa", [fit.anchor], rounded_floats(effect.params()), round(fit.evidence, 2),
                    fit.nll_before, fit.nll_after,
                    {"time": _span(problem.times("tdoa")[inside]), "region": fit.region.to_json(),

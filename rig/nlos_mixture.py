@@ -228,9 +228,14 @@ class NlosShapeFit:
     nll_before: float                # mean negative log-likelihood per sample inside, base only
     nll_after: float                 # ... with the NLOS mixture
 
+    def effect(self) -> fx.Effect:
+        return fx.make_effect("nlos", {"anchor": self.anchor, "fraction": self.fraction,
+                                       "mean_excess_m": self.mean_excess_m, "region": self.region.to_json()})
+
 
 def _fit_in(positions: np.ndarray, s: np.ndarray):
-    """Box, base and both shapes on these samples (None: no box)."""
+    """Box, base, both shapes and the binned samples inside, on these samples (None:
+    no box)."""
     region = scan_box(positions, s)
     if region is None:
         return None
@@ -238,8 +243,8 @@ def _fit_in(positions: np.ndarray, s: np.ndarray):
     if inside.sum() < MIN_SAMPLES or (~inside).sum() < MIN_SAMPLES:
         return None
     base = Base.fit(Binned.of(s[~inside]))
-    null, mixture = fit_shapes(Binned.of(s[inside]), base)
-    return region, base, null, mixture
+    data = Binned.of(s[inside])
+    return (region, base, *fit_shapes(data, base), data)
 
 
 def held_out_gain(positions: np.ndarray, s: np.ndarray, folds: np.ndarray) -> float:
@@ -250,7 +255,7 @@ def held_out_gain(positions: np.ndarray, s: np.ndarray, folds: np.ndarray) -> fl
         fit = _fit_in(positions[train], s[train])
         if fit is None:
             continue
-        region, base, null, mixture = fit
+        region, base, null, mixture, _ = fit
         inside = Binned.of(s[test][region.contains(positions[test])])
         if inside.n:
             gain += mixture.log_likelihood(inside, base) - null.log_likelihood(inside, base)
@@ -266,8 +271,7 @@ def fit_anchor(anchor: int, positions: np.ndarray, s: np.ndarray, folds: np.ndar
     fit = _fit_in(positions, s)
     if fit is None:
         return None
-    region, base, null, mixture = fit
-    inside = Binned.of(s[region.contains(positions)])
+    region, base, null, mixture, inside = fit
     gain = mixture.log_likelihood(inside, base) - null.log_likelihood(inside, base)
     if gain < min_gain or mixture.fraction <= 0:
         return None
