@@ -20,6 +20,9 @@ from rig.recording import PoseSeries
 GRAVITY = 9.81
 RAMP = 2.0  # s over which a pattern speeds up after take-off and slows down before landing
 _H = 1e-3  # step of the central differences (s)
+# Motion-capture attitude is averaged over this long (s) before it is differentiated:
+# see RecordedTrajectory. A comparison with the gyroscope averages it over as long.
+ATTITUDE_WINDOW_S = 0.2
 
 
 class Trajectory:
@@ -183,12 +186,18 @@ class SmoothRandomTrajectory(PatternTrajectory):
 
 class RecordedTrajectory(Trajectory):
     """A recording's ground truth made smooth: smoothing splines on position,
-    a rotation spline on (decimated) attitude.
+    a rotation spline on attitude averaged over short windows.
 
     `smoothing` is the spline's penalty weight (s⁴·m⁻² scale); the GCV choice
-    follows the motion-capture noise and makes accelerations far too rough."""
+    follows the motion-capture noise and makes accelerations far too rough.
+    Motion-capture attitude carries white noise of a few tenths of a degree per
+    pose: a spline through single poses turns it into rate noise that, over the
+    small rotations of these flights, dilutes a fitted gyroscope scale by ~10 %.
+    Averaging over `attitude_window` seconds divides it by √(poses in a window); the
+    rates it leaves are the true ones averaged over as long."""
 
-    def __init__(self, truth: PoseSeries, attitude_step: float = 0.02, smoothing: float = 1e-3):
+    def __init__(self, truth: PoseSeries, attitude_step: float = 0.02, attitude_window: float = ATTITUDE_WINDOW_S,
+                 smoothing: float = 1e-3):
         if len(truth) < 10:
             raise ValueError("ground truth too short to fly (fewer than 10 poses)")
         t, keep = np.unique(truth.t, return_index=True)
@@ -196,11 +205,10 @@ class RecordedTrajectory(Trajectory):
         quat = truth.quaternion[keep]
         self.t_start, self.t_end = float(t[0]), float(t[-1])
         self._splines = [make_smoothing_spline(t, pos[:, i], lam=smoothing) for i in range(3)]
-        # Decimate attitude: mocap attitude noise differentiated at 300 Hz swamps the gyro signal.
-        grid = np.arange(self.t_start, self.t_end, attitude_step)
-        idx = np.unique(np.searchsorted(t, grid).clip(0, len(t) - 1))
-        self._rot = RotationSpline(t[idx], Rotation.from_quat(quat[idx]))
-        self._rot_span = (t[idx][0], t[idx][-1])
+        knots = np.arange(self.t_start, self.t_end, attitude_step)
+        self._rot = RotationSpline(knots, Rotation.from_quat(windowed_mean_quaternion(t, quat, knots,
+                                                                                      attitude_window)))
+        self._rot_span = (knots[0], knots[-1])
 
     def position(self, t: np.ndarray) -> np.ndarray:
         return np.stack([s(t) for s in self._splines], axis=-1)
@@ -213,6 +221,21 @@ class RecordedTrajectory(Trajectory):
 
     def rotation(self, t: np.ndarray) -> Rotation:
         return self._rot(np.clip(np.asarray(t, float), *self._rot_span))
+
+
+def windowed_mean_quaternion(t: np.ndarray, quat: np.ndarray, at: np.ndarray, window: float) -> np.ndarray:
+    """The mean attitude of the poses within ±window/2 of each time in `at` (at least
+    the nearest pose). Quaternions are made sign-continuous first, so a normalised sum
+    over a window of small rotations is their mean."""
+    q = np.array(quat, float)
+    flip = np.cumsum(np.einsum("ij,ij->i", q[1:], q[:-1]) < 0) % 2 == 1
+    q[1:][flip] *= -1.0
+    cumulative = np.vstack([np.zeros(4), np.cumsum(q, axis=0)])
+    lo = np.searchsorted(t, at - window / 2, side="left")
+    hi = np.maximum(np.searchsorted(t, at + window / 2, side="right"), lo + 1).clip(max=len(t))
+    lo = np.minimum(lo, hi - 1)
+    total = cumulative[hi] - cumulative[lo]
+    return total / np.linalg.norm(total, axis=1, keepdims=True)
 
 
 TRAJECTORIES = {"circle", "circle-sine", "smooth-random"}

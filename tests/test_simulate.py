@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 from conftest import FULL_PRECISION, ROOT, run_rig, simulate_exact
 from rig.recording import Recording, read_recording, write_recording
 from rig.simulate import SimConfig, simulate
-from rig.trajectory import GRAVITY
+from rig.trajectory import GRAVITY, windowed_mean_quaternion
 
 def _strapdown(rec: Recording) -> np.ndarray:
     """Integrate the IMU from the true initial state (midpoint rule). Returns positions at IMU times."""
@@ -122,3 +122,23 @@ def test_simulating_a_recordings_own_trajectory(tmp_path: Path, data_dir: Path) 
     flying = np.interp(t, real.truth.t, real.truth.position[:, 2]) > 0.5
     assert np.median(np.abs(sim.accel.xyz[flying, 2] - real_z[flying])) < 0.5
     assert np.corrcoef(sim.accel.xyz[flying, 2], real_z[flying])[0, 1] > 0.3
+
+
+def test_windowed_mean_attitude_averages_out_pose_noise_across_sign_flips() -> None:
+    """Motion-capture attitude noise averaged over a window drops by √(poses); a pose
+    reported as −q (the same rotation) must not cancel its neighbours."""
+    t = np.arange(0.0, 10.0, 1 / 300)
+    def yaw(times: np.ndarray) -> Rotation:
+        return Rotation.from_euler("z", 0.2 * np.sin(times)[:, None])
+
+    true = yaw(t)
+    rng = np.random.default_rng(1)
+    noisy = (Rotation.from_rotvec(rng.normal(0.0, 0.006, (len(t), 3))) * true).as_quat()
+    noisy[::7] *= -1.0
+    at = np.arange(1.0, 9.0, 0.02)
+    mean = Rotation.from_quat(windowed_mean_quaternion(t, noisy, at, 0.2))
+    nearest = np.searchsorted(t, at)
+    error = np.linalg.norm((mean * yaw(at).inv()).as_rotvec(), axis=1)
+    single = np.linalg.norm((Rotation.from_quat(noisy[nearest]) * yaw(t[nearest]).inv()).as_rotvec(), axis=1)
+    assert np.sqrt(np.mean(error ** 2)) < np.sqrt(np.mean(single ** 2)) / 5     # √60 ≈ 7.7 fewer
+
