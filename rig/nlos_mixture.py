@@ -34,6 +34,7 @@ WIDE_FACTOR = 5.0          # the base's wide component, in core standard deviati
 MAX_SHARE = 0.3            # largest share of the base's outlier or wide component
 MIN_SHARE = 1e-4
 MIN_EXCESS = 0.05          # smallest exponential mean fitted, in noise standard deviations
+LOG_SIZE_LIMIT = 7.0       # a fitted size (spread, exponential mean) stays within e^±7 noise standard deviations
 MAX_FRACTION = 0.98
 GRID_BINS = 8              # boxes are spanned by this many quantile bins of x and of y
 MIN_BOX_SHARE = 0.05       # a box holds at least this share of the anchor's samples ...
@@ -76,6 +77,12 @@ def log_normal(x: np.ndarray, mu: float, sigma: float) -> np.ndarray:
     return -0.5 * ((x - mu) / sigma) ** 2 - np.log(sigma * np.sqrt(2 * np.pi))
 
 
+def _size(log_size: float) -> float:
+    """A positive size from its logarithm, which the simplex search may push far out:
+    bounded, so a stray trial point costs a poor likelihood, not an overflow."""
+    return float(np.exp(np.clip(log_size, -LOG_SIZE_LIMIT, LOG_SIZE_LIMIT)))
+
+
 def _share(p: float) -> float:
     return MIN_SHARE + (MAX_SHARE - MIN_SHARE) * float(expit(p))
 
@@ -98,7 +105,7 @@ class Base:
 
     @classmethod
     def from_vector(cls, p: np.ndarray) -> "Base":
-        return cls(float(p[0]), float(np.exp(p[1])), _share(p[2]), max(float(np.exp(p[3])), MIN_EXCESS), _share(p[4]))
+        return cls(float(p[0]), _size(p[1]), _share(p[2]), max(_size(p[3]), MIN_EXCESS), _share(p[4]))
 
     @classmethod
     def fit(cls, data: Binned) -> "Base":
@@ -134,7 +141,7 @@ def fit_shapes(data: Binned, base: Base) -> tuple[Shape, Shape]:
     null = Shape(float(shifted))
 
     def mixture(p):
-        return Shape(float(p[0]), MAX_FRACTION * float(expit(p[1])), max(float(np.exp(p[2])), MIN_EXCESS))
+        return Shape(float(p[0]), MAX_FRACTION * float(expit(p[1])), max(_size(p[2]), MIN_EXCESS))
     best = min((minimize(lambda p: -mixture(p).log_likelihood(data, base), [shifted, -1.0, np.log(mean)],
                          method="Nelder-Mead", options={"maxiter": 600, "xatol": 1e-3, "fatol": 1e-3})
                 for mean in (0.7, 2.5)), key=lambda r: r.fun)

@@ -47,3 +47,11 @@ def test_outliers_everywhere_and_a_shift_are_not_nlos() -> None:
     s = s + 0.8 * inside                     # a bias in part of the flight: a shift, no tail
     fit = nm.fit_anchor(6, positions, s, folds, scale=0.2, min_gain=-np.inf)
     assert fit is None or fit.evidence < 10.0
+
+
+def test_a_stray_simplex_point_costs_likelihood_not_an_overflow() -> None:
+    """The simplex search once pushed a log-spread to hundreds (a real flight,
+    0425-traj10): the sizes are bounded, so the likelihood stays finite."""
+    base = nm.Base.from_vector(np.array([0.0, 800.0, 0.0, -800.0, 0.0]))
+    parts = np.stack(base.log_parts(np.linspace(-5.0, 5.0, 11), 0.0))
+    assert np.isfinite(parts).all()
