@@ -224,8 +224,8 @@ class RecordedTrajectory(Trajectory):
 
 
 def windowed_mean_quaternion(t: np.ndarray, quat: np.ndarray, at: np.ndarray, window: float) -> np.ndarray:
-    """The mean attitude of the poses within ±window/2 of each time in `at` (at least
-    the nearest pose). Quaternions are made sign-continuous first, so a normalised sum
+    """The mean attitude of the poses within ±window/2 of each time in `at` (where a
+    window holds none, the next pose). Quaternions are made sign-continuous first, so a normalised sum
     over a window of small rotations is their mean."""
     q = np.array(quat, float)
     flip = np.cumsum(np.einsum("ij,ij->i", q[1:], q[:-1]) < 0) % 2 == 1
