@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import minimize
-from scipy.special import erfcx, expit, log_ndtr, logsumexp
+from scipy.special import erfcx, expit, log_ndtr
 
 from rig import effects as fx
 
@@ -77,6 +77,13 @@ def log_normal(x: np.ndarray, mu: float, sigma: float) -> np.ndarray:
     return -0.5 * ((x - mu) / sigma) ** 2 - np.log(sigma * np.sqrt(2 * np.pi))
 
 
+def _log_sum(parts: list[np.ndarray]) -> np.ndarray:
+    """log Σ exp(part), elementwise: the mixture's log density from its components'.
+    (A ufunc reduction: scipy's logsumexp costs 15 times as much on these small
+    arrays, and the simplex searches evaluate it some ten thousand times a flight.)"""
+    return np.logaddexp.reduce(parts, axis=0)
+
+
 def _size(log_size: float) -> float:
     """A positive size from its logarithm, which the simplex search may push far out:
     bounded, so a stray trial point costs a poor likelihood, not an overflow."""
@@ -111,7 +118,7 @@ class Base:
     def fit(cls, data: Binned) -> "Base":
         def cost(p):
             base = cls.from_vector(p)
-            return -(data.counts * logsumexp(np.stack(base.log_parts(data.values, 0.0)), axis=0)).sum()
+            return -(data.counts * _log_sum(base.log_parts(data.values, 0.0))).sum()
         start = [float(np.average(data.values, weights=data.counts)), 0.0, -2.0, np.log(3.0), -3.0]
         return cls.from_vector(minimize(cost, start, method="Nelder-Mead",
                                         options={"maxiter": 1500, "xatol": 1e-3, "fatol": 1e-3}).x)
@@ -132,7 +139,7 @@ class Shape:
             parts = [np.log(1 - self.fraction) + p for p in parts]
             parts.append(np.log(self.fraction) + log_emg(data.values, base.mu + self.shift, base.sigma,
                                                          self.mean_excess))
-        return float((data.counts * logsumexp(np.stack(parts), axis=0)).sum())
+        return float((data.counts * _log_sum(parts)).sum())
 
 
 def fit_shapes(data: Binned, base: Base) -> tuple[Shape, Shape]:
