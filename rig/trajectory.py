@@ -9,6 +9,7 @@ thrust direction a + g·e_z, with a prescribed yaw.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 
 import numpy as np
@@ -16,6 +17,8 @@ from scipy.interpolate import make_smoothing_spline
 from scipy.spatial.transform import Rotation, RotationSpline
 
 from rig.recording import PoseSeries
+
+log = logging.getLogger(__name__)
 
 GRAVITY = 9.81
 RAMP = 2.0  # s over which a pattern speeds up after take-off and slows down before landing
@@ -198,11 +201,16 @@ class RecordedTrajectory(Trajectory):
 
     def __init__(self, truth: PoseSeries, attitude_step: float = 0.02, attitude_window: float = ATTITUDE_WINDOW_S,
                  smoothing: float = 1e-3):
-        if len(truth) < 10:
-            raise ValueError("ground truth too short to fly (fewer than 10 poses)")
-        t, keep = np.unique(truth.t, return_index=True)
-        pos = truth.position[keep]
-        quat = truth.quaternion[keep]
+        valid = (np.isfinite(truth.t) & np.all(np.isfinite(truth.position), axis=1)
+                 & np.all(np.isfinite(truth.quaternion), axis=1) & (np.linalg.norm(truth.quaternion, axis=1) > 0.5))
+        if (~valid).any():           # a motion-capture frame lost (occlusion): flown through, not fatal
+            log.warning("ground truth: %d of %d poses are not finite or not rotations; left out",
+                        int((~valid).sum()), len(valid))
+        if valid.sum() < 10:
+            raise ValueError("ground truth too short to fly (fewer than 10 valid poses)")
+        t, keep = np.unique(truth.t[valid], return_index=True)
+        pos = truth.position[valid][keep]
+        quat = truth.quaternion[valid][keep]
         self.t_start, self.t_end = float(t[0]), float(t[-1])
         self._splines = [make_smoothing_spline(t, pos[:, i], lam=smoothing) for i in range(3)]
         knots = np.arange(self.t_start, self.t_end, attitude_step)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -9,9 +10,11 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from conftest import FULL_PRECISION, ROOT, run_rig, simulate_exact
+from rig.importer import load_any
 from rig.recording import Recording, read_recording, write_recording
 from rig.simulate import SimConfig, simulate
-from rig.trajectory import GRAVITY, windowed_mean_quaternion
+from rig.trajectory import GRAVITY, RecordedTrajectory, windowed_mean_quaternion
+
 
 def _strapdown(rec: Recording) -> np.ndarray:
     """Integrate the IMU from the true initial state (midpoint rule). Returns positions at IMU times."""
@@ -142,3 +145,15 @@ def test_windowed_mean_attitude_averages_out_pose_noise_across_sign_flips() -> N
     single = np.linalg.norm((Rotation.from_quat(noisy[nearest]) * yaw(t[nearest]).inv()).as_rotvec(), axis=1)
     assert np.sqrt(np.mean(error ** 2)) < np.sqrt(np.mean(single ** 2)) / 5     # √60 ≈ 7.7 fewer
 
+
+def test_a_recorded_trajectory_flies_through_lost_motion_capture_poses(data_dir: Path) -> None:
+    """A pose with NaN (an occluded motion-capture frame) is left out, not fatal, and
+    the flight elsewhere is unchanged."""
+    truth = load_any(data_dir / "flights" / "0426-traj1").truth
+    position, quaternion = truth.position.copy(), truth.quaternion.copy()
+    position[5000], quaternion[6000] = np.nan, np.nan
+    clean, holed = RecordedTrajectory(truth), RecordedTrajectory(replace(truth, position=position,
+                                                                         quaternion=quaternion))
+    t = np.linspace(clean.t_start + 1.0, clean.t_end - 1.0, 500)
+    assert np.abs(holed.position(t) - clean.position(t)).max() < 0.01
+    assert np.linalg.norm((holed.rotation(t) * clean.rotation(t).inv()).as_rotvec(), axis=1).max() < 0.01
