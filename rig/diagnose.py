@@ -50,7 +50,7 @@ from rig import effects as fx
 from rig import nlos_mixture
 from rig.recording import Recording, Vec3Series
 from rig.simulate import Predictor
-from rig.trajectory import ATTITUDE_WINDOW_S
+from rig.trajectory import ATTITUDE_WINDOW_S, window_mean
 
 log = logging.getLogger(__name__)
 
@@ -124,15 +124,6 @@ class Candidate:
 
 
 # ----------------------------------------------------------------------------- robust fitting
-
-def moving_mean(t: np.ndarray, values: np.ndarray, window: float) -> np.ndarray:
-    """Each row averaged with the rows within ±window/2 of it in time (rows: samples)."""
-    if window <= 0:
-        return values
-    total = np.vstack([np.zeros(values.shape[1]), np.cumsum(values, axis=0)])
-    lo, hi = np.searchsorted(t, t - window / 2), np.searchsorted(t, t + window / 2, side="right")
-    return (total[hi] - total[lo]) / (hi - lo)[:, None]
-
 
 def huber_loss(z: np.ndarray) -> np.ndarray:
     a = np.abs(z)
@@ -227,8 +218,8 @@ class Problem:
         series = self.rec.accel if name == "accel" else self.rec.gyro
         rows = self.imu_rows[name]
         accel, gyro = self.predictor.imu(effects, accel=self.rec.accel.xyz, gyro=self.rec.gyro.xyz)
-        values = (accel if name == "accel" else gyro)[rows]
-        return self._block_means(name, moving_mean(series.t[rows], values, IMU_SMOOTHING_S[name]))
+        values, t, window = (accel if name == "accel" else gyro)[rows], series.t[rows], IMU_SMOOTHING_S[name]
+        return self._block_means(name, window_mean(t, values, t, window) if window > 0 else values)
 
     def _block_means(self, name: str, values: np.ndarray) -> np.ndarray:
         """IMU rows are block means (axis-interleaved): the vibration noise of a flying

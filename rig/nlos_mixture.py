@@ -286,14 +286,13 @@ def fit_anchor(anchor: int, positions: np.ndarray, s: np.ndarray, folds: np.ndar
     if fit is None:
         return None
     region, base, null, mixture, inside = fit
-    gain = mixture.log_likelihood(inside, base) - null.log_likelihood(inside, base)
-    if gain < min_gain or mixture.fraction <= 0:
+    null_ll, mixture_ll = null.log_likelihood(inside, base), mixture.log_likelihood(inside, base)
+    if mixture_ll - null_ll < min_gain or mixture.fraction <= 0:
         return None
     evidence = held_out_gain(positions, s, folds)
-    log.debug("nlos shape anchor %d: in-sample %.1f, held-out %.1f", anchor, gain, evidence)
+    log.debug("nlos shape anchor %d: in-sample %.1f, held-out %.1f", anchor, mixture_ll - null_ll, evidence)
     # the standardised residuals carry the unit normal's constant per sample: the fit's
     # own unit is the channel's, so the log of the scale is added back
     per_sample = np.log(scale)
     return NlosShapeFit(anchor, region, mixture.fraction, mixture.mean_excess * scale, evidence,
-                        -null.log_likelihood(inside, base) / inside.n + per_sample,
-                        -mixture.log_likelihood(inside, base) / inside.n + per_sample)
+                        -null_ll / inside.n + per_sample, -mixture_ll / inside.n + per_sample)

@@ -231,19 +231,25 @@ class RecordedTrajectory(Trajectory):
         return self._rot(np.clip(np.asarray(t, float), *self._rot_span))
 
 
+def window_mean(t: np.ndarray, values: np.ndarray, at: np.ndarray, window: float) -> np.ndarray:
+    """The mean of the rows of `values` (samples at sorted times `t`) within ±window/2
+    of each time in `at`; where a window holds none, the next row."""
+    cumulative = np.vstack([np.zeros(values.shape[1]), np.cumsum(values, axis=0)])
+    lo = np.searchsorted(t, at - window / 2, side="left")
+    hi = np.maximum(np.searchsorted(t, at + window / 2, side="right"), lo + 1).clip(max=len(t))
+    lo = np.minimum(lo, hi - 1)
+    return (cumulative[hi] - cumulative[lo]) / (hi - lo)[:, None]
+
+
 def windowed_mean_quaternion(t: np.ndarray, quat: np.ndarray, at: np.ndarray, window: float) -> np.ndarray:
-    """The mean attitude of the poses within ±window/2 of each time in `at` (where a
-    window holds none, the next pose). Quaternions are made sign-continuous first, so a normalised sum
+    """The mean attitude of the poses within ±window/2 of each time in `at` (see
+    window_mean). Quaternions are made sign-continuous first, so a normalised mean
     over a window of small rotations is their mean."""
     q = np.array(quat, float)
     flip = np.cumsum(np.einsum("ij,ij->i", q[1:], q[:-1]) < 0) % 2 == 1
     q[1:][flip] *= -1.0
-    cumulative = np.vstack([np.zeros(4), np.cumsum(q, axis=0)])
-    lo = np.searchsorted(t, at - window / 2, side="left")
-    hi = np.maximum(np.searchsorted(t, at + window / 2, side="right"), lo + 1).clip(max=len(t))
-    lo = np.minimum(lo, hi - 1)
-    total = cumulative[hi] - cumulative[lo]
-    return total / np.linalg.norm(total, axis=1, keepdims=True)
+    mean = window_mean(t, q, at, window)
+    return mean / np.linalg.norm(mean, axis=1, keepdims=True)
 
 
 TRAJECTORIES = {"circle", "circle-sine", "smooth-random"}
