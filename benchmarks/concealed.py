@@ -2,11 +2,13 @@
 runs: each catalog effect injected alone into a flight, diagnosed, compared with the
 untouched flight as control, judged by the suite's own tolerances.
 
-    .venv/bin/python benchmarks/concealed.py [--flights sim 0426-traj1 ...] [--out out/concealed.json]
+    .venv/bin/python benchmarks/concealed.py [--flights sim 0426-traj1 ...] [--out out/concealed.json] [--rejudge]
 
 `sim` is the suite's simulated flight (or, for an effect the suite flies on its own
 circle, that circle, with its own control). Prints a line per effect and flight (found or
-missed, the recovered parameters after subtracting the control) and a count per flight."""
+missed, the recovered parameters after subtracting the control) and a count per flight.
+The findings themselves go to OUT with `.findings.json` for a suffix; `--rejudge` judges
+those again without diagnosing (after a change to the judging)."""
 
 from __future__ import annotations
 
@@ -28,7 +30,7 @@ from rig.importer import load_any  # noqa: E402
 from rig.simulate import Predictor, inject, simulate  # noqa: E402
 
 
-def diagnosed(job: tuple[str, str]) -> tuple[str, str, dict, dict | None]:
+def diagnosed(job: tuple[str, str]) -> tuple[str, str, list, list | None]:
     """The findings on the flight with the effect injected, and on its own untouched
     flight when it is not the flight's shared control (a simulated case with its own
     circle)."""
@@ -36,13 +38,21 @@ def diagnosed(job: tuple[str, str]) -> tuple[str, str, dict, dict | None]:
     effects = [] if name == "control" else [{"effect": name, "params": cases.CASES[name][0]}]
     if flight == "sim":
         survey, own = paths.data_dir() / "surveys" / "anchor_0425.txt", cases.SIM_FLIGHT.get(name)
-        found = cases.findings(cases.diagnose(simulate(cases.sim_config(survey, effects, own))))
-        control = cases.findings(cases.diagnose(simulate(cases.sim_config(survey, [], own)))) if own else None
+        found = _listed(cases.diagnose(simulate(cases.sim_config(survey, effects, own))))
+        control = _listed(cases.diagnose(simulate(cases.sim_config(survey, [], own)))) if own else None
         return flight, name, found, control
     rec = load_any(paths.data_dir() / "flights" / flight)
     if effects:
         rec = inject(rec, effects, seed=1, predictor=Predictor(rec))
-    return flight, name, cases.findings(cases.diagnose(rec)), None
+    return flight, name, _listed(cases.diagnose(rec)), None
+
+
+def _listed(diagnosis) -> list:
+    return diagnosis.to_json()["findings"]
+
+
+def _keyed(findings: list) -> dict:
+    return {(f["effect"], tuple(f.get("anchors", []))): f for f in findings}
 
 
 def judge(found: dict, control: dict, name: str, real: bool) -> tuple[bool, str]:
@@ -58,16 +68,24 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--flights", nargs="+", default=["sim", "0426-traj1", "0426-traj4", "0425-traj5", "0422-log01"])
     parser.add_argument("--out", type=Path, default=ROOT / "out" / "concealed.json")
+    parser.add_argument("--rejudge", action="store_true", help="judge the findings of the last run again")
     args = parser.parse_args()
-    jobs = [(f, n) for f in args.flights for n in ["control", *cases.CASES]]
-    with Pool(2) as pool:
-        results = {(f, n): (found, own) for f, n, found, own in pool.imap_unordered(diagnosed, jobs)}
+    raw = args.out.with_suffix(".findings.json")
+    if args.rejudge:
+        results = {tuple(key.split("|")): value for key, value in json.loads(raw.read_text()).items()}
+    else:
+        jobs = [(f, n) for f in args.flights for n in ["control", *cases.CASES]]
+        with Pool(2) as pool:
+            results = {(f, n): (found, own) for f, n, found, own in pool.imap_unordered(diagnosed, jobs)}
+        raw.parent.mkdir(parents=True, exist_ok=True)
+        raw.write_text(json.dumps({f"{f}|{n}": value for (f, n), value in results.items()}))
     summary = {}
-    for flight in args.flights:
+    for flight in dict.fromkeys(f for f in [*args.flights, *(f for f, _ in results)] if (f, "control") in results):
         rows = {}
         for name in cases.CASES:
             found, own = results[(flight, name)]
-            ok, how = judge(found, own or results[(flight, "control")][0], name, real=flight != "sim")
+            control = _keyed(own or results[(flight, "control")][0])
+            ok, how = judge(_keyed(found), control, name, real=flight != "sim")
             rows[name] = {"found": ok, "detail": how}
             print(f"{flight:12s} {name:16s} {'found ' if ok else 'MISSED'} {'' if ok else how}")
         summary[flight] = {"found": sum(r["found"] for r in rows.values()), "of": len(rows), "cases": rows}

@@ -345,6 +345,7 @@ class Term:
     std_err: np.ndarray | None = None                # of the estimate (posterior standard deviation)
     evidence: float = 0.0
     window_cost: bool = False                        # confined in time: its two ends are parameters too
+    on_top: bool = False                             # confined on top of its whole-flight value (a delay)
     look_alikes: list = field(default_factory=list)  # (key, evidence) of candidates that did nearly as well
 
     @property
@@ -358,6 +359,12 @@ class Term:
     @property
     def cost(self) -> float:
         return self.candidate.penalty * self.columns.shape[1] + (2 * PENALTY_PER_PARAMETER if self.window_cost else 0)
+
+    def param_map(self) -> np.ndarray:
+        """The candidate's parameter as a linear map of the fit of the columns: a delay
+        confined on top of its whole-flight value reports its value in the window,
+        whole-flight value + change."""
+        return np.ones((1, 2)) if self.on_top else np.eye(self.columns.shape[1])
 
 
 def _stack(terms: list[Term]) -> tuple[np.ndarray, np.ndarray] | None:
@@ -477,37 +484,43 @@ def _rank(term: Term) -> int:
     return ORDER[term.candidate.effect][1]
 
 
-def _estimate(z: np.ndarray, terms: list[Term]) -> None:
+def _estimate(z: np.ndarray, terms: list[Term], z_simplest: np.ndarray | None = None) -> None:
     """Each named term's estimate given the simpler explanations: its value in the
     joint fit of the named terms of its rank or a simpler one (see select), and its
-    standard error in that fit."""
+    standard error in that fit; the simplest (rank 0) on `z_simplest` if given."""
     for rank in sorted({_rank(t) for t in terms}):
         nested = [t for t in terms if _rank(t) <= rank]
         x, prior = _stack(nested)
-        theta = irls(z, x, prior)
+        z_rank = z if rank or z_simplest is None else z_simplest
+        theta = irls(z_rank, x, prior)
         family = {id(t) for t in _delay_family(nested)}
-        gauge = np.concatenate([np.full(t.columns.shape[1], id(t) in family) for t in nested])
-        std_err = posterior_sd(z, x, prior, theta, gauge)
-        for (t, part), (_, sd) in zip(_split(nested, theta), _split(nested, std_err)):
+        gauge = np.concatenate([(np.arange(t.columns.shape[1]) == 0) & (id(t) in family) for t in nested])
+        cov = posterior_cov(z_rank, x, prior, theta, gauge)
+        at = 0
+        for t in nested:
+            n = t.columns.shape[1]
             if _rank(t) == rank:
-                t.estimate, t.std_err = part, sd
+                m = t.param_map()
+                t.estimate = theta[at:at + n]
+                t.std_err = np.sqrt(np.diag(m @ cov[at:at + n, at:at + n] @ m.T))
+            at += n
     _median_gauge(terms, "estimate")
 
 
 GAUGE_WEIGHT = 1e6             # pins the sum of a delay family: TDOA sees delays relative to each other
 
 
-def posterior_sd(z: np.ndarray, x: np.ndarray, prior: np.ndarray, theta: np.ndarray,
-                 gauge: np.ndarray | None = None) -> np.ndarray:
-    """Standard deviations of the parameters of a Huber fit with Gaussian priors, from
-    its weighted normal equations (z is standardised: unit noise). Where the data do
-    not separate a parameter from the others it approaches its prior's. The `gauge`
-    parameters (a family of delays) are taken relative to their mean, as they are
-    reported: the common delay TDOA cannot see does not blur each one."""
+def posterior_cov(z: np.ndarray, x: np.ndarray, prior: np.ndarray, theta: np.ndarray,
+                  gauge: np.ndarray | None = None) -> np.ndarray:
+    """Covariance of the parameters of a Huber fit with Gaussian priors, from its
+    weighted normal equations (z is standardised: unit noise). Where the data do not
+    separate a parameter from the others its variance approaches its prior's. The
+    `gauge` parameters (a family of delays) are taken relative to their mean, as they
+    are reported: the common delay TDOA cannot see does not blur each one."""
     normal = weighted_normal(z, x, theta)[0] + np.diag(1.0 / prior ** 2)
     if gauge is not None and gauge.any():
         normal += GAUGE_WEIGHT * np.outer(gauge, gauge).astype(float)
-    return np.sqrt(np.diag(np.linalg.inv(normal)))
+    return np.linalg.inv(normal)
 
 
 def _name(z: np.ndarray, terms: list[Term]) -> list[Term]:
@@ -564,11 +577,15 @@ def select(problem: Problem, channel: Channel, pool: list[Candidate]
     NLOS regions are searched on what all parametric candidates leave, first as a
     mean shift, then by the shape of the residuals (nlos_mixture); the mean excess
     of an NLOS found by its shape is taken out of the channel and the named terms
-    named again on what is left (over half the flight a displacement would take it);
-    named effects are tried confined in time; the named effects, fitted jointly, are
+    named again on what is left (over half the flight a displacement would take it),
+    but the simplest effects (timing, delays, lever arm) are estimated on the channel
+    as it was: NLOS is the richest explanation, and which regions its shape finds
+    must not move them (a lever arm moved by 9 cm); named effects are tried confined
+    in time; the named effects, fitted jointly, are
     the model that re-simulates the recording. Returns the terms, the channel they
     were fitted on and the NLOS found by shape."""
-    z, folds = channel.z, channel.folds()
+    z = z_before_shapes = channel.z
+    folds = channel.folds()
     terms = [Term(c, c.columns) for c in pool if c.channel == channel.name]
     named = _name(z, terms)
     shapes = []
@@ -589,7 +606,7 @@ def select(problem: Problem, channel: Channel, pool: list[Candidate]
             _refit(z, named)
     if _confine_in_time(channel, named):
         named = _name(z, named)      # leaves them fitted jointly
-    _estimate(z, named)
+    _estimate(z, named, z_before_shapes)
     _note_look_alikes(z, named, terms)
     return named, channel, shapes
 
@@ -636,17 +653,23 @@ def _note_look_alikes(z: np.ndarray, kept: list[Term], pool: list[Term]) -> None
 
 def _confine_in_time(channel: Channel, kept: list[Term]) -> bool:
     """An effect present in part of the flight only: try every run of whole time
-    blocks; keep the best window when it explains clearly more than the whole flight
-    (a delay so confined leaves the family of delays: it is then absolute)."""
+    blocks; keep the best window when it explains clearly more than the whole flight.
+    A delay of the family changes in the window on top of its whole-flight value
+    (TDOA sees delays relative to each other: a delay cannot be zero outside the
+    window, and taking it out of the family would hand its whole-flight part to
+    every other effect); any other effect is absent outside the window."""
     if not kept:
         return False
-    confined = False
+    windows = []
     edges = np.quantile(channel.t, np.linspace(0, 1, TIME_BLOCKS + 1))
+    family = {id(t) for t in _delay_family(kept)}
     for term in kept:
         if term.candidate.effect not in WINDOWABLE:
             continue
         others = [t for t in kept if t is not term]
         z = _left(channel.z, others)
+        on_top = id(term) in family
+        base = term.columns if on_top else term.columns[:, :0]
         full = huber_loss(z - term.columns @ irls(z, term.columns, term.prior)).sum()
         # a window must add half again what the whole flight explains: slowly varying
         # real errors always make some window fit a little better
@@ -657,14 +680,15 @@ def _confine_in_time(channel: Channel, kept: list[Term]) -> bool:
                 if j - i == TIME_BLOCKS:
                     continue
                 inside = (channel.t >= edges[i]) & (channel.t < edges[j] if j < TIME_BLOCKS else True)
-                cols = term.columns * inside[:, None]
-                loss = huber_loss(z - cols @ irls(z, cols, term.prior)).sum()
+                cols = np.hstack([base, term.columns * inside[:, None]])
+                loss = huber_loss(z - cols @ irls(z, cols, np.full(cols.shape[1], term.candidate.prior))).sum()
                 if loss < best[0]:
                     best = (loss, (float(edges[i]), float(edges[j])), cols)
         if best[1] is not None:
-            term.columns, term.extra["during"], term.window_cost = best[2], list(best[1]), True
-            confined = True
-    return confined
+            windows.append((term, best[2], list(best[1]), on_top))
+    for term, columns, during, on_top in windows:     # each was judged given the others as fitted
+        term.columns, term.extra["during"], term.window_cost, term.on_top = columns, during, True, on_top
+    return bool(windows)
 
 
 # ----------------------------------------------------------------------------- NLOS
@@ -920,6 +944,8 @@ def diagnose(rec: Recording, progress=None) -> Diagnosis:
 def _effect_of(problem: Problem, channel: Channel, term: Term, theta: np.ndarray) -> fx.Effect:
     """The effect with parameters `theta` (the term's model fit, or its estimate)."""
     c = term.candidate
+    if term.on_top:
+        return c.make(term.param_map() @ theta, {**term.extra, "outside_m": float(theta[0])})
     if c.effect != "nlos":
         return c.make(theta, term.extra)
     k, shift = c.fixed["anchor"], float(theta[0])
@@ -961,7 +987,7 @@ def _finding(problem: Problem, channel: Channel, term: Term, effect: fx.Effect, 
                    robust_rms(z_without[rows] * scale, scale), robust_rms(z_with[rows] * scale, scale),
                    _where(problem, channel, term, rows, z_with, theta),
                    [{"candidate": key, "evidence": gain} for key, gain in term.look_alikes],
-                   not simulated or bool(np.abs(term.estimate).max() > term.candidate.bound),
+                   not simulated or bool(np.abs(term.param_map() @ term.estimate).max() > term.candidate.bound),
                    std_err, not_identified)
 
 
@@ -1054,7 +1080,7 @@ def _span(t: np.ndarray) -> list[float]:
 
 def _where(problem: Problem, channel: Channel, term: Term, rows: np.ndarray, z_after: np.ndarray,
            theta: np.ndarray) -> dict:
-    where: dict = {"time": _span(channel.t[rows])}
+    where: dict = {"time": term.extra.get("during") or _span(channel.t[rows])}
     if channel.name == "tdoa":
         positions = problem.tag_positions()[rows]
         where["region"] = term.extra.get("region") or {"min": np.round(positions.min(axis=0), 3).tolist(),

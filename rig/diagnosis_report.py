@@ -45,7 +45,10 @@ def describe(finding: Finding) -> str:
                                      in zip("xyz", box["min"], box["max"])) + " m"
     text = PLAIN.get(finding.effect, finding.effect + " {}").format(**params)
     if "during" in finding.params:
-        text += f", from {finding.params['during'][0]:.1f} s to {finding.params['during'][1]:.1f} s only"
+        start, end = finding.params["during"]
+        elsewhere = finding.params.get("outside_m")
+        text += (f", from {start:.1f} s to {end:.1f} s only" if elsewhere is None
+                 else f" from {start:.1f} s to {end:.1f} s and {elsewhere:.3f} m elsewhere")
     if finding.beyond_bound:
         text += (" — beyond what this effect can physically be: it stands for something the catalog does not "
                  "model, and the re-simulation leaves it out")

@@ -330,19 +330,26 @@ class LeverArm(Effect):
 
 
 class AnchorDelay(_Windowed, Effect):
-    """Every range from `anchor` reads `meters` too long (an antenna delay error)."""
+    """Every range from `anchor` reads `meters` too long (an antenna delay error). With
+    `during`, `meters` holds in that window and `outside_m` (default 0) elsewhere: a
+    delay that changes for part of the flight (TDOA sees delays only relative to each
+    other, so "no delay outside the window" is rarely what a diagnosis can say)."""
 
     name, stage = "anchor_delay", SIGNAL
 
-    def __init__(self, anchor: int = 0, meters: float = 0.0, during=None):
-        self.anchor, self.meters = _anchor_id(anchor), float(meters)
+    def __init__(self, anchor: int = 0, meters: float = 0.0, during=None, outside_m: float = 0.0):
+        self.anchor, self.meters, self.outside_m = _anchor_id(anchor), float(meters), float(outside_m)
         self._set_during(during)
+        if self.outside_m and self.during is None:
+            raise ValueError("anchor_delay: outside_m needs a window (during)")
 
     def params(self) -> dict:
-        return {"anchor": self.anchor, "meters": self.meters, **self._window_params()}
+        window = {**self._window_params(), "outside_m": self.outside_m} if self.during else {}
+        return {"anchor": self.anchor, "meters": self.meters, **window}
 
     def apply_tdoa(self, tdoa: TdoaBatch, world: World, rng: np.random.Generator | None) -> None:
-        tdoa.value += self.meters * _anchor_sign(tdoa, self.anchor) * self.active(tdoa.t)
+        delay = np.where(self.active(tdoa.t), self.meters, self.outside_m)
+        tdoa.value += delay * _anchor_sign(tdoa, self.anchor)
 
 
 def viewing_angles(tdoa: TdoaBatch, world: World, anchor: int) -> tuple[np.ndarray, np.ndarray]:

@@ -8,7 +8,8 @@ real flights, are mostly the pose-dependent bias seen along that path
 (docs/diagnosis.md) and are left out. An effect enters when the diagnosis named it on
 at least half of the flights (a property of the room, not of one flight); its
 parameters are the medians over those flights. Confinement in time (`during`) is
-dropped: it belongs to one flight's clock."""
+dropped: it belongs to one flight's clock (a delay that changed in a window enters
+with its value outside it)."""
 
 from __future__ import annotations
 
@@ -54,7 +55,7 @@ def combine(models: list[list[dict]]) -> list[dict]:
         for item in model:
             if item["effect"] in TRANSFERABLE:
                 key = (item["effect"], item["params"].get("anchor"))
-                groups.setdefault(key, []).append(item["params"])
+                groups.setdefault(key, []).append(outside_window(item["params"]))
     out = []
     for (effect, anchor), params in sorted(groups.items(), key=lambda kv: (TRANSFERABLE.index(kv[0][0]),
                                                                           kv[0][1] if kv[0][1] is not None else -1)):
@@ -65,6 +66,15 @@ def combine(models: list[list[dict]]) -> list[dict]:
         out.append({"effect": effect, "params": _median_params(params)})
     _centre_delays(out)
     return out
+
+
+def outside_window(params: dict) -> dict:
+    """The parameters outside any window: a delay that changed for part of one flight
+    keeps its value elsewhere (`outside_m`)."""
+    if "outside_m" not in params:
+        return params
+    kept = {k: v for k, v in params.items() if k not in ("during", "outside_m")}
+    return {**kept, "meters": params["outside_m"]}
 
 
 def _median_params(params: list[dict]) -> dict:

@@ -25,7 +25,13 @@ def _model(offset: float, delays: dict[int, float], nlos: bool = False, drift: f
     return effects
 
 
-MODELS = [_model(-0.05, {0: 0.1, 1: -0.1, 2: 0.0}, nlos=True, drift=500.0),
+def _changed_in_a_window(model: list[dict], anchor: int, meters: float) -> list[dict]:
+    """The model with `anchor`'s delay reading `meters` for a second, its own value elsewhere."""
+    return [{**e, "params": {**e["params"], "meters": meters, "during": [1.0, 2.0], "outside_m": e["params"]["meters"]}}
+            if e["effect"] == "anchor_delay" and e["params"]["anchor"] == anchor else e for e in model]
+
+
+MODELS = [_changed_in_a_window(_model(-0.05, {0: 0.1, 1: -0.1, 2: 0.0}, nlos=True, drift=500.0), 0, 0.9),
           _model(-0.07, {0: 0.3, 1: -0.1, 2: 0.0}),
           _model(-0.06, {0: 0.2, 1: -0.3, 2: 0.1})]
 
@@ -33,7 +39,8 @@ MODELS = [_model(-0.05, {0: 0.1, 1: -0.1, 2: 0.0}, nlos=True, drift=500.0),
 def test_effects_named_on_most_flights_enter_with_their_medians() -> None:
     combined = {(e["effect"], e["params"].get("anchor")): e["params"] for e in combine(MODELS)}
     assert combined[("time_offset", None)]["seconds"] == pytest.approx(-0.06)
-    # medians 0.2, -0.1, 0.0 -> relative to their median (0.0)
+    # medians 0.2, -0.1, 0.0 -> relative to their median (0.0); anchor 0 enters with 0.1, its
+    # value outside the window of the first flight, not 0.9
     assert [combined[("anchor_delay", k)]["meters"] for k in (0, 1, 2)] == pytest.approx([0.2, -0.1, 0.0])
     assert combined[("imu_accel_bias", None)] == {"bias_mps2": pytest.approx([-0.06, 0.0, 1.0])}   # no "during"
     assert ("clock_drift", None) not in combined, "named on one flight of three: not a property of the room"

@@ -10,6 +10,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from conftest import FULL_PRECISION, ROOT, run_rig, simulate_exact
+from rig.effects import make_effect
 from rig.importer import load_any
 from rig.recording import Recording, read_recording, write_recording
 from rig.simulate import SimConfig, simulate
@@ -91,6 +92,23 @@ def test_noise_biases_and_outliers_have_their_configured_size(survey_0425: Path)
     outlier = np.abs(tdoa_err) > 0.5  # outliers add at least 1 m, noise is 0.1 m
     assert outlier.mean() == pytest.approx(0.07, abs=0.01)
     assert np.std(tdoa_err[~outlier]) == pytest.approx(0.1, rel=0.05)
+
+
+def test_a_delay_changed_in_a_window_keeps_its_own_value_outside(survey_0425: Path) -> None:
+    changed = {"effect": "anchor_delay", "params": {"anchor": 3, "meters": 0.25, "during": [4.0, 7.0],
+                                                    "outside_m": -0.1}}
+    cfg = SimConfig(trajectory="circle", duration=10.0, survey=str(survey_0425), resolution=dict(FULL_PRECISION),
+                    effects=[changed])
+    delayed, clean = simulate(cfg), simulate(SimConfig(**{**cfg.__dict__, "effects": []}))
+    t, tdoa = delayed.tdoa.t, delayed.tdoa
+    sign = (tdoa.id_b == 3).astype(float) - (tdoa.id_a == 3)
+    inside = (t >= 4.0) & (t < 7.0)
+    added = tdoa.distance_diff - clean.tdoa.distance_diff
+    np.testing.assert_allclose(added[inside], 0.25 * sign[inside], atol=1e-4)
+    np.testing.assert_allclose(added[~inside], -0.1 * sign[~inside], atol=1e-4)
+    assert sign[inside].any() and sign[~inside].any()
+    with pytest.raises(ValueError, match="outside_m needs a window"):
+        make_effect("anchor_delay", {"anchor": 3, "meters": 0.25, "outside_m": -0.1})
 
 
 def test_same_seed_same_bytes_other_seed_other_data(tmp_path: Path, survey_0425: Path) -> None:
