@@ -51,10 +51,6 @@ def _listed(diagnosis) -> list:
     return diagnosis.to_json()["findings"]
 
 
-def _keyed(findings: list) -> dict:
-    return {(f["effect"], tuple(f.get("anchors", []))): f for f in findings}
-
-
 def judge(found: dict, control: dict, name: str, real: bool) -> tuple[bool, str]:
     params, check = cases.CASES[name]
     try:
@@ -73,19 +69,22 @@ def main() -> None:
     raw = args.out.with_suffix(".findings.json")
     if args.rejudge:
         results = {tuple(key.split("|")): value for key, value in json.loads(raw.read_text()).items()}
+        flights = list(dict.fromkeys(flight for flight, _ in results))
     else:
-        jobs = [(f, n) for f in args.flights for n in ["control", *cases.CASES]]
+        flights = args.flights
+        jobs = [(f, n) for f in flights for n in ["control", *cases.CASES]]
         with Pool(2) as pool:
-            results = {(f, n): (found, own) for f, n, found, own in pool.imap_unordered(diagnosed, jobs)}
+            done = {(f, n): (found, own) for f, n, found, own in pool.imap_unordered(diagnosed, jobs)}
+        results = {job: done[job] for job in jobs}             # in the order of the flights, for --rejudge
         raw.parent.mkdir(parents=True, exist_ok=True)
         raw.write_text(json.dumps({f"{f}|{n}": value for (f, n), value in results.items()}))
     summary = {}
-    for flight in dict.fromkeys(f for f in [*args.flights, *(f for f, _ in results)] if (f, "control") in results):
+    for flight in flights:
         rows = {}
         for name in cases.CASES:
             found, own = results[(flight, name)]
-            control = _keyed(own or results[(flight, "control")][0])
-            ok, how = judge(_keyed(found), control, name, real=flight != "sim")
+            control = cases.keyed(own or results[(flight, "control")][0])
+            ok, how = judge(cases.keyed(found), control, name, real=flight != "sim")
             rows[name] = {"found": ok, "detail": how}
             print(f"{flight:12s} {name:16s} {'found ' if ok else 'MISSED'} {'' if ok else how}")
         summary[flight] = {"found": sum(r["found"] for r in rows.values()), "of": len(rows), "cases": rows}

@@ -345,7 +345,6 @@ class Term:
     std_err: np.ndarray | None = None                # of the estimate (posterior standard deviation)
     evidence: float = 0.0
     window_cost: bool = False                        # confined in time: its two ends are parameters too
-    on_top: bool = False                             # confined on top of its whole-flight value (a delay)
     look_alikes: list = field(default_factory=list)  # (key, evidence) of candidates that did nearly as well
 
     @property
@@ -359,6 +358,12 @@ class Term:
     @property
     def cost(self) -> float:
         return self.candidate.penalty * self.columns.shape[1] + (2 * PENALTY_PER_PARAMETER if self.window_cost else 0)
+
+    @property
+    def on_top(self) -> bool:
+        """Confined in time on top of its whole-flight value (a delay of the family):
+        its whole-flight column, then its change inside the window."""
+        return self.columns.shape[1] > self.candidate.size
 
     def param_map(self) -> np.ndarray:
         """The candidate's parameter as a linear map of the fit of the columns: a delay
@@ -382,10 +387,15 @@ def _refit(z: np.ndarray, terms: list[Term]) -> np.ndarray:
     return _left(z, terms)
 
 
+def _slices(terms: list[Term]) -> list[slice]:
+    """Each term's parameters in a joint fit of `terms` (stacked in that order)."""
+    ends = np.cumsum([t.columns.shape[1] for t in terms], dtype=int)
+    return [slice(int(end) - t.columns.shape[1], int(end)) for t, end in zip(terms, ends)]
+
+
 def _split(terms: list[Term], theta: np.ndarray) -> list[tuple[Term, np.ndarray]]:
     """Each term with its slice of a joint fit of `terms` (stacked in that order)."""
-    ends = np.cumsum([t.columns.shape[1] for t in terms])
-    return [(t, theta[end - t.columns.shape[1]:end]) for t, end in zip(terms, ends)]
+    return [(t, theta[part]) for t, part in zip(terms, _slices(terms))]
 
 
 def _take_fit(terms: list[Term], theta: np.ndarray) -> None:
@@ -459,10 +469,7 @@ class _Design:
         self.x, prior = _stack(terms)
         self.ridge = 1.0 / prior ** 2
         self.theta = irls(z, self.x, prior)
-        self.slices, at = {}, 0
-        for t in terms:
-            self.slices[id(t)] = np.arange(at, at + t.columns.shape[1])
-            at += t.columns.shape[1]
+        self.slices = {id(t): np.arange(part.start, part.stop) for t, part in zip(terms, _slices(terms))}
         self.gram, self.moment = weighted_normal(z, self.x, self.theta)
 
     def _columns(self, terms: list[Term]) -> np.ndarray:
@@ -496,14 +503,10 @@ def _estimate(z: np.ndarray, terms: list[Term], z_simplest: np.ndarray | None = 
         family = {id(t) for t in _delay_family(nested)}
         gauge = np.concatenate([(np.arange(t.columns.shape[1]) == 0) & (id(t) in family) for t in nested])
         cov = posterior_cov(z_rank, x, prior, theta, gauge)
-        at = 0
-        for t in nested:
-            n = t.columns.shape[1]
+        for t, part in zip(nested, _slices(nested)):
             if _rank(t) == rank:
                 m = t.param_map()
-                t.estimate = theta[at:at + n]
-                t.std_err = np.sqrt(np.diag(m @ cov[at:at + n, at:at + n] @ m.T))
-            at += n
+                t.estimate, t.std_err = theta[part], np.sqrt(np.diag(m @ cov[part, part] @ m.T))
     _median_gauge(terms, "estimate")
 
 
@@ -668,8 +671,7 @@ def _confine_in_time(channel: Channel, kept: list[Term]) -> bool:
             continue
         others = [t for t in kept if t is not term]
         z = _left(channel.z, others)
-        on_top = id(term) in family
-        base = term.columns if on_top else term.columns[:, :0]
+        base = term.columns if id(term) in family else term.columns[:, :0]
         full = huber_loss(z - term.columns @ irls(z, term.columns, term.prior)).sum()
         # a window must add half again what the whole flight explains: slowly varying
         # real errors always make some window fit a little better
@@ -685,9 +687,9 @@ def _confine_in_time(channel: Channel, kept: list[Term]) -> bool:
                 if loss < best[0]:
                     best = (loss, (float(edges[i]), float(edges[j])), cols)
         if best[1] is not None:
-            windows.append((term, best[2], list(best[1]), on_top))
-    for term, columns, during, on_top in windows:     # each was judged given the others as fitted
-        term.columns, term.extra["during"], term.window_cost, term.on_top = columns, during, True, on_top
+            windows.append((term, best[2], list(best[1])))
+    for term, columns, during in windows:     # each was judged given the others as fitted
+        term.columns, term.extra["during"], term.window_cost = columns, during, True
     return bool(windows)
 
 

@@ -60,7 +60,12 @@ def real_control(real):
 
 
 def findings(result) -> dict[tuple, dict]:
-    return {(f["effect"], tuple(f.get("anchors", []))): f for f in result.to_json()["findings"]}
+    return keyed(result.to_json()["findings"])
+
+
+def keyed(listed: list[dict]) -> dict[tuple, dict]:
+    """Findings by (effect, anchors)."""
+    return {(f["effect"], tuple(f.get("anchors", []))): f for f in listed}
 
 
 def concealed(rec, effect: dict, predictor: Predictor | None = None) -> None:

@@ -99,7 +99,7 @@ def test_a_delay_changed_in_a_window_keeps_its_own_value_outside(survey_0425: Pa
                                                     "outside_m": -0.1}}
     cfg = SimConfig(trajectory="circle", duration=10.0, survey=str(survey_0425), resolution=dict(FULL_PRECISION),
                     effects=[changed])
-    delayed, clean = simulate(cfg), simulate(SimConfig(**{**cfg.__dict__, "effects": []}))
+    delayed, clean = simulate(cfg), simulate(replace(cfg, effects=[]))
     t, tdoa = delayed.tdoa.t, delayed.tdoa
     sign = (tdoa.id_b == 3).astype(float) - (tdoa.id_a == 3)
     inside = (t >= 4.0) & (t < 7.0)
