@@ -42,6 +42,10 @@ MAX_BOX_SHARE = 0.9        # ... and leaves this share outside, to fit the base 
 TAIL = 2.0                 # the scan counts residuals this far above their box's median
 LEVELS = np.arange(-4.0, 10.01, 0.25)
 MIN_SAMPLES = 50
+# A range error this large is a corrupt measurement, not an excess path in a room: left
+# out of the shape fit, where a few at hundreds of noise deviations drag the base's
+# spread up to cover them (a real flight, 0425-traj17) and hide every tail.
+GROSS_ERROR_M = 5.0
 
 
 @dataclass
@@ -119,9 +123,13 @@ class Base:
         def cost(p):
             base = cls.from_vector(p)
             return -(data.counts * _log_sum(base.log_parts(data.values, 0.0))).sum()
-        start = [float(np.average(data.values, weights=data.counts)), 0.0, -2.0, np.log(3.0), -3.0]
+        start = [_weighted_median(data), 0.0, -2.0, np.log(3.0), -3.0]
         return cls.from_vector(minimize(cost, start, method="Nelder-Mead",
                                         options={"maxiter": 1500, "xatol": 1e-3, "fatol": 1e-3}).x)
+
+
+def _weighted_median(data: Binned) -> float:
+    return float(data.values[np.searchsorted(np.cumsum(data.counts), 0.5 * data.n)])
 
 
 @dataclass
@@ -280,6 +288,8 @@ def fit_anchor(anchor: int, positions: np.ndarray, s: np.ndarray, folds: np.ndar
                min_gain: float) -> NlosShapeFit | None:
     """The anchor's NLOS from its standardised signed residuals `s` (at `positions`),
     when the in-sample gain reaches min_gain (then judged on held-out blocks)."""
+    sound = np.abs(s) * scale <= GROSS_ERROR_M
+    positions, s, folds = positions[sound], s[sound], folds[sound]
     if len(s) < 2 * MIN_SAMPLES:
         return None
     fit = _fit_in(positions, s)

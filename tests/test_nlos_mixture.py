@@ -42,6 +42,16 @@ def test_a_heavy_upper_tail_in_part_of_the_flight_is_found_and_measured() -> Non
     assert fit.nll_after < fit.nll_before
 
 
+def test_a_few_corrupt_ranges_do_not_hide_the_tail() -> None:
+    """Three ranges off by some 90 m (a real flight, 0425-traj17, has them) once
+    stretched the base's spread to cover them, and no tail was found."""
+    positions, s, folds, inside = residuals(1, nlos=True)
+    s[np.flatnonzero(~inside)[:3]] = -467.0
+    fit = nm.fit_anchor(6, positions, s, folds, scale=0.2, min_gain=10.0)
+    assert fit is not None and fit.evidence > 50
+    assert abs(fit.fraction * fit.mean_excess_m - 0.5 * 1.5 * 0.2) < 0.03
+
+
 def test_outliers_everywhere_and_a_shift_are_not_nlos() -> None:
     positions, s, folds, inside = residuals(2, nlos=False)
     s = s + 0.8 * inside                     # a bias in part of the flight: a shift, no tail
