@@ -34,6 +34,13 @@ class SurveyError(Exception):
     """The survey file is missing, malformed or incomplete."""
 
 
+# The orientation from the markers differs in its last bit between CPUs (scipy's
+# matrix-to-quaternion takes other SIMD paths), which changed the shipped default
+# recording's bytes on another machine: rounded far below what markers surveyed to
+# 0.1 mm can tell.
+QUATERNION_DECIMALS = 12
+
+
 @dataclass(frozen=True)
 class Anchor:
     """A UWB anchor: antenna position (m) and orientation (quaternion x,y,z,w, anchor→world)."""
@@ -109,6 +116,6 @@ def parse_survey(path: Path) -> list[Anchor]:
         if missing:
             raise SurveyError(f"{path}: anchor {aid} lacks marker(s) {missing}; orientation undefined")
         rot = anchor_rotation(antennas[aid], *(markers[(aid, i)] for i in (1, 2, 3)))
-        quat = Rotation.from_matrix(rot).as_quat()
+        quat = np.round(Rotation.from_matrix(rot).as_quat(), QUATERNION_DECIMALS)
         anchors.append(Anchor(aid, tuple(antennas[aid].tolist()), tuple(quat.tolist())))
     return anchors
