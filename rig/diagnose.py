@@ -73,6 +73,7 @@ IMU_SMOOTHING_S = {"accel": 0.0, "gyro": ATTITUDE_WINDOW_S}
 IMU_MIN_BLOCK = 5              # samples a block needs
 AXES = "xyz"
 VIBRATION_WINDOW_S = 0.2       # IMU noise: spread around a running mean this long
+GROSS_Z = 50.0                 # a row this many noise deviations out is a corrupt one (see Problem)
 
 
 @dataclass
@@ -188,17 +189,66 @@ class Problem:
         self.imu_rows, self.imu_blocks = {}, {}
         for name, series in (("accel", rec.accel), ("gyro", rec.gyro)):
             rows = np.flatnonzero((series.t >= t0) & (series.t <= t1) & np.all(np.isfinite(series.xyz), axis=1))
-            block = np.floor((series.t[rows] - t0) / IMU_BLOCK_S[name]).astype(int)
-            full = np.bincount(block)[block] >= IMU_MIN_BLOCK
-            self.imu_rows[name] = rows[full]
-            self.imu_blocks[name] = np.unique(block[full], return_inverse=True)[1].ravel()
+            self._set_imu_rows(name, rows, np.floor((series.t[rows] - t0) / IMU_BLOCK_S[name]).astype(int))
+        self.left_out = self._leave_out_gross_errors()
         self.anchor_ids = sorted(int(k) for k in np.unique(np.concatenate([d.id_a[self.tdoa_rows],
                                                                           d.id_b[self.tdoa_rows]]))
                                  if self._anchor_rows(k).sum() >= MIN_SAMPLES)
-        # the untouched simulation, used throughout: residual and tag positions once
+        self._tag_positions = self.predictor.tdoa([]).tag_position[self.tdoa_rows]
+
+    def _set_imu_rows(self, name: str, rows: np.ndarray, block: np.ndarray) -> None:
+        """An IMU channel's samples and the block each falls in (blocks too short are left out)."""
+        full = np.bincount(block)[block] >= IMU_MIN_BLOCK if len(block) else np.zeros(0, bool)
+        self.imu_rows[name] = rows[full]
+        self.imu_blocks[name] = np.unique(block[full], return_inverse=True)[1].ravel()
+
+    def _residuals(self) -> None:
+        """The untouched simulation's residual and noise scale, used throughout."""
         self.residual_before = {name: self.recorded(name) - pred for name, pred in self.predict([]).items()}
         self.scales = {name: self._scales(name, r) for name, r in self.residual_before.items()}
-        self._tag_positions = self.predictor.tdoa([]).tag_position[self.tdoa_rows]
+
+    def _leave_out_gross_errors(self) -> dict[str, int]:
+        """Rows GROSS_Z noise deviations from their channel's median are corrupt
+        measurements or glitches of the ground truth (a motion-capture attitude that
+        flips for a moment reads as a yaw rate of 10 rad/s): no effect of the catalog
+        makes them, and a fit confined to their few seconds would chase them. They are
+        left out, counted in the report. A glitch of the attitude corrupts what both
+        IMU channels are predicted from, so an IMU block found gross leaves out the
+        other channel's blocks over the same time too. Returns the count left out per
+        channel, in the unit of its `samples` (IMU: block means of each axis)."""
+        self._residuals()
+        gross = {name: self._gross(name, r) for name, r in self.residual_before.items()}
+        imu = [name for name in gross if name != "tdoa"]
+        glitches = np.concatenate([self._block_spans(name)[gross[name]] for name in imu]) if imu else np.zeros((0, 2))
+        for name in imu:
+            spans = self._block_spans(name)
+            gross[name] |= np.any((spans[:, :1] <= glitches[:, 1]) & (spans[:, 1:] >= glitches[:, 0]), axis=1)
+            kept = ~gross[name][self.imu_blocks[name]]
+            self._set_imu_rows(name, self.imu_rows[name][kept], self.imu_blocks[name][kept])
+        if "tdoa" in gross:
+            self.tdoa_rows = self.tdoa_rows[~gross["tdoa"]]
+        left_out = {name: int(g.sum()) * (1 if name == "tdoa" else 3) for name, g in gross.items()}
+        if any(left_out.values()):
+            log.warning("left out as gross errors (over %g noise deviations): %s", GROSS_Z,
+                        ", ".join(f"{n} {name} samples" for name, n in left_out.items() if n))
+            self._residuals()
+        return left_out
+
+    def _gross(self, name: str, residual: np.ndarray) -> np.ndarray:
+        """Which rows (IMU: blocks, any axis) lie GROSS_Z noise deviations from the median."""
+        width = 1 if name == "tdoa" else 3
+        values = residual.reshape(-1, width)
+        z = np.abs(values - np.median(values, axis=0)) / self.scales[name].reshape(-1, width)
+        return np.any(z > GROSS_Z, axis=1)
+
+    def _block_spans(self, name: str) -> np.ndarray:
+        """First and last sample time of each of an IMU channel's blocks."""
+        series = self.rec.accel if name == "accel" else self.rec.gyro
+        t, block = series.t[self.imu_rows[name]], self.imu_blocks[name]
+        first, last = np.full(block.max() + 1, np.inf), np.full(block.max() + 1, -np.inf)
+        np.minimum.at(first, block, t)
+        np.maximum.at(last, block, t)
+        return np.column_stack([first, last])
 
     def _anchor_rows(self, k: int) -> np.ndarray:
         d = self.rec.tdoa
@@ -871,7 +921,8 @@ class Diagnosis:
     residual_after: dict[str, np.ndarray]
 
     def channel_fits(self) -> dict:
-        return {name: {"samples": int(len(r)), "noise_scale": float(self.problem.scales[name][0]),
+        return {name: {"samples": int(len(r)), "gross_errors_left_out": self.problem.left_out[name],
+                       "noise_scale": float(self.problem.scales[name][0]),
                        "fit_before": robust_rms(r, self.problem.scales[name]),
                        "fit_after": robust_rms(self.residual_after[name], self.problem.scales[name])}
                 for name, r in self.residual_before.items()}

@@ -41,7 +41,7 @@ MIN_BOX_SHARE = 0.05       # a box holds at least this share of the anchor's sam
 MAX_BOX_SHARE = 0.9        # ... and leaves this share outside, to fit the base on
 TAIL = 2.0                 # the scan counts residuals this far above their box's median
 LEVELS = np.arange(-4.0, 10.01, 0.25)
-MIN_SAMPLES = 50
+MIN_SIDE_SAMPLES = 50      # samples inside the box, and outside it, that a fit needs
 # A range error this large is a corrupt measurement, not an excess path in a room: left
 # out of the shape fit, where a few at hundreds of noise deviations drag the base's
 # spread up to cover them (a real flight, 0425-traj17) and hide every tail.
@@ -262,7 +262,7 @@ def _fit_in(positions: np.ndarray, s: np.ndarray):
     if region is None:
         return None
     inside = region.contains(positions)
-    if inside.sum() < MIN_SAMPLES or (~inside).sum() < MIN_SAMPLES:
+    if inside.sum() < MIN_SIDE_SAMPLES or (~inside).sum() < MIN_SIDE_SAMPLES:
         return None
     base = Base.fit(Binned.of(s[~inside]))
     data = Binned.of(s[inside])
@@ -290,7 +290,7 @@ def fit_anchor(anchor: int, positions: np.ndarray, s: np.ndarray, folds: np.ndar
     when the in-sample gain reaches min_gain (then judged on held-out blocks)."""
     sound = np.abs(s) * scale <= GROSS_ERROR_M
     positions, s, folds = positions[sound], s[sound], folds[sound]
-    if len(s) < 2 * MIN_SAMPLES:
+    if len(s) < 2 * MIN_SIDE_SAMPLES:
         return None
     fit = _fit_in(positions, s)
     if fit is None:
