@@ -5,8 +5,10 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
+# libclang-rt-dev: clang's sanitizer and libFuzzer runtimes (the fuzz test links
+# them), which clang alone does not pull in on every Debian 12 image.
 APT_PACKAGES=(build-essential gcc-arm-none-eabi libnewlib-arm-none-eabi binutils-arm-none-eabi
-              qemu-system-arm clang valgrind)
+              qemu-system-arm clang libclang-rt-dev valgrind)
 
 missing=()
 for pkg in "${APT_PACKAGES[@]}"; do
