@@ -541,12 +541,14 @@ def _rank(term: Term) -> int:
     return ORDER[term.candidate.effect][1]
 
 
-def _estimate(z: np.ndarray, terms: list[Term], z_simplest: np.ndarray | None = None) -> None:
+def _estimate(z: np.ndarray, terms: list[Term], z_simplest: np.ndarray | None = None,
+              nuisance: list[Term] = ()) -> None:
     """Each named term's estimate given the simpler explanations: its value in the
     joint fit of the named terms of its rank or a simpler one (see select), and its
-    standard error in that fit; the simplest (rank 0) on `z_simplest` if given."""
+    standard error in that fit; the simplest (rank 0) on `z_simplest` if given. The
+    `nuisance` terms (rank 0, not named) are fitted along and not reported."""
     for rank in sorted({_rank(t) for t in terms}):
-        nested = [t for t in terms if _rank(t) <= rank]
+        nested = [t for t in terms if _rank(t) <= rank] + list(nuisance)
         x, prior = _stack(nested)
         z_rank = z if rank or z_simplest is None else z_simplest
         theta = irls(z_rank, x, prior)
@@ -554,10 +556,23 @@ def _estimate(z: np.ndarray, terms: list[Term], z_simplest: np.ndarray | None = 
         gauge = np.concatenate([(np.arange(t.columns.shape[1]) == 0) & (id(t) in family) for t in nested])
         cov = posterior_cov(z_rank, x, prior, theta, gauge)
         for t, part in zip(nested, _slices(nested)):
-            if _rank(t) == rank:
+            if _rank(t) == rank and id(t) not in {id(n) for n in nuisance}:
                 m = t.param_map()
                 t.estimate, t.std_err = theta[part], np.sqrt(np.diag(m @ cov[part, part] @ m.T))
     _median_gauge(terms, "estimate")
+
+
+def _free_offset(named: list[Term], pool: list[Term]) -> list[Term]:
+    """A clock drift is measured about a free time offset, named or not: the drift's
+    growth over the flight is what tells it from an offset, and a flight's own offset
+    named on one run and not on another (of equal rank, each is judged given the
+    other) would otherwise move the drift by that offset over the flight's mean
+    time (0422-log03: a drift of 2000 ppm added to the flight's own came out as
+    +335 ppm when its −85 ms offset went unnamed)."""
+    effects = {t.candidate.effect for t in named}
+    if "clock_drift" not in effects or "time_offset" in effects:
+        return []
+    return [Term(t.candidate, t.candidate.columns) for t in pool if t.candidate.effect == "time_offset"]
 
 
 GAUGE_WEIGHT = 1e6             # pins the sum of a delay family: TDOA sees delays relative to each other
@@ -659,7 +674,7 @@ def select(problem: Problem, channel: Channel, pool: list[Candidate]
             _refit(z, named)
     if _confine_in_time(channel, named):
         named = _name(z, named)      # leaves them fitted jointly
-    _estimate(z, named, z_before_shapes)
+    _estimate(z, named, z_before_shapes, _free_offset(named, terms))
     _note_look_alikes(z, named, terms)
     return named, channel, shapes
 
