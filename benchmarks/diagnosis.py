@@ -74,8 +74,11 @@ def tables(reports: dict) -> str:
         bias = ", ".join(str([round(v, 2) for v in f["params"]["bias_mps2"]]) for f in by.get("imu_accel_bias", [])) or "—"
         print(f"| {name} | {fit.get('tdoa', '—')} | {fit.get('accel', '—')} | {fit.get('gyro', '—')} | {offset} | "
               f"{delays} | {nlos} | {floor} | {bias} |")
-    gross = [f"{name} ({', '.join(f'{c[chan]} {chan}' for chan in c if c[chan])})" for name, r in reports.items()
-             for c in [{chan: v["gross_errors_left_out"] for chan, v in r["channels"].items()}] if any(c.values())]
+    gross = []
+    for name, r in reports.items():
+        counts = [f"{c['gross_errors_left_out']} {chan}" for chan, c in r["channels"].items() if c["gross_errors_left_out"]]
+        if counts:
+            gross.append(f"{name} ({', '.join(counts)})")
     print("")
     print("Samples left out as corrupt (step 2; IMU samples are block means of an axis): " + ("; ".join(gross) or "none") + ".")
     print("")

@@ -76,6 +76,11 @@ VIBRATION_WINDOW_S = 0.2       # IMU noise: spread around a running mean this lo
 GROSS_Z = 50.0                 # a row this many noise deviations out is a corrupt one (see Problem)
 
 
+def _row_width(name: str) -> int:
+    """Values per row of a channel's residual: IMU rows are block means, one per axis."""
+    return 1 if name == "tdoa" else len(AXES)
+
+
 @dataclass
 class Channel:
     """One channel's rows: standardised residual, time of each row, noise scale."""
@@ -218,16 +223,15 @@ class Problem:
         channel, in the unit of its `samples` (IMU: block means of each axis)."""
         self._residuals()
         gross = {name: self._gross(name, r) for name, r in self.residual_before.items()}
-        imu = [name for name in gross if name != "tdoa"]
-        glitches = np.concatenate([self._block_spans(name)[gross[name]] for name in imu]) if imu else np.zeros((0, 2))
-        for name in imu:
-            spans = self._block_spans(name)
-            gross[name] |= np.any((spans[:, :1] <= glitches[:, 1]) & (spans[:, 1:] >= glitches[:, 0]), axis=1)
+        spans = {name: self._block_spans(name) for name in gross if name != "tdoa"}
+        glitches = np.concatenate([span[gross[name]] for name, span in spans.items()] or [np.zeros((0, 2))])
+        for name, span in spans.items():
+            gross[name] |= np.any((span[:, :1] <= glitches[:, 1]) & (span[:, 1:] >= glitches[:, 0]), axis=1)
             kept = ~gross[name][self.imu_blocks[name]]
             self._set_imu_rows(name, self.imu_rows[name][kept], self.imu_blocks[name][kept])
         if "tdoa" in gross:
             self.tdoa_rows = self.tdoa_rows[~gross["tdoa"]]
-        left_out = {name: int(g.sum()) * (1 if name == "tdoa" else 3) for name, g in gross.items()}
+        left_out = {name: int(g.sum()) * _row_width(name) for name, g in gross.items()}
         if any(left_out.values()):
             log.warning("left out as gross errors (over %g noise deviations): %s", GROSS_Z,
                         ", ".join(f"{n} {name} samples" for name, n in left_out.items() if n))
@@ -236,19 +240,22 @@ class Problem:
 
     def _gross(self, name: str, residual: np.ndarray) -> np.ndarray:
         """Which rows (IMU: blocks, any axis) lie GROSS_Z noise deviations from the median."""
-        width = 1 if name == "tdoa" else 3
+        width = _row_width(name)
         values = residual.reshape(-1, width)
         z = np.abs(values - np.median(values, axis=0)) / self.scales[name].reshape(-1, width)
         return np.any(z > GROSS_Z, axis=1)
 
     def _block_spans(self, name: str) -> np.ndarray:
         """First and last sample time of each of an IMU channel's blocks."""
-        series = self.rec.accel if name == "accel" else self.rec.gyro
-        t, block = series.t[self.imu_rows[name]], self.imu_blocks[name]
+        t, block = self._series(name).t[self.imu_rows[name]], self.imu_blocks[name]
         first, last = np.full(block.max() + 1, np.inf), np.full(block.max() + 1, -np.inf)
         np.minimum.at(first, block, t)
         np.maximum.at(last, block, t)
         return np.column_stack([first, last])
+
+    def _series(self, name: str) -> Vec3Series:
+        """An IMU channel's recorded series."""
+        return self.rec.accel if name == "accel" else self.rec.gyro
 
     def _anchor_rows(self, k: int) -> np.ndarray:
         d = self.rec.tdoa
@@ -265,8 +272,7 @@ class Problem:
 
     def recorded_under(self, name: str, effects: list[fx.Effect]) -> np.ndarray:
         """An IMU channel's recorded rows with `effects` applied to the readings."""
-        series = self.rec.accel if name == "accel" else self.rec.gyro
-        rows = self.imu_rows[name]
+        series, rows = self._series(name), self.imu_rows[name]
         accel, gyro = self.predictor.imu(effects, accel=self.rec.accel.xyz, gyro=self.rec.gyro.xyz)
         values, t, window = (accel if name == "accel" else gyro)[rows], series.t[rows], IMU_SMOOTHING_S[name]
         return self._block_means(name, window_mean(t, values, t, window) if window > 0 else values)
@@ -312,8 +318,7 @@ class Problem:
     def times(self, name: str) -> np.ndarray:
         if name == "tdoa":
             return self.rec.tdoa.t[self.tdoa_rows]
-        series = self.rec.accel if name == "accel" else self.rec.gyro
-        return np.repeat(self._block_means(name, series.t[self.imu_rows[name]]), 3)
+        return np.repeat(self._block_means(name, self._series(name).t[self.imu_rows[name]]), 3)
 
     def tag_positions(self) -> np.ndarray:
         """The tag's true position at each TDOA row (untouched simulation)."""
@@ -548,15 +553,16 @@ def _estimate(z: np.ndarray, terms: list[Term], z_simplest: np.ndarray | None = 
     standard error in that fit; the simplest (rank 0) on `z_simplest` if given. The
     `nuisance` terms (rank 0, not named) are fitted along and not reported."""
     for rank in sorted({_rank(t) for t in terms}):
-        nested = [t for t in terms if _rank(t) <= rank] + list(nuisance)
+        reported = [t for t in terms if _rank(t) <= rank]
+        nested = reported + list(nuisance)
         x, prior = _stack(nested)
         z_rank = z if rank or z_simplest is None else z_simplest
         theta = irls(z_rank, x, prior)
         family = {id(t) for t in _delay_family(nested)}
         gauge = np.concatenate([(np.arange(t.columns.shape[1]) == 0) & (id(t) in family) for t in nested])
         cov = posterior_cov(z_rank, x, prior, theta, gauge)
-        for t, part in zip(nested, _slices(nested)):
-            if _rank(t) == rank and id(t) not in {id(n) for n in nuisance}:
+        for t, part in zip(reported, _slices(nested)):        # the nuisance terms come last
+            if _rank(t) == rank:
                 m = t.param_map()
                 t.estimate, t.std_err = theta[part], np.sqrt(np.diag(m @ cov[part, part] @ m.T))
     _median_gauge(terms, "estimate")
