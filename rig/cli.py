@@ -109,7 +109,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     from rig.diagnosis_report import REPORT_JSON, REPORT_MD, describe, write
     from rig.importer import load_any
 
-    rec = load_any(args.recording)
+    rec = load_any(args.recording, args.survey)
     if len(rec.truth) < 10:
         raise CliError(f"{args.recording}: no ground truth to simulate the flight from")
     result = diagnose(rec, progress=_progress(desc="diagnose channels"))
@@ -157,7 +157,7 @@ def cmd_inject(args: argparse.Namespace) -> int:
         effects_from_json(effects)
     except ValueError as exc:
         raise CliError(str(exc)) from exc
-    rec = inject(load_any(args.recording), effects, seed=args.seed)
+    rec = inject(load_any(args.recording, args.survey), effects, seed=args.seed)
     args.output.parent.mkdir(parents=True, exist_ok=True)
     write_recording(rec, args.output, progress=_progress(desc="writing"))
     print(f"{args.output}: {args.recording} with {', '.join(e['effect'] for e in effects)}")
@@ -223,7 +223,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     from rig.evaluate import evaluate
     from rig.importer import load_any
 
-    rec = load_any(args.recording)
+    rec = load_any(args.recording, args.survey)
     result = evaluate(rec, robust=not args.no_robust, use_nn=not args.no_nn, model_path=args.model)
     result["recording"] = str(args.recording)
     config = ("robust" if not args.no_robust else "plain") + (" + bias network" if result["config"]["bias_net"] else "")
@@ -285,7 +285,7 @@ def _board_link(target: str, session, board: str):
 def _replay(recording: Path, target: str, out: Path, *, use_nn: bool = True, robust: bool = True,
             model_path: Path | None = None, start: float | None = None, duration: float | None = None,
             lookahead: int = 0, speed: float | None = None, report: bool = True, session=None,
-            board: str = "local") -> dict:
+            board: str = "local", survey: Path | None = None) -> dict:
     """Replay into one target through its bridge (on zenoh `session`, or a private one);
     write OUT/run.mcap (as it goes, finished on every exit path), OUT/metrics.json (also
     after a board failure, with the error) and the report."""
@@ -298,7 +298,7 @@ def _replay(recording: Path, target: str, out: Path, *, use_nn: bool = True, rob
     from rig.importer import load_any
     from rig.runrecord import RUN_FILE, RunRecorder
 
-    rec = load_any(recording)
+    rec = load_any(recording, survey)
     params, model = estimator_config(robust, use_nn, model_path)
     out.mkdir(parents=True, exist_ok=True)
     recorder = RunRecorder(out / RUN_FILE)
@@ -403,7 +403,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         result = _replay(args.recording, args.target, args.out, use_nn=not args.no_nn, robust=not args.no_robust,
                          model_path=args.model, start=args.start, duration=args.duration,
                          lookahead=args.lookahead, speed=args.speed if args.mode == "realtime" else None,
-                         session=session, board=args.board)
+                         session=session, board=args.board, survey=args.survey)
     finally:
         session.close()
     failed = _assertions(result, args.assert_rmse, args.assert_budget)
@@ -664,7 +664,8 @@ def build_parser() -> argparse.ArgumentParser:
                                    "Writes DIR/report.json (findings sorted by evidence), DIR/report.md with "
                                    "plots and DIR/model.json (the fitted effects, usable as a `rig simulate` "
                                    "effect list). See docs/diagnosis.md.")
-    p.add_argument("recording", type=Path, help="recording (MCAP, or a flight directory of the shared data)")
+    p.add_argument("recording", type=Path, help="recording (MCAP, or a flight log of the shared data)")
+    _survey_option(p)
     p.add_argument("--out", type=Path, required=True, help="output directory")
     p.set_defaults(func=cmd_diagnose)
 
@@ -685,7 +686,8 @@ def build_parser() -> argparse.ArgumentParser:
                                    "by what the effects change in the simulator along the ground truth, UWB "
                                    "stamps move with timing effects, IMU effects act on the recorded readings. "
                                    "The recording keeps its own noise and effects (use it as the control).")
-    p.add_argument("recording", type=Path)
+    p.add_argument("recording", type=Path, help="recording (MCAP, or a flight log of the shared data)")
+    _survey_option(p)
     p.add_argument("--effects", required=True,
                    help='JSON text or file: [{"effect": "anchor_delay", "params": {"anchor": 3, "meters": 0.1}}]')
     p.add_argument("-o", "--output", type=Path, required=True, help="output .mcap")
@@ -858,9 +860,15 @@ def _add_estimator_options(p: argparse.ArgumentParser) -> None:
     """The recording and the estimator configuration, shared by evaluate and replay."""
     p.add_argument("recording", type=Path, nargs="?", default=paths.default_recording(),
                    help="MCAP recording or shared flight log (default: the shipped default recording)")
+    _survey_option(p)
     p.add_argument("--no-nn", action="store_true", help="no bias-network correction")
     p.add_argument("--no-robust", action="store_true", help="plain EKF update instead of M-estimation")
     p.add_argument("--model", type=Path, help="bias network JSON (default: the shipped model)")
+
+
+def _survey_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--survey", type=Path, help="anchor survey of a flight log (default: anchor_MMDD.txt of the "
+                                               "log's day, beside its flights directory or in the shared data)")
 
 
 def _add_segment_options(p: argparse.ArgumentParser) -> None:

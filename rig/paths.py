@@ -26,9 +26,12 @@ def flights() -> list[Path]:
 
 
 def survey_for(flight: Path) -> Path:
-    """The survey of a flight's day: logs are named MMDD-..., surveys anchor_MMDD.txt."""
-    day = Path(flight).name.split("-")[0]
-    return data_dir() / "surveys" / f"anchor_{day}.txt"
+    """The survey of a flight's day: logs are named MMDD-..., surveys anchor_MMDD.txt,
+    looked for in the flight's own data tree (FLIGHTS/../surveys: a copy of the data
+    with altered flights keeps its surveys) and then in the shared data."""
+    name = f"anchor_{Path(flight).name.split('-')[0]}.txt"
+    beside = Path(flight).resolve().parent.parent / "surveys" / name
+    return beside if beside.is_file() else data_dir() / "surveys" / name
 
 
 def default_survey() -> Path:

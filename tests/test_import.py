@@ -11,7 +11,7 @@ from mcap.reader import make_reader
 
 from conftest import crafted_log, run_rig
 from rig import paths
-from rig.importer import GRAVITY, import_log, infer_uwb_mode
+from rig.importer import GRAVITY, import_log, infer_uwb_mode, load_any
 from rig.recording import read_recording, write_recording
 from rig.usdlog import read_log
 
@@ -123,3 +123,39 @@ def test_cli_reports_a_missing_file_without_traceback(tmp_path: Path) -> None:
     proc = run_rig("import", str(tmp_path / "nope"), "--survey", str(tmp_path / "nope.txt"), "-o",
                    str(tmp_path / "o.mcap"))
     assert proc.returncode == 2 and "Traceback" not in proc.stderr and "cannot read" in proc.stderr
+
+
+def _shifted_survey(source: Path, target: Path, dx: float) -> None:
+    """The survey with every point moved by dx along x (so every anchor is)."""
+    lines = []
+    for line in source.read_text().splitlines():
+        fields = line.split(",")
+        if len(fields) == 4 and not line.startswith("#"):
+            fields[1] = f"{float(fields[1]) + dx:.6f}"
+        lines.append(",".join(fields))
+    target.parent.mkdir(parents=True, exist_ok=True)
+    target.write_text("\n".join(lines) + "\n")
+
+
+def test_a_flight_log_finds_its_survey_beside_it_or_by_option(tmp_path: Path, data_dir: Path) -> None:
+    """A copy of the data tree (flights/ and surveys/) with altered files uses its own
+    survey; a log renamed away from its day needs --survey, and says so."""
+    shared = data_dir / "surveys" / "anchor_0425.txt"
+    flight = tmp_path / "tree" / "flights" / "0425-traj2"
+    flight.parent.mkdir(parents=True)
+    flight.write_bytes((data_dir / "flights" / "0425-traj2").read_bytes())
+    _shifted_survey(shared, tmp_path / "tree" / "surveys" / "anchor_0425.txt", 1.0)
+    own = {a.id: a.position for a in load_any(flight).anchors}
+    for anchor in load_any(data_dir / "flights" / "0425-traj2").anchors:
+        assert np.allclose(np.subtract(own[anchor.id], anchor.position), [1.0, 0.0, 0.0])
+
+    renamed = tmp_path / "altered-flight"
+    renamed.write_bytes(flight.read_bytes())
+    out = tmp_path / "same.mcap"
+    proc = run_rig("inject", str(renamed), "--effects", "[]", "-o", str(out))
+    assert proc.returncode == 2 and "cannot read survey" in proc.stderr and "Traceback" not in proc.stderr
+    proc = run_rig("inject", str(renamed), "--survey", str(shared), "--effects", "[]", "-o", str(out))
+    assert proc.returncode == 0, proc.stderr
+    assert [a.id for a in read_recording(out).anchors] == [a.id for a in load_any(flight).anchors]
+    proc = run_rig("inject", str(out), "--survey", str(shared), "--effects", "[]", "-o", str(tmp_path / "x.mcap"))
+    assert proc.returncode == 2 and "carries its own anchors" in proc.stderr
