@@ -20,6 +20,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from rig import paths  # noqa: E402
+from rig.diagnose import left_out_text  # noqa: E402
 
 
 def run(flight: Path, out: Path, reuse: bool) -> None:
@@ -76,9 +77,9 @@ def tables(reports: dict) -> str:
               f"{delays} | {nlos} | {floor} | {bias} |")
     gross = []
     for name, r in reports.items():
-        counts = [f"{c['gross_errors_left_out']} {chan}" for chan, c in r["channels"].items() if c["gross_errors_left_out"]]
-        if counts:
-            gross.append(f"{name} ({', '.join(counts)})")
+        left_out = left_out_text({chan: c["gross_errors_left_out"] for chan, c in r["channels"].items()})
+        if left_out:
+            gross.append(f"{name} ({left_out})")
     print("")
     print("Samples left out as corrupt (step 2; IMU samples are block means of an axis): " + ("; ".join(gross) or "none") + ".")
     print("")

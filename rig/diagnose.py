@@ -81,6 +81,12 @@ def _row_width(name: str) -> int:
     return 1 if name == "tdoa" else len(AXES)
 
 
+def left_out_text(left_out: dict[str, int]) -> str:
+    """What was left out as corrupt, per channel ("10 tdoa samples, 6 gyro samples"),
+    in the unit of the channel's `samples`; empty when nothing was."""
+    return ", ".join(f"{n} {name} samples" for name, n in left_out.items() if n)
+
+
 @dataclass
 class Channel:
     """One channel's rows: standardised residual, time of each row, noise scale."""
@@ -233,8 +239,7 @@ class Problem:
             self.tdoa_rows = self.tdoa_rows[~gross["tdoa"]]
         left_out = {name: int(g.sum()) * _row_width(name) for name, g in gross.items()}
         if any(left_out.values()):
-            log.warning("left out as gross errors (over %g noise deviations): %s", GROSS_Z,
-                        ", ".join(f"{n} {name} samples" for name, n in left_out.items() if n))
+            log.warning("left out as gross errors (over %g noise deviations): %s", GROSS_Z, left_out_text(left_out))
             self._residuals()
         return left_out
 

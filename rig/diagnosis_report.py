@@ -14,7 +14,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from rig import effects as fx  # noqa: E402
-from rig.diagnose import GROSS_Z, Diagnosis, Finding  # noqa: E402
+from rig.diagnose import GROSS_Z, Diagnosis, Finding, left_out_text  # noqa: E402
 
 REPORT_JSON, REPORT_MD, MODEL_JSON = "report.json", "report.md", "model.json"
 
@@ -83,11 +83,10 @@ def _markdown(diagnosis: Diagnosis, report: dict, images: list[tuple[str, str]])
     lines += ["", "Mismatch is a robust RMS of recorded − simulated in the channel's unit (IMU channels as "
               "block means); the *after* column re-simulates the recording with every named effect within its "
               "physical bounds.", ""]
-    gross = {name: c["gross_errors_left_out"] for name, c in report["channels"].items() if c["gross_errors_left_out"]}
-    if gross:
+    left_out = left_out_text({name: c["gross_errors_left_out"] for name, c in report["channels"].items()})
+    if left_out:
         lines += [f"Left out as corrupt (over {GROSS_Z:g} noise deviations from the channel's median: a garbled "
-                  "range, or a glitch of the ground truth): "
-                  + ", ".join(f"{n} {name} samples" for name, n in gross.items()) + ".", ""]
+                  f"range, or a glitch of the ground truth): {left_out}.", ""]
     lines += ["## What physics the simulation left out", ""]
     if not diagnosis.findings:
         lines.append("Nothing: no catalog effect removes enough of the mismatch to pay for its parameters.")
