@@ -49,6 +49,7 @@ from scipy.ndimage import uniform_filter1d
 from rig import effects as fx
 from rig import nlos_mixture
 from rig.recording import Recording, Vec3Series
+from rig.region_scan import BoxScan
 from rig.simulate import Predictor
 from rig.trajectory import ATTITUDE_WINDOW_S, window_mean
 
@@ -387,10 +388,9 @@ def design_columns(problem: Problem, c: Candidate, model: list[fx.Effect] = ()) 
 
 WINDOWABLE = {"anchor_delay", "antenna_pattern", "imu_accel_bias", "imu_gyro_bias", "imu_accel_scale",
               "imu_gyro_scale"}
-NLOS_CELL_M = 0.5
-NLOS_MIN_CELL = 20
 NLOS_PRIOR_M = 0.3            # small: what all of an anchor's ranges share is its delay's
-NLOS_MAX_SHARE = 0.5          # a "region" holding most of an anchor's samples is a delay, not NLOS
+NLOS_MIN_SHARE = 0.05         # an NLOS region holds at least this share of an anchor's samples ...
+NLOS_MAX_SHARE = 0.5          # ... and not most of them: that is a delay, not NLOS
 
 
 @dataclass
@@ -797,41 +797,15 @@ def _nlos_trial(problem: Problem, channel: Channel, z: np.ndarray, folds: np.nda
 
 
 def find_region(positions: np.ndarray, s: np.ndarray, involved: np.ndarray) -> fx.Region | None:
-    """Where an anchor's ranges read long: the connected set of floor cells (NLOS_CELL_M)
-    around the cell with the most significant positive mean of `s` (its standardised
-    signed residual), cells counted when their mean is 3 standard errors above zero."""
+    """Where an anchor's ranges read long: the box of the region scan (at most
+    NLOS_MAX_SHARE of the anchor's samples) whose mean of `s`, its standardised signed
+    residual, is most significantly above zero, when 3 standard errors above."""
     pos, s = positions[involved], np.clip(s[involved], -HUBER_C * 3, HUBER_C * 3)
     if len(s) < MIN_SAMPLES:
         return None
-    cells = np.floor((pos[:, :2] - pos[:, :2].min(axis=0)) / NLOS_CELL_M).astype(int)
-    keys, inverse, counts = np.unique(cells, axis=0, return_inverse=True, return_counts=True)
-    inverse = inverse.ravel()
-    sums = np.bincount(inverse, weights=s)
-    tstat = sums / np.sqrt(np.maximum(counts, 1))        # s has unit variance: mean * sqrt(n)
-    hot = (counts >= NLOS_MIN_CELL) & (tstat > 3.0)
-    if not hot.any():
-        return None
-    component = _connected(keys, hot, int(np.argmax(np.where(hot, tstat, -np.inf))))
-    inside = np.isin(inverse, component)
-    if inside.mean() > NLOS_MAX_SHARE:
-        return None
-    chosen = pos[inside]
-    margin = np.array([NLOS_CELL_M / 2, NLOS_CELL_M / 2, 0.05])
-    return fx.Region(chosen.min(axis=0) - margin, chosen.max(axis=0) + margin)
-
-
-def _connected(keys: np.ndarray, hot: np.ndarray, start: int) -> list[int]:
-    index = {tuple(k): i for i, k in enumerate(keys)}
-    seen, todo = {start}, [start]
-    while todo:
-        i = todo.pop()
-        for dx in (-1, 0, 1):
-            for dy in (-1, 0, 1):
-                j = index.get((keys[i][0] + dx, keys[i][1] + dy))
-                if j is not None and hot[j] and j not in seen:
-                    seen.add(j)
-                    todo.append(j)
-    return sorted(seen)
+    scan = BoxScan(pos, NLOS_MIN_SHARE, NLOS_MAX_SHARE)
+    tstat = scan.sums(s)[0] / np.sqrt(np.maximum(scan.n_in, 1))      # s has unit variance: mean * sqrt(n)
+    return scan.best(np.where(tstat > 3.0, tstat, -np.inf))
 
 
 def nlos_shape(excess: np.ndarray, outside: np.ndarray, mean_shift: float) -> tuple[float, float]:

@@ -26,6 +26,7 @@ from scipy.optimize import minimize
 from scipy.special import erfcx, expit, log_ndtr
 
 from rig import effects as fx
+from rig.region_scan import BoxScan
 
 log = logging.getLogger(__name__)
 
@@ -36,7 +37,6 @@ MIN_SHARE = 1e-4
 MIN_EXCESS = 0.05          # smallest exponential mean fitted, in noise standard deviations
 LOG_SIZE_LIMIT = 7.0       # a fitted size (spread, exponential mean) stays within e^±7 noise standard deviations
 MAX_FRACTION = 0.98
-GRID_BINS = 8              # boxes are spanned by this many quantile bins of x and of y
 MIN_BOX_SHARE = 0.05       # a box holds at least this share of the anchor's samples ...
 MAX_BOX_SHARE = 0.9        # ... and leaves this share outside, to fit the base on
 TAIL = 2.0                 # the scan counts residuals this far above their box's median
@@ -165,12 +165,6 @@ def fit_shapes(data: Binned, base: Base) -> tuple[Shape, Shape]:
 
 # ----------------------------------------------------------------------------- the box scan
 
-def _quantile_edges(v: np.ndarray) -> np.ndarray:
-    edges = np.quantile(v, np.linspace(0, 1, GRID_BINS + 1))
-    edges[0], edges[-1] = -np.inf, np.inf
-    return edges
-
-
 def _crossing(cdf: np.ndarray, target: np.ndarray) -> np.ndarray:
     """Per row, the level at which the row's empirical CDF (over LEVELS) reaches target."""
     i = np.clip(np.argmax(cdf >= target[:, None], axis=1), 1, len(LEVELS) - 1)
@@ -200,40 +194,13 @@ def _binomial_llr(p_in, n_in, p_out, n_out):
 
 
 def scan_box(positions: np.ndarray, s: np.ndarray) -> fx.Region | None:
-    """The box of the quantile grid whose upper tail (above its own median, so a shift
-    does not count) is most significantly heavier than outside it."""
-    ex, ey = _quantile_edges(positions[:, 0]), _quantile_edges(positions[:, 1])
-    cx = np.searchsorted(ex, positions[:, 0], side="right") - 1
-    cy = np.searchsorted(ey, positions[:, 1], side="right") - 1
-    below = np.zeros((GRID_BINS + 1, GRID_BINS + 1, len(LEVELS)))
-    np.add.at(below, (cx + 1, cy + 1), (s[:, None] <= LEVELS[None, :]).astype(float))
-    count = np.zeros((GRID_BINS + 1, GRID_BINS + 1))
-    np.add.at(count, (cx + 1, cy + 1), 1.0)
-    below, count = below.cumsum(0).cumsum(1), count.cumsum(0).cumsum(1)
-    spans = np.array([(i, j) for i in range(GRID_BINS) for j in range(i + 1, GRID_BINS + 1)])
-    i, j = np.repeat(spans, len(spans), axis=0).T
-    k, m = np.tile(spans, (len(spans), 1)).T
-
-    def box_sum(a):
-        return a[j, m] - a[i, m] - a[j, k] + a[i, k]
-    n_in, c_in = box_sum(count), box_sum(below)
-    n_all = count[-1, -1]
-    ok = (n_in >= MIN_BOX_SHARE * n_all) & (n_in <= MAX_BOX_SHARE * n_all)
-    if not ok.any():
-        return None
-    n_in, c_in, i, j, k, m = n_in[ok], c_in[ok], i[ok], j[ok], k[ok], m[ok]
-    p_in, p_out = _upper_tail(c_in, n_in), _upper_tail(below[-1, -1][None, :] - c_in, n_all - n_in)
-    score = np.where(p_in > p_out, _binomial_llr(p_in, n_in, p_out, n_all - n_in), -np.inf)
-    b = int(np.argmax(score))
-    if not np.isfinite(score[b]):
-        return None
-    low = np.array([ex[i[b]], ey[k[b]], -np.inf])
-    high = np.array([ex[j[b]], ey[m[b]], np.inf])
-    inside = np.all((positions >= low) & (positions <= high), axis=1)
-    # the box as far as the samples reach (an open side ends at the flight's edge)
-    chosen = positions[inside]
-    return fx.Region(np.where(np.isfinite(low), low, chosen.min(axis=0)),
-                     np.where(np.isfinite(high), high, chosen.max(axis=0)))
+    """The box whose upper tail (above its own median, so a shift does not count) is
+    most significantly heavier than outside it."""
+    scan = BoxScan(positions, MIN_BOX_SHARE, MAX_BOX_SHARE)
+    below_in, below_all = scan.sums((s[:, None] <= LEVELS[None, :]).astype(float))
+    p_in = _upper_tail(below_in, scan.n_in)
+    p_out = _upper_tail(below_all[None, :] - below_in, scan.n_all - scan.n_in)
+    return scan.best(np.where(p_in > p_out, _binomial_llr(p_in, scan.n_in, p_out, scan.n_all - scan.n_in), -np.inf))
 
 
 # ----------------------------------------------------------------------------- evidence
