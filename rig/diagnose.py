@@ -127,11 +127,19 @@ class Candidate:
     def __post_init__(self) -> None:
         self.key = self.effect + "".join(f":{v}" for v in self.fixed.values())
 
-    def make(self, theta: np.ndarray, extra: dict | None = None) -> fx.Effect:
+    def value(self, theta: np.ndarray) -> np.ndarray:
+        """The parameter for fitted column weights θ. A scale regressed on the recording
+        (recorded − predicted = θ · recorded) is 1 / (1 − θ) = neutral + θ / (1 − θ)."""
         theta = np.asarray(theta, float)
-        if self.on_recorded:         # recorded − predicted = θ · recorded, so the scale is 1 / (1 − θ)
-            theta = theta / (1.0 - theta)
-        value = self.neutral + theta
+        return self.neutral + (theta / (1.0 - theta) if self.on_recorded else theta)
+
+    def value_slope(self, theta: np.ndarray) -> np.ndarray:
+        """d value / d θ: carries a standard error of θ into the parameter's unit."""
+        theta = np.asarray(theta, float)
+        return 1.0 / (1.0 - theta) ** 2 if self.on_recorded else np.ones_like(theta)
+
+    def make(self, theta: np.ndarray, extra: dict | None = None) -> fx.Effect:
+        value = self.value(theta)
         params = {**self.fixed, self.param: float(value[0]) if self.size == 1 else value.tolist(), **(extra or {})}
         return fx.make_effect(self.effect, params)
 
@@ -1065,8 +1073,7 @@ def _uncertainty(term: Term) -> tuple[dict, list[str]]:
     name = "mean_shift_m" if c.effect == "nlos" else c.param
     sd = term.std_err
     vague = np.flatnonzero(sd > IDENTIFIED_SD_SHARE * c.prior)
-    if c.on_recorded:                # in the parameter's unit: d scale / d θ = 1 / (1 − θ)²
-        sd = sd / (1.0 - term.estimate) ** 2
+    sd = sd * c.value_slope(term.estimate)      # in the parameter's unit
     if c.size == 1:
         return {name: rounded_floats(float(sd[0]))}, [name] if len(vague) else []
     return {name: rounded_floats(sd.tolist())}, [f"{name}[{i}]" for i in vague]

@@ -19,7 +19,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from conftest import RIG
-from rig.diagnose import Problem, Term, _estimate, _free_offset, _mad_scale, candidates, diagnose
+from rig.diagnose import Candidate, Problem, Term, _estimate, _free_offset, _mad_scale, candidates, diagnose
 from rig.fitted_model import outside_window
 from rig.importer import load_any
 from rig.simulate import Predictor, SimConfig, inject, simulate
@@ -360,3 +360,17 @@ def test_corrupt_ranges_and_a_ground_truth_glitch_are_left_out_not_chased(survey
     assert result["channels"]["tdoa"]["gross_errors_left_out"] == 10
     assert result["channels"]["gyro"]["gross_errors_left_out"] >= 3         # a block mean of each axis
     assert set(keyed(result["findings"])) == set(sim_control), "the same flight, untouched, names these"
+
+
+def test_a_scale_regressed_on_the_recording_reports_its_value_and_error_in_the_scales_unit() -> None:
+    """recorded − predicted = θ · recorded: the scale is 1 / (1 − θ), and a standard
+    error of θ is carried by that map's slope; any other parameter is neutral + θ."""
+    theta = np.array([0.05, -0.1, 0.0])
+    on_recording = Candidate("imu_gyro_scale", "gyro", "scale", 3, neutral=1.0, on_recorded=True)
+    assert np.allclose(on_recording.value(theta), 1.0 / (1.0 - theta))
+    assert np.allclose(on_recording.make(theta).params()["scale"], 1.0 / (1.0 - theta))
+    h = 1e-6
+    numeric = (on_recording.value(theta + h) - on_recording.value(theta - h)) / (2 * h)
+    assert np.allclose(on_recording.value_slope(theta), numeric, rtol=1e-6)
+    plain = Candidate("imu_gyro_bias", "gyro", "bias_rps", 3)
+    assert np.allclose(plain.value(theta), theta) and np.allclose(plain.value_slope(theta), 1.0)
