@@ -785,13 +785,16 @@ def _nlos_trial(problem: Problem, channel: Channel, z: np.ndarray, folds: np.nda
     found on the training blocks only; the term carries the region found on all data."""
     sign = problem.anchor_sign(k)
     positions = problem.tag_positions()
+
+    def column(region: fx.Region) -> np.ndarray:      # an excess of 1 m on anchor k's ranges inside
+        return (region.contains(positions) * sign)[:, None] / channel.scale[:, None]
     gain = 0.0
     for fold in range(FOLDS):
         train, test = folds != fold, folds == fold
         region = find_region(positions[train], (sign * z)[train], sign[train] != 0)
         if region is None:
             continue
-        col = (region.contains(positions) * sign)[:, None] / channel.scale[:, None]
+        col = column(region)
         theta = irls(z[train], col[train], np.array([NLOS_PRIOR_M]))
         if theta[0] <= 0:
             continue
@@ -799,8 +802,7 @@ def _nlos_trial(problem: Problem, channel: Channel, z: np.ndarray, folds: np.nda
     region = find_region(positions, sign * z, sign != 0)
     if region is None:
         return None
-    col = (region.contains(positions) * sign)[:, None] / channel.scale[:, None]
-    return gain, Term(Candidate("nlos", "tdoa", "mean_excess_m", 1, {"anchor": k}, prior=NLOS_PRIOR_M), col,
+    return gain, Term(Candidate("nlos", "tdoa", "mean_excess_m", 1, {"anchor": k}, prior=NLOS_PRIOR_M), column(region),
                       {"region": region.to_json()})
 
 

@@ -19,6 +19,17 @@ def _quantile_edges(v: np.ndarray) -> np.ndarray:
     return edges
 
 
+def _box_sums(cells: tuple[np.ndarray, np.ndarray], boxes: tuple[np.ndarray, ...],
+              values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Sums of `values` over the samples in each box (x bins i..j−1, y bins k..m−1) by
+    2-D cumulative sums; and the sum over all samples."""
+    grid = np.zeros((GRID_BINS + 1, GRID_BINS + 1, *values.shape[1:]))
+    np.add.at(grid, cells, values)
+    grid = grid.cumsum(0).cumsum(1)
+    i, j, k, m = boxes
+    return grid[j, m] - grid[i, m] - grid[j, k] + grid[i, k], grid[-1, -1]
+
+
 class BoxScan:
     """The boxes of the grid over `positions` that hold between `min_share` and
     `max_share` of them; `sums` adds any per-sample values up per box."""
@@ -29,22 +40,16 @@ class BoxScan:
         self._cells = tuple(np.searchsorted(e, positions[:, axis], side="right")
                             for axis, e in enumerate(self.edges))
         spans = np.array([(i, j) for i in range(GRID_BINS) for j in range(i + 1, GRID_BINS + 1)])
-        i, j = np.repeat(spans, len(spans), axis=0).T
-        k, m = np.tile(spans, (len(spans), 1)).T
-        self._boxes = i, j, k, m
-        n_in, self.n_all = self.sums(np.ones(len(positions)))
+        every = (*np.repeat(spans, len(spans), axis=0).T, *np.tile(spans, (len(spans), 1)).T)
+        n_in, self.n_all = _box_sums(self._cells, every, np.ones(len(positions)))
         ok = (n_in >= min_share * self.n_all) & (n_in <= max_share * self.n_all)
-        self._boxes = tuple(side[ok] for side in self._boxes)
+        self._boxes = tuple(side[ok] for side in every)
         self.n_in = n_in[ok]
 
     def sums(self, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Per box, the sum of `values` (one row per sample, any trailing shape) over
         the samples inside; and their sum over all samples."""
-        grid = np.zeros((GRID_BINS + 1, GRID_BINS + 1, *values.shape[1:]))
-        np.add.at(grid, self._cells, values)
-        grid = grid.cumsum(0).cumsum(1)
-        i, j, k, m = self._boxes
-        return grid[j, m] - grid[i, m] - grid[j, k] + grid[i, k], grid[-1, -1]
+        return _box_sums(self._cells, self._boxes, values)
 
     def best(self, score: np.ndarray) -> fx.Region | None:
         """The box of the highest finite score, as far as the samples reach (an open
