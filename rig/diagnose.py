@@ -30,7 +30,7 @@ Method, per channel (TDOA, accelerometer, gyroscope):
    the parametric candidates leave; an NLOS the mean shift misses (a region so
    large that a displacement takes the shift) is found by the shape of the residuals
    (rig.nlos_mixture: a positive exponential tail, held out), its mean excess taken
-   out and the effects named again on what is left; the floor multipath is a
+   out and every candidate named again on what is left; the floor multipath is a
    noise-level effect judged on the local TDOA noise (what a running median leaves)
    below a height.
 6. The named effects, fitted jointly, re-simulate the recording (each channel's
@@ -663,8 +663,9 @@ def select(problem: Problem, channel: Channel, pool: list[Candidate]
     them is mostly that effect (a comparison with a control recording needs that).
     NLOS regions are searched on what all parametric candidates leave, first as a
     mean shift, then by the shape of the residuals (nlos_mixture); the mean excess
-    of an NLOS found by its shape is taken out of the channel and the named terms
-    named again on what is left (over half the flight a displacement would take it),
+    of an NLOS found by its shape is taken out of the channel and every candidate
+    named again on what is left (over half the flight a displacement would take it;
+    one dropped against the excess may now be supported),
     but the simplest effects (timing, delays, lever arm) are estimated on the channel
     as it was: NLOS is the richest explanation, and which regions its shape finds
     must not move them (a lever arm moved by 9 cm); named effects are tried confined
@@ -689,7 +690,7 @@ def select(problem: Problem, channel: Channel, pool: list[Candidate]
             residual = problem.recorded("tdoa") - problem.predict_channel("tdoa", [f.effect() for f in shapes])
             channel = replace(channel, residual=residual)
             z = channel.z
-            named = _name(z, named)
+            named = _name(z, terms)
             _refit(z, named)
     if _confine_in_time(channel, named):
         named = _name(z, named)      # leaves them fitted jointly
