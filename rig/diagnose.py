@@ -399,6 +399,7 @@ WINDOWABLE = {"anchor_delay", "antenna_pattern", "imu_accel_bias", "imu_gyro_bia
 NLOS_PRIOR_M = 0.3            # small: what all of an anchor's ranges share is its delay's
 NLOS_MIN_SHARE = 0.05         # an NLOS region holds at least this share of an anchor's samples ...
 NLOS_MAX_SHARE = 0.5          # ... and not most of them: that is a delay, not NLOS
+NLOS_MIN_T = 3.0              # and its mean excess this many standard errors above zero
 
 
 @dataclass
@@ -810,13 +811,13 @@ def _nlos_trial(problem: Problem, channel: Channel, z: np.ndarray, folds: np.nda
 def find_region(positions: np.ndarray, s: np.ndarray, involved: np.ndarray) -> fx.Region | None:
     """Where an anchor's ranges read long: the box of the region scan (at most
     NLOS_MAX_SHARE of the anchor's samples) whose mean of `s`, its standardised signed
-    residual, is most significantly above zero, when 3 standard errors above."""
+    residual, is most significantly above zero, when NLOS_MIN_T standard errors above."""
     pos, s = positions[involved], np.clip(s[involved], -HUBER_C * 3, HUBER_C * 3)
     if len(s) < MIN_SAMPLES:
         return None
     scan = BoxScan(pos, NLOS_MIN_SHARE, NLOS_MAX_SHARE)
     tstat = scan.sums(s)[0] / np.sqrt(np.maximum(scan.n_in, 1))      # s has unit variance: mean * sqrt(n)
-    return scan.best(np.where(tstat > 3.0, tstat, -np.inf))
+    return scan.best(np.where(tstat > NLOS_MIN_T, tstat, -np.inf))
 
 
 def nlos_shape(excess: np.ndarray, outside: np.ndarray, mean_shift: float) -> tuple[float, float]:
