@@ -360,7 +360,8 @@ def candidates(problem: Problem) -> list[Candidate]:
                               penalty=3 * PENALTY_PER_PARAMETER)]    # the least specific: pays most
     if len(problem.imu_rows["accel"]):
         out += [Candidate("imu_accel_bias", "accel", "bias_mps2", 3, prior=3.0, bound=6.0),
-                Candidate("imu_accel_scale", "accel", "scale", 3, neutral=1.0, step=1e-3, prior=0.2, bound=0.5)]
+                Candidate("imu_accel_scale", "accel", "scale", 3, neutral=1.0, step=1e-3, prior=0.2, bound=0.5),
+                Candidate("imu_vibration_rectification", "accel", "gain", 3, step=1.0, prior=5.0, bound=20.0)]
     if len(problem.imu_rows["gyro"]):
         out += [Candidate("imu_gyro_bias", "gyro", "bias_rps", 3, step=1e-3, prior=0.2, bound=0.5),
                 Candidate("imu_gyro_scale", "gyro", "scale", 3, neutral=1.0, step=1e-3, prior=0.2, bound=0.5,
@@ -510,10 +511,12 @@ def _median_gauge(terms: list[Term], attribute: str = "theta") -> None:
 # anchors. Effects of equal rank are judged given each other: of two
 # look-alikes, backward elimination drops the one that adds less (a scale factor in
 # hover reads as a bias unless the thrust varies enough to tell them apart).
+# Vibration rectification is richer than an accelerometer bias: over steady shaking
+# it is one, so it takes only what follows the vibration around the bias's mean.
 ORDER = {"time_offset": ("tdoa", 0), "clock_drift": ("tdoa", 0),
          "anchor_delay": ("tdoa", 0), "lever_arm": ("tdoa", 0), "anchor_position": ("tdoa", 1),
          "antenna_pattern": ("tdoa", 2), "nlos": ("tdoa", 3),
-         "imu_accel_bias": ("accel", 0), "imu_accel_scale": ("accel", 0),
+         "imu_accel_bias": ("accel", 0), "imu_accel_scale": ("accel", 0), "imu_vibration_rectification": ("accel", 1),
          "imu_gyro_bias": ("gyro", 0), "imu_gyro_scale": ("gyro", 0)}
 
 
@@ -721,7 +724,8 @@ LOOK_ALIKES = {"anchor_delay": ("anchor_position", "antenna_pattern"),
                "anchor_position": ("anchor_delay", "antenna_pattern"),
                "antenna_pattern": ("anchor_delay", "anchor_position"),
                "time_offset": ("clock_drift",), "clock_drift": ("time_offset",),
-               "imu_accel_bias": ("imu_accel_scale",), "imu_accel_scale": ("imu_accel_bias",),
+               "imu_accel_bias": ("imu_accel_scale", "imu_vibration_rectification"),
+               "imu_accel_scale": ("imu_accel_bias",), "imu_vibration_rectification": ("imu_accel_bias",),
                "imu_gyro_bias": ("imu_gyro_scale",), "imu_gyro_scale": ("imu_gyro_bias",)}
 
 

@@ -31,6 +31,9 @@ PLAIN = {
     "imu_accel_bias": "the accelerometer reads {bias_mps2} m/s² too high",
     "imu_gyro_bias": "the gyroscope reads {bias_rps} rad/s too high",
     "imu_accel_scale": "the accelerometer's scale factors are {scale}",
+    "imu_vibration_rectification": "the accelerometer reads {gain} × the RMS of its vibration too high (vibration "
+                                   "rectification: a bias that follows the rotors' shaking and is gone with the "
+                                   "motors off)",
     "imu_gyro_scale": "the gyroscope's scale factors are {scale}",
     "lever_arm": "the UWB antenna sits at {offset_m} m from the body origin (body frame)",
 }

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from typing import ClassVar
 
 import numpy as np
+from scipy.ndimage import uniform_filter1d
 from scipy.spatial.transform import Rotation
 
 # Stages, in order of application.
@@ -22,8 +23,12 @@ WORLD = 0       # changes what is physically true (anchor positions, lever arm)
 SCALE = 1       # multiplicative sensor errors (scale factors), before any additive one
 SIGNAL = 2      # deterministic additive sensor errors (biases, delays, antenna pattern)
 NOISE = 3       # random errors (white noise, NLOS excess delays)
-CORRUPTION = 4  # rare gross errors (outliers)
-TIMING = 5      # timestamps (offsets, drift)
+RECTIFIED = 4   # errors made of the noise itself (vibration rectification)
+CORRUPTION = 5  # rare gross errors (outliers)
+TIMING = 6      # timestamps (offsets, drift)
+
+VIBRATION_HIGHPASS_S = 0.02    # vibration: the accelerometer less its running mean this long ...
+VIBRATION_RMS_S = 0.2          # ... as a running RMS this long
 
 
 @dataclass
@@ -42,6 +47,9 @@ class ImuBatch:
     t: np.ndarray
     accel: np.ndarray
     gyro: np.ndarray
+    # RMS of the accelerometer's vibration at each sample and axis when it is known
+    # (a recording's, see vibration_level); otherwise measured on `accel` as it stands
+    vibration: np.ndarray | None = None
 
 
 @dataclass
@@ -186,6 +194,38 @@ class ImuGyroBias(_ImuConstantBias):
     """Gyroscope bias (rad/s)."""
 
     name, stream, param = "imu_gyro_bias", "gyro", "bias_rps"
+
+
+def vibration_level(t: np.ndarray, accel: np.ndarray) -> np.ndarray:
+    """RMS of the accelerometer's vibration around each sample, per axis: the readings
+    less their VIBRATION_HIGHPASS_S running mean (the airframe shaking at the rotor
+    frequencies, not the flight's motion), as a VIBRATION_RMS_S running RMS. Rows that
+    are not finite read 0."""
+    level = np.zeros(np.shape(accel))
+    ok = np.all(np.isfinite(accel), axis=1)
+    if ok.sum() < 3:
+        return level
+    rate = (ok.sum() - 1) / max(float(t[ok][-1] - t[ok][0]), 1e-9)
+    window = max(3, int(round(VIBRATION_HIGHPASS_S * rate)))
+    fast = accel[ok] - uniform_filter1d(accel[ok], window, axis=0, mode="nearest")
+    window = max(1, int(round(VIBRATION_RMS_S * rate)))
+    level[ok] = np.sqrt(uniform_filter1d(fast ** 2, window, axis=0, mode="nearest"))
+    return level
+
+
+class ImuVibrationRectification(_ImuVectorEffect):
+    """Vibration rectification: an accelerometer axis shaken by the rotors reads `gain`
+    × the RMS of its vibration (`vibration_level`) too high. A sensor or mount that
+    responds unevenly to the two directions of a fast oscillation turns part of it into
+    a slow offset, which follows the vibration (the propellers' balance, the motors'
+    speed) and is absent with the motors off: a bias that comes and goes in flight."""
+
+    name, stream, param, stage = "imu_vibration_rectification", "accel", "gain", RECTIFIED
+
+    def apply_imu(self, imu: ImuBatch, rng: np.random.Generator | None) -> None:
+        level = imu.vibration if imu.vibration is not None else vibration_level(imu.t, imu.accel)
+        active = self.active(imu.t)
+        imu.accel[active] += self.value * level[active]
 
 
 class ImuNoise(Effect):
@@ -464,7 +504,8 @@ class MultipathFloor(Effect):
 
 
 EFFECTS: dict[str, type[Effect]] = {
-    cls.name: cls for cls in (ImuAccelBias, ImuGyroBias, ImuAccelScale, ImuGyroScale, ImuNoise, TdoaNoise, Outliers,
+    cls.name: cls for cls in (ImuAccelBias, ImuGyroBias, ImuAccelScale, ImuGyroScale, ImuVibrationRectification,
+                              ImuNoise, TdoaNoise, Outliers,
                               TimeOffset, ClockDrift, AnchorPosition, LeverArm, AnchorDelay, AntennaPattern, Nlos,
                               MultipathFloor)
 }

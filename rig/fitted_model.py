@@ -23,7 +23,9 @@ from rig.diagnose import rounded_floats
 
 log = logging.getLogger(__name__)
 
-# in the order they are listed in a config
+# in the order they are listed in a config. Not vibration rectification: the bias,
+# ranked before it, already holds a flight's mean rectified offset, and the
+# simulator's vibration (its white IMU noise) would add that offset again
 TRANSFERABLE = ("time_offset", "clock_drift", "anchor_delay", "multipath_floor", "imu_accel_bias", "imu_gyro_bias",
                 "imu_accel_scale", "imu_gyro_scale", "tdoa_noise")
 MIN_SHARE = 0.5

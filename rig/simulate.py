@@ -173,6 +173,7 @@ class Predictor:
         self.rec = rec
         self.trajectory = RecordedTrajectory(rec.truth)
         self.accel_true = self.trajectory.specific_force(rec.accel.t)
+        self.accel_vibration = fx.vibration_level(rec.accel.t, rec.accel.xyz)   # the recording's own
         self.gyro_true = self.trajectory.angular_rate(rec.gyro.t)
         self._kinematics: dict[bytes, tuple[np.ndarray, object]] = {}
 
@@ -215,7 +216,7 @@ class Predictor:
             rng: np.random.Generator | None = None) -> tuple[np.ndarray, np.ndarray]:
         """IMU readings under `effects`, from the true ones (or from the given readings)."""
         a = fx.ImuBatch(self.rec.accel.t, (self.accel_true if accel is None else accel).copy(),
-                        np.zeros_like(self.accel_true))
+                        np.zeros_like(self.accel_true), vibration=self.accel_vibration)
         g = fx.ImuBatch(self.rec.gyro.t, np.zeros_like(self.gyro_true),
                         (self.gyro_true if gyro is None else gyro).copy())
         for effect in _staged(effects):

@@ -119,19 +119,24 @@ CASES = {
     "imu_gyro_bias": ({"bias_rps": [0.0, 0.0, 0.02]}, _vector_close("bias_rps", 0.004)),
     "imu_accel_scale": ({"scale": [1.0, 1.0, 1.03]}, lambda got, want, slack=1.0: abs(got["scale"][2] - 1.03) < 0.01 * slack),
     "imu_gyro_scale": ({"scale": [1.0, 1.0, 1.1]}, lambda got, want, slack=1.0: abs(got["scale"][2] - 1.1) < 0.03 * slack),
+    # 0.8 × the y axis' vibration RMS: 0.2 m/s² on the suite's real flight, in flight only
+    "imu_vibration_rectification": ({"gain": [0.0, -0.8, 0.0]}, _vector_close("gain", 0.2)),
     # sideways: a vertical lever arm in near-level flight is the tag raised, which TDOA
     # reads as delays of the ceiling anchors against the floor ones (not identifiable)
     "lever_arm": ({"offset_m": [0.08, 0.0, 0.0]}, _vector_close("offset_m", 0.03)),
 }
 WHERE = {"imu_accel_bias": ("axes", ["y"]), "imu_gyro_bias": ("axes", ["z"]), "imu_accel_scale": ("axes", ["z"]),
-         "imu_gyro_scale": ("axes", ["z"])}
+         "imu_gyro_scale": ("axes", ["z"]), "imu_vibration_rectification": ("axes", ["y"])}
 
 # An antenna pattern needs the anchor seen from a wide range of angles: over the few
 # tens of degrees the suite's circle spans it reads as a displaced anchor (see
 # test_a_pattern_seen_in_a_narrow_cone_reads_as_a_displaced_anchor). Its case flies a
 # wider circle that passes within a metre of the anchor (2).
 SIM_FLIGHT = {"antenna_pattern": {"center": [1.5, 1.5], "radius": 2.5, "z_amplitude": 0.8}}
-NOT_ON_SIM: dict[str, str] = {}
+NOT_ON_SIM = {"imu_vibration_rectification":
+              "the simulator's vibration is white noise of one size all flight, so its rectification is "
+              "nearly a constant bias, which takes it (simplest first): the gain is measured on the chance "
+              "wobble of the noise's RMS alone (-0.68 ± 0.12 for -0.8) and its axes are not told from the bias's"}
 NOT_ON_REAL: dict[str, str] = {}
 
 

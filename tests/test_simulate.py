@@ -10,7 +10,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from conftest import FULL_PRECISION, ROOT, run_rig, simulate_exact
-from rig.effects import make_effect
+from rig.effects import ImuBatch, make_effect, vibration_level
 from rig.importer import load_any
 from rig.recording import Recording, read_recording, write_recording
 from rig.simulate import SimConfig, simulate
@@ -92,6 +92,35 @@ def test_noise_biases_and_outliers_have_their_configured_size(survey_0425: Path)
     outlier = np.abs(tdoa_err) > 0.5  # outliers add at least 1 m, noise is 0.1 m
     assert outlier.mean() == pytest.approx(0.07, abs=0.01)
     assert np.std(tdoa_err[~outlier]) == pytest.approx(0.1, rel=0.05)
+
+
+def test_the_vibration_level_is_the_shaking_not_the_motion() -> None:
+    """A slow manoeuvre of 2 m/s² barely reads as vibration; white noise of 0.5 m/s²
+    at 1 kHz reads as its RMS (less the share the 20 ms running mean takes)."""
+    t = np.arange(0.0, 20.0, 0.001)
+    motion = 2.0 * np.sin(2 * np.pi * 0.5 * t)[:, None] * np.ones(3)
+    shaking = np.random.default_rng(0).normal(0.0, 0.5, (len(t), 3))
+    assert vibration_level(t, motion).max() < 0.02          # 1 % of the manoeuvre (at the ends)
+    level = vibration_level(t, motion + shaking)
+    np.testing.assert_allclose(np.median(level, axis=0), 0.5 * np.sqrt(1 - 1 / 20), rtol=0.03)
+
+
+def test_a_rectified_vibration_is_a_bias_that_follows_the_shaking() -> None:
+    """Motors off for 5 s, then shaking of 1 m/s² RMS: the rectification's offset is
+    gain × that RMS in flight and none on the ground; with the recording's own
+    vibration given (as the diagnosis predicts a recording) it acts on that."""
+    t = np.arange(0.0, 10.0, 0.001)
+    flying = t >= 5.0
+    shaking = np.random.default_rng(1).normal(0.0, 1.0, (len(t), 3)) * flying[:, None]
+    imu = ImuBatch(t, shaking.copy(), np.zeros((len(t), 3)))
+    make_effect("imu_vibration_rectification", {"gain": [-2.0, 0.0, 0.5]}).apply_imu(imu, None)
+    offset = imu.accel - shaking
+    steady = flying & (t > 5.3)
+    np.testing.assert_allclose(offset[steady].mean(axis=0), [-2.0 * 0.975, 0.0, 0.5 * 0.975], rtol=0.03, atol=1e-9)
+    assert np.all(offset[t < 4.7] == 0.0)
+    given = ImuBatch(t, np.zeros((len(t), 3)), np.zeros((len(t), 3)), vibration=np.full((len(t), 3), 0.3))
+    make_effect("imu_vibration_rectification", {"gain": [-2.0, 0.0, 0.5]}).apply_imu(given, None)
+    np.testing.assert_allclose(given.accel, np.tile([-0.6, 0.0, 0.15], (len(t), 1)))
 
 
 def test_a_delay_changed_in_a_window_keeps_its_own_value_outside(survey_0425: Path) -> None:
