@@ -209,7 +209,8 @@ def vibration_level(t: np.ndarray, accel: np.ndarray) -> np.ndarray:
     window = max(3, int(round(VIBRATION_HIGHPASS_S * rate)))
     fast = accel[ok] - uniform_filter1d(accel[ok], window, axis=0, mode="nearest")
     window = max(1, int(round(VIBRATION_RMS_S * rate)))
-    level[ok] = np.sqrt(uniform_filter1d(fast ** 2, window, axis=0, mode="nearest"))
+    power = uniform_filter1d(fast ** 2, window, axis=0, mode="nearest")
+    level[ok] = np.sqrt(np.maximum(power, 0.0))      # a running sum's rounding can dip below 0
     return level
 
 

@@ -217,8 +217,10 @@ class Predictor:
         """IMU readings under `effects`, from the true ones (or from the given readings)."""
         a = fx.ImuBatch(self.rec.accel.t, (self.accel_true if accel is None else accel).copy(),
                         np.zeros_like(self.accel_true), vibration=self.accel_vibration)
-        g = fx.ImuBatch(self.rec.gyro.t, np.zeros_like(self.gyro_true),
-                        (self.gyro_true if gyro is None else gyro).copy())
+        # the two streams may have their own clocks: each batch is one stream's samples
+        nothing = np.zeros_like(self.gyro_true)
+        g = fx.ImuBatch(self.rec.gyro.t, nothing.copy(), (self.gyro_true if gyro is None else gyro).copy(),
+                        vibration=nothing)
         for effect in _staged(effects):
             effect.apply_imu(a, rng)
             effect.apply_imu(g, rng)
