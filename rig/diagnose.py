@@ -301,6 +301,11 @@ class Problem:
         return np.stack([np.bincount(block, weights=values[:, a]) / counts for a in range(values.shape[1])],
                         axis=1).ravel()
 
+    def vibration(self) -> np.ndarray:
+        """The recorded vibration level (`effects.vibration_level`) of each accelerometer
+        row, block means like the rows."""
+        return self._block_means("accel", self.predictor.accel_vibration[self.imu_rows["accel"]])
+
     def predict(self, effects: list[fx.Effect]) -> dict[str, np.ndarray]:
         """The prediction of every channel's rows under `effects`."""
         out = {}

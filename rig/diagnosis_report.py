@@ -14,7 +14,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from rig import effects as fx  # noqa: E402
-from rig.diagnose import GROSS_Z, Diagnosis, Finding, left_out_text  # noqa: E402
+from rig.diagnose import AXES, GROSS_Z, Diagnosis, Finding, left_out_text  # noqa: E402
 
 REPORT_JSON, REPORT_MD, MODEL_JSON = "report.json", "report.md", "model.json"
 
@@ -145,6 +145,9 @@ def _plots(diagnosis: Diagnosis, out: Path) -> list[tuple[str, str]]:
         k = anchor_findings[0].anchors[0]
         images.append((f"Anchor {k}: residual against viewing angle", _angle_plot(diagnosis, k, out)))
         images.append((f"Anchor {k}: residual against position", _position_plot(diagnosis, k, out)))
+    rectified = [f for f in diagnosis.findings if f.effect == "imu_vibration_rectification"]
+    if rectified:
+        images.append(("Accelerometer residual against its vibration", _vibration_plot(diagnosis, rectified[0], out)))
     if diagnosis.findings:
         fig, ax = plt.subplots(figsize=(9, 0.4 * len(diagnosis.findings) + 1.2))
         labels = [f"{f.effect} {f.anchors or ''}" for f in diagnosis.findings]
@@ -177,6 +180,28 @@ def _angle_plot(diagnosis: Diagnosis, k: int, out: Path) -> str:
     ax.set(xlabel=f"elevation of the tag seen from anchor {k} [deg]", ylabel="range error [m] (running median)")
     ax.legend(fontsize=8)
     return _save(fig, out, f"anchor{k}_angle.png")
+
+
+def _vibration_plot(diagnosis: Diagnosis, finding: Finding, out: Path) -> str:
+    """Each rectified axis' block residual against the RMS of its vibration: a line
+    sloping by the gain before, flat after."""
+    level = diagnosis.problem.vibration().reshape(-1, 3)
+    before = diagnosis.residual_before["accel"].reshape(-1, 3)
+    after = diagnosis.residual_after["accel"].reshape(-1, 3)
+    axes_named = finding.where.get("axes") or list(AXES)
+    fig, axes = plt.subplots(1, len(axes_named), figsize=(4.5 * len(axes_named), 3.6), squeeze=False,
+                             layout="constrained")
+    for ax, name in zip(axes[0], axes_named):
+        j = AXES.index(name)
+        for label, r in (("before", before[:, j]), ("after", after[:, j])):
+            ax.scatter(level[:, j], r, s=3, alpha=0.3, label=label)
+            ax.plot(*_running_median(level[:, j], r, bins=20), lw=2)
+        ax.axhline(0, color="k", lw=0.5)
+        ax.set(title=f"{name} (gain {finding.params['gain'][j]:+.2f})", xlabel="vibration RMS [m/s²]",
+               ylabel="recorded − simulated [m/s²]")
+        ax.legend(fontsize=8, markerscale=3)
+    fig.suptitle("accelerometer 0.2 s means against the RMS of the axis' vibration")
+    return _save(fig, out, "accel_vibration.png")
 
 
 def _position_plot(diagnosis: Diagnosis, k: int, out: Path) -> str:

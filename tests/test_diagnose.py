@@ -20,6 +20,7 @@ from scipy.spatial.transform import Rotation
 
 from conftest import RIG
 from rig.diagnose import Candidate, Problem, Term, _estimate, _free_offset, _mad_scale, candidates, diagnose
+from rig.diagnosis_report import write as write_report
 from rig.fitted_model import outside_window
 from rig.importer import load_any
 from rig.simulate import Predictor, SimConfig, inject, simulate
@@ -330,6 +331,22 @@ def test_cli_writes_the_report_contract(tmp_path: Path, survey) -> None:
     # explanations only: the two agree where no richer look-alike shares the signal
     fitted = next(e for e in model if e["effect"] == "anchor_delay" and e["params"]["anchor"] == 2)
     assert fitted["params"]["meters"] == pytest.approx(delay["params"]["meters"], abs=0.01)
+
+
+def test_the_report_shows_a_rectification_against_the_vibration(tmp_path: Path, real) -> None:
+    """A rectification named on the real flight gets its plot: each named axis' block
+    residual against its vibration RMS, before and after, linked from report.md."""
+    rec, predictor = real
+    injected = inject(rec, [{"effect": "imu_vibration_rectification", "params": {"gain": [0.0, -0.8, 0.0]}}],
+                      seed=1, predictor=predictor)
+    diagnosis = diagnose(injected)
+    rectified = next(f for f in diagnosis.findings if f.effect == "imu_vibration_rectification")
+    assert "y" in rectified.where["axes"]
+    level = diagnosis.problem.vibration().reshape(-1, 3)
+    assert level.shape == diagnosis.residual_before["accel"].reshape(-1, 3).shape and np.all(level > 0)
+    write_report(diagnosis, tmp_path, "injected 0426-traj1")
+    assert "](accel_vibration.png)" in (tmp_path / "report.md").read_text()
+    assert (tmp_path / "accel_vibration.png").stat().st_size > 1000
 
 
 def test_bad_effects_are_refused_clearly(tmp_path: Path) -> None:
