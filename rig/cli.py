@@ -674,7 +674,8 @@ def build_parser() -> argparse.ArgumentParser:
                                    "one room into the effects of a `rig simulate` config: the effects of the "
                                    "hardware and the room (delays, clocks, IMU errors, TDOA noise) named on at "
                                    "least half of the flights, each with its median parameters; path-bound ones "
-                                   "(NLOS regions, displacements, patterns, lever arms) are left out. Replaces "
+                                   "(NLOS regions, displacements, patterns, lever arms) are left out; a vibration "
+                                   "rectification enters as the accelerometer bias it made on its flight. Replaces "
                                    "the config's effects, keeping its own outliers and IMU white noise (the "
                                    "recorded vibration is low-pass filtered, not white). See docs/diagnosis.md.")
     p.add_argument("models", type=Path, nargs="+", help="DIR/model.json files of `rig diagnose`")

@@ -953,7 +953,15 @@ class Diagnosis:
         return {"recording": rec.metadata.get("source", ""), "duration_s": float(rec.truth.t[-1] - rec.truth.t[0]),
                 "findings": [f.to_json() for f in self.findings], "channels": self.channel_fits(),
                 "mismatch": locate(self.problem, self.residual_before),
-                "model": [e.to_json() for e in self.model] + self.noise_model()}
+                "model": [e.to_json() for e in self.model] + self.noise_model(),
+                "vibration_rms_mps2": self.vibration_rms()}
+
+    def vibration_rms(self) -> list[float] | None:
+        """The accelerometer's mean vibration RMS per axis over the compared rows: what
+        a rectification's gain multiplies on this flight (None without accelerometer)."""
+        if not len(self.problem.imu_rows["accel"]):
+            return None
+        return self.problem.vibration().reshape(-1, 3).mean(axis=0).tolist()
 
     def noise_model(self) -> list[dict]:
         """The noise the fitted model leaves, per sample, so `model` simulates data like

@@ -63,7 +63,8 @@ def write(diagnosis: Diagnosis, out: Path, recording: str) -> dict:
     report = diagnosis.to_json()
     report["recording"] = recording
     (out / REPORT_JSON).write_text(json.dumps(report, indent=2, allow_nan=False, default=_finite))
-    (out / MODEL_JSON).write_text(json.dumps({"effects": report["model"]}, indent=2))
+    (out / MODEL_JSON).write_text(json.dumps({"effects": report["model"],
+                                              "vibration_rms_mps2": report["vibration_rms_mps2"]}, indent=2))
     images = _plots(diagnosis, out)
     (out / REPORT_MD).write_text(_markdown(diagnosis, report, images))
     return report

@@ -23,9 +23,8 @@ from rig.diagnose import rounded_floats
 
 log = logging.getLogger(__name__)
 
-# in the order they are listed in a config. Not vibration rectification: the bias,
-# ranked before it, already holds a flight's mean rectified offset, and the
-# simulator's vibration (its white IMU noise) would add that offset again
+# in the order they are listed in a config (a vibration rectification enters as the
+# accelerometer bias it made on its flight, see fold_rectification)
 TRANSFERABLE = ("time_offset", "clock_drift", "anchor_delay", "multipath_floor", "imu_accel_bias", "imu_gyro_bias",
                 "imu_accel_scale", "imu_gyro_scale", "tdoa_noise")
 MIN_SHARE = 0.5
@@ -37,13 +36,34 @@ def read_models(paths: list[Path]) -> list[list[dict]]:
     models = []
     for path in paths:
         try:
-            effects = json.loads(Path(path).read_text())["effects"]
+            model = json.loads(Path(path).read_text())
+            effects = model["effects"]
             if not all(isinstance(e, dict) and "effect" in e and isinstance(e.get("params"), dict) for e in effects):
                 raise ValueError("an effect without a name or parameters")
+            effects = fold_rectification(effects, model.get("vibration_rms_mps2"))
         except (OSError, ValueError, KeyError, TypeError) as exc:
             raise ValueError(f"{path}: not a model.json written by rig diagnose ({exc})") from exc
         models.append(effects)
     return models
+
+
+def fold_rectification(effects: list[dict], vibration_rms: list[float] | None) -> list[dict]:
+    """A flight's vibration rectification as the offset it made there (gain × the
+    flight's mean vibration RMS), added to its accelerometer bias. A combined config
+    keeps its own white IMU noise (KEPT_FROM_CONFIG), whose RMS is not the flight's:
+    the rectification itself would make another offset there."""
+    rectified = [e for e in effects if e["effect"] == "imu_vibration_rectification"]
+    if not rectified:
+        return effects
+    if vibration_rms is None:
+        raise ValueError("a vibration rectification without the flight's vibration_rms_mps2")
+    offset = sum(np.asarray(e["params"]["gain"], float) * np.asarray(vibration_rms, float) for e in rectified)
+    out = [e for e in effects if e["effect"] != "imu_vibration_rectification"]
+    bias = next((e for e in out if e["effect"] == "imu_accel_bias"), None)
+    if bias is None:
+        return out + [{"effect": "imu_accel_bias", "params": {"bias_mps2": offset.tolist()}}]
+    folded = {**bias["params"], "bias_mps2": (np.asarray(bias["params"]["bias_mps2"], float) + offset).tolist()}
+    return [{**e, "params": folded} if e is bias else e for e in out]
 
 
 def combine(models: list[list[dict]]) -> list[dict]:

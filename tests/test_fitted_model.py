@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from conftest import run_rig
-from rig.fitted_model import combine, replace_fitted
+from rig.fitted_model import combine, read_models, replace_fitted
 from rig.recording import read_recording
 
 
@@ -69,6 +69,26 @@ def test_cli_combines_models_into_a_config_that_simulates(tmp_path: Path) -> Non
     assert {e["effect"] for e in effects} == {"time_offset", "anchor_delay", "imu_accel_bias"}
     run_rig("simulate", "--config", str(config), "-o", str(tmp_path / "out.mcap"), check=True)
     assert len(read_recording(tmp_path / "out.mcap").tdoa) > 100
+
+
+def test_a_rectification_enters_as_the_bias_it_made_on_its_flight(tmp_path: Path) -> None:
+    """A config keeps its own white IMU noise, so a flight's vibration rectification
+    enters the combination as the offset it made there: gain × that flight's mean
+    vibration RMS, added to its accelerometer bias (or as one)."""
+    rectified = {"effect": "imu_vibration_rectification", "params": {"gain": [-3.0, -2.0, 0.0]}}
+    files = []
+    for k, (effects, rms) in enumerate([(MODELS[1] + [rectified], [1.0, 0.5, 0.3]),
+                                        ([rectified], [0.5, 0.5, 0.5])]):
+        files.append(tmp_path / f"model{k}.json")
+        files[-1].write_text(json.dumps({"effects": effects, "vibration_rms_mps2": rms}))
+    with_bias, alone = read_models(files)
+    assert all(e["effect"] != "imu_vibration_rectification" for e in with_bias + alone)
+    bias = next(e["params"] for e in with_bias if e["effect"] == "imu_accel_bias")
+    assert bias["bias_mps2"] == pytest.approx([-0.07 - 3.0, -1.0, 1.0]) and bias["during"] == [1.0, 2.0]
+    assert alone == [{"effect": "imu_accel_bias", "params": {"bias_mps2": pytest.approx([-1.5, -1.0, 0.0])}}]
+    files[1].write_text(json.dumps({"effects": [rectified]}))
+    with pytest.raises(ValueError, match="without the flight's vibration_rms_mps2"):
+        read_models(files[1:])
 
 
 def test_a_file_that_is_not_a_model_is_refused_clearly(tmp_path: Path) -> None:
