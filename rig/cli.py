@@ -659,8 +659,9 @@ def build_parser() -> argparse.ArgumentParser:
                                    "gyroscope), locate the mismatch, fit the effect catalog (time_offset, "
                                    "clock_drift, anchor_position, anchor_delay, antenna_pattern, nlos, "
                                    "multipath_floor, imu_accel_bias, imu_gyro_bias, imu_accel_scale, "
-                                   "imu_gyro_scale, imu_vibration_rectification, lever_arm), name those whose robust loss reduction pays "
-                                   "for their parameters (simplest explanation first) and re-simulate. "
+                                   "imu_gyro_scale, imu_vibration_rectification, lever_arm), name those whose "
+                                   "robust loss reduction pays for their parameters (simplest explanation first) "
+                                   "and re-simulate. "
                                    "Writes DIR/report.json (findings sorted by evidence), DIR/report.md with "
                                    "plots and DIR/model.json (the fitted effects, usable as a `rig simulate` "
                                    "effect list). See docs/diagnosis.md.")

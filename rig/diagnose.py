@@ -985,7 +985,7 @@ def vibration_spread(series: Vec3Series) -> float:
     values = series.xyz[np.all(np.isfinite(series.xyz), axis=1)]
     if len(values) < 3:
         return 0.0
-    rate = (len(series.t) - 1) / max(float(series.t[-1] - series.t[0]), 1e-9)
+    rate = fx.sample_rate(series.t)
     window = int(np.clip(VIBRATION_WINDOW_S * rate, 3, len(values)))
     fast = values - uniform_filter1d(values, window, axis=0, mode="nearest")
     return float(np.mean([_mad_scale(fast[:, axis]) for axis in range(3)]))

@@ -148,7 +148,8 @@ def _plots(diagnosis: Diagnosis, out: Path) -> list[tuple[str, str]]:
         images.append((f"Anchor {k}: residual against position", _position_plot(diagnosis, k, out)))
     rectified = [f for f in diagnosis.findings if f.effect == "imu_vibration_rectification"]
     if rectified:
-        images.append(("Accelerometer residual against its vibration", _vibration_plot(diagnosis, rectified[0], out)))
+        images.append(("Accelerometer residual against its vibration",
+                       _vibration_plot(diagnosis, rectified[0], out)))
     if diagnosis.findings:
         fig, ax = plt.subplots(figsize=(9, 0.4 * len(diagnosis.findings) + 1.2))
         labels = [f"{f.effect} {f.anchors or ''}" for f in diagnosis.findings]

@@ -196,6 +196,11 @@ class ImuGyroBias(_ImuConstantBias):
     name, stream, param = "imu_gyro_bias", "gyro", "bias_rps"
 
 
+def sample_rate(t: np.ndarray) -> float:
+    """Mean samples per second of a series' stamps."""
+    return (len(t) - 1) / max(float(t[-1] - t[0]), 1e-9)
+
+
 def vibration_level(t: np.ndarray, accel: np.ndarray) -> np.ndarray:
     """RMS of the accelerometer's vibration around each sample, per axis: the readings
     less their VIBRATION_HIGHPASS_S running mean (the airframe shaking at the rotor
@@ -205,7 +210,7 @@ def vibration_level(t: np.ndarray, accel: np.ndarray) -> np.ndarray:
     ok = np.all(np.isfinite(accel), axis=1)
     if ok.sum() < 3:
         return level
-    rate = (ok.sum() - 1) / max(float(t[ok][-1] - t[ok][0]), 1e-9)
+    rate = sample_rate(t[ok])
     window = max(3, int(round(VIBRATION_HIGHPASS_S * rate)))
     fast = accel[ok] - uniform_filter1d(accel[ok], window, axis=0, mode="nearest")
     window = max(1, int(round(VIBRATION_RMS_S * rate)))

@@ -58,7 +58,7 @@ class BoxScan:
             return None
         b = int(np.argmax(np.where(np.isfinite(score), score, -np.inf)))
         (ex, ey), (i, j, k, m) = self.edges, (side[b] for side in self._boxes)
-        low, high = np.array([ex[i], ey[k], -np.inf]), np.array([ex[j], ey[m], np.inf])
-        chosen = self.positions[np.all((self.positions >= low) & (self.positions <= high), axis=1)]
-        return fx.Region(np.where(np.isfinite(low), low, chosen.min(axis=0)),
-                         np.where(np.isfinite(high), high, chosen.max(axis=0)))
+        box = fx.Region(np.array([ex[i], ey[k], -np.inf]), np.array([ex[j], ey[m], np.inf]))
+        chosen = self.positions[box.contains(self.positions)]
+        return fx.Region(np.where(np.isfinite(box.low), box.low, chosen.min(axis=0)),
+                         np.where(np.isfinite(box.high), box.high, chosen.max(axis=0)))

@@ -217,7 +217,8 @@ class Predictor:
         """IMU readings under `effects`, from the true ones (or from the given readings)."""
         a = fx.ImuBatch(self.rec.accel.t, (self.accel_true if accel is None else accel).copy(),
                         np.zeros_like(self.accel_true), vibration=self.accel_vibration)
-        # the two streams may have their own clocks: each batch is one stream's samples
+        # each batch is one stream's samples (the streams may have their own clocks); the
+        # gyroscope's carries no accelerometer readings, so no vibration to measure on them
         nothing = np.zeros_like(self.gyro_true)
         g = fx.ImuBatch(self.rec.gyro.t, nothing.copy(), (self.gyro_true if gyro is None else gyro).copy(),
                         vibration=nothing)
