@@ -677,8 +677,9 @@ def build_parser() -> argparse.ArgumentParser:
                                    "least half of the flights, each with its median parameters; path-bound ones "
                                    "(NLOS regions, displacements, patterns, lever arms) are left out; a vibration "
                                    "rectification enters as the accelerometer bias it made on its flight. Replaces "
-                                   "the config's effects, keeping its own outliers and IMU white noise (the "
-                                   "recorded vibration is low-pass filtered, not white). See docs/diagnosis.md.")
+                                   "the config's effects, keeping its own outliers, IMU white noise and rotor "
+                                   "vibration (the recorded vibration is low-pass filtered, not white). See "
+                                   "docs/diagnosis.md.")
     p.add_argument("models", type=Path, nargs="+", help="DIR/model.json files of `rig diagnose`")
     p.add_argument("--config", type=Path, required=True, help="the simulation config to update")
     p.set_defaults(func=cmd_combine_models)

@@ -50,6 +50,9 @@ class ImuBatch:
     # RMS of the accelerometer's vibration at each sample and axis when it is known
     # (a recording's, see vibration_level); otherwise measured on `accel` as it stands
     vibration: np.ndarray | None = None
+    # the rotors' speed at each sample relative to hover, 0 with the motors stopped
+    # (Trajectory.rotor_speed); None when not known: taken as hover all along
+    rotor: np.ndarray | None = None
 
 
 @dataclass
@@ -250,6 +253,28 @@ class ImuNoise(Effect):
             return
         imu.accel += rng.normal(0.0, self.accel_std, imu.accel.shape)
         imu.gyro += rng.normal(0.0, self.gyro_std, imu.gyro.shape)
+
+
+class ImuVibration(Effect):
+    """The airframe shaken by the rotors: white noise per axis (standard deviations in
+    m/s² and rad/s at hover) that grows with the rotors' speed and stops with the motors,
+    on top of the sensor's own `imu_noise`. It is what a vibration rectification feeds
+    on, so on a simulated flight too the rectification comes and goes with the motors."""
+
+    name, stage = "imu_vibration", NOISE
+
+    def __init__(self, accel_std=(0.0, 0.0, 0.0), gyro_std=(0.0, 0.0, 0.0)):
+        self.accel_std, self.gyro_std = _vec3(accel_std, "accel_std"), _vec3(gyro_std, "gyro_std")
+
+    def params(self) -> dict:
+        return {"accel_std": self.accel_std.tolist(), "gyro_std": self.gyro_std.tolist()}
+
+    def apply_imu(self, imu: ImuBatch, rng: np.random.Generator | None) -> None:
+        if rng is None:
+            return
+        rotor = np.ones(len(imu.t)) if imu.rotor is None else imu.rotor
+        imu.accel += rng.normal(0.0, 1.0, imu.accel.shape) * self.accel_std * rotor[:, None]
+        imu.gyro += rng.normal(0.0, 1.0, imu.gyro.shape) * self.gyro_std * rotor[:, None]
 
 
 class TdoaNoise(Effect):
@@ -511,7 +536,7 @@ class MultipathFloor(Effect):
 
 EFFECTS: dict[str, type[Effect]] = {
     cls.name: cls for cls in (ImuAccelBias, ImuGyroBias, ImuAccelScale, ImuGyroScale, ImuVibrationRectification,
-                              ImuNoise, TdoaNoise, Outliers,
+                              ImuNoise, ImuVibration, TdoaNoise, Outliers,
                               TimeOffset, ClockDrift, AnchorPosition, LeverArm, AnchorDelay, AntennaPattern, Nlos,
                               MultipathFloor)
 }

@@ -125,8 +125,8 @@ def _centre_delays(effects: list[dict]) -> None:
 # measures the recorded vibration (0.3-1.3 m/s2 on the accelerometer), which the
 # board's low-pass filter leaves below about 50 Hz; the simulator's noise is white,
 # and white at that size would differ from the recording sample to sample (and more
-# than double the bytes a replay sends per window)
-KEPT_FROM_CONFIG = ("outliers", "imu_noise")
+# than double the bytes a replay sends per window); the rotors' vibration likewise
+KEPT_FROM_CONFIG = ("outliers", "imu_noise", "imu_vibration")
 
 
 def replace_fitted(config: dict, effects: list[dict]) -> dict:

@@ -125,7 +125,8 @@ def simulate(cfg: SimConfig) -> Recording:
         effect.apply_world(world)
 
     t_imu = _quantize(np.arange(t0, t1, 1.0 / cfg.imu_hz), res["time"])
-    imu = fx.ImuBatch(t_imu, trajectory.specific_force(t_imu), trajectory.angular_rate(t_imu))
+    force = trajectory.specific_force(t_imu)
+    imu = fx.ImuBatch(t_imu, force, trajectory.angular_rate(t_imu), rotor=trajectory.rotor_speed(t_imu, force))
     for effect in effects:
         effect.apply_imu(imu, rng)
 
@@ -174,6 +175,7 @@ class Predictor:
         self.trajectory = RecordedTrajectory(rec.truth)
         self.accel_true = self.trajectory.specific_force(rec.accel.t)
         self.accel_vibration = fx.vibration_level(rec.accel.t, rec.accel.xyz)   # the recording's own
+        self.accel_rotor = self.trajectory.rotor_speed(rec.accel.t, self.accel_true)
         self.gyro_true = self.trajectory.angular_rate(rec.gyro.t)
         self._kinematics: dict[bytes, tuple[np.ndarray, object]] = {}
 
@@ -216,12 +218,12 @@ class Predictor:
             rng: np.random.Generator | None = None) -> tuple[np.ndarray, np.ndarray]:
         """IMU readings under `effects`, from the true ones (or from the given readings)."""
         a = fx.ImuBatch(self.rec.accel.t, (self.accel_true if accel is None else accel).copy(),
-                        np.zeros_like(self.accel_true), vibration=self.accel_vibration)
+                        np.zeros_like(self.accel_true), vibration=self.accel_vibration, rotor=self.accel_rotor)
         # each batch is one stream's samples (the streams may have their own clocks); the
         # gyroscope's carries no accelerometer readings, so no vibration to measure on them
         nothing = np.zeros_like(self.gyro_true)
         g = fx.ImuBatch(self.rec.gyro.t, nothing.copy(), (self.gyro_true if gyro is None else gyro).copy(),
-                        vibration=nothing)
+                        vibration=nothing, rotor=_resampled(self.rec.gyro.t, self.rec.accel.t, self.accel_rotor))
         for effect in _staged(effects):
             effect.apply_imu(a, rng)
             effect.apply_imu(g, rng)
@@ -234,6 +236,10 @@ class Predictor:
                 self._kinematics.clear()
             self._kinematics[key] = (self.trajectory.position(t), self.trajectory.rotation(t))
         return self._kinematics[key]
+
+
+def _resampled(t: np.ndarray, t_from: np.ndarray, values: np.ndarray) -> np.ndarray:
+    return np.interp(t, t_from, values) if len(t_from) else np.ones(len(t))
 
 
 def _staged(effects: list[fx.Effect]) -> list[fx.Effect]:

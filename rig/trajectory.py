@@ -26,6 +26,7 @@ _H = 1e-3  # step of the central differences (s)
 # Motion-capture attitude is averaged over this long (s) before it is differentiated:
 # see RecordedTrajectory. A comparison with the gyroscope averages it over as long.
 ATTITUDE_WINDOW_S = 0.2
+AIRBORNE_M = 0.05  # a recorded flight is airborne (motors running) this high above its lowest point
 
 
 class Trajectory:
@@ -57,6 +58,16 @@ class Trajectory:
         """What an ideal accelerometer reads: Rᵀ (a − g), g = (0, 0, −9.81)."""
         force_world = self.acceleration(t) + np.array([0.0, 0.0, GRAVITY])
         return self.rotation(t).inv().apply(force_world)
+
+    def motors_on(self, t: np.ndarray) -> np.ndarray:
+        """Whether the motors run at each time (a base trajectory flies all along)."""
+        return np.ones(np.shape(t), bool)
+
+    def rotor_speed(self, t: np.ndarray, force: np.ndarray | None = None) -> np.ndarray:
+        """The rotors' speed relative to hover, 0 with the motors stopped: thrust goes
+        as the speed squared and equals the mass times the specific force's norm."""
+        force = self.specific_force(t) if force is None else force
+        return np.where(self.motors_on(t), np.sqrt(np.linalg.norm(force, axis=-1) / GRAVITY), 0.0)
 
 
 def _smoothstep(x: np.ndarray) -> np.ndarray:
@@ -138,6 +149,11 @@ class PatternTrajectory(Trajectory):
         s = self._blend(t)[..., None]
         return floor + s * (target - floor)
 
+    def motors_on(self, t: np.ndarray) -> np.ndarray:
+        """From take-off to touch-down."""
+        t = np.asarray(t, float)
+        return (t > self.plan.ground_before) & (t < self._t_off + self.plan.descent)
+
     def rotation(self, t: np.ndarray) -> Rotation:
         t = np.asarray(t, float)
         yaw = self.yaw_rate * (t - self.t_start)
@@ -212,6 +228,7 @@ class RecordedTrajectory(Trajectory):
         pos = truth.position[valid][keep]
         quat = truth.quaternion[valid][keep]
         self.t_start, self.t_end = float(t[0]), float(t[-1])
+        self._floor_z = float(np.percentile(pos[:, 2], 1))
         self._splines = [make_smoothing_spline(t, pos[:, i], lam=smoothing) for i in range(3)]
         knots = np.arange(self.t_start, self.t_end, attitude_step)
         self._rot = RotationSpline(knots, Rotation.from_quat(windowed_mean_quaternion(t, quat, knots,
@@ -226,6 +243,12 @@ class RecordedTrajectory(Trajectory):
 
     def acceleration(self, t: np.ndarray) -> np.ndarray:
         return np.stack([s.derivative(2)(t) for s in self._splines], axis=-1)
+
+    def motors_on(self, t: np.ndarray) -> np.ndarray:
+        """Airborne: AIRBORNE_M above the flight's lowest point (its 1st percentile, the
+        floor it takes off from; a recording that starts in the air counts its lowest
+        few centimetres as on the ground)."""
+        return self.position(t)[..., 2] > self._floor_z + AIRBORNE_M
 
     def rotation(self, t: np.ndarray) -> Rotation:
         return self._rot(np.clip(np.asarray(t, float), *self._rot_span))

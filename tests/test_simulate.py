@@ -13,8 +13,8 @@ from conftest import FULL_PRECISION, ROOT, run_rig, simulate_exact
 from rig.effects import ImuBatch, make_effect, vibration_level
 from rig.importer import load_any
 from rig.recording import Recording, Vec3Series, read_recording, write_recording
-from rig.simulate import Predictor, SimConfig, simulate
-from rig.trajectory import GRAVITY, RecordedTrajectory, windowed_mean_quaternion
+from rig.simulate import Predictor, SimConfig, inject, simulate
+from rig.trajectory import GRAVITY, RecordedTrajectory, parametric, windowed_mean_quaternion
 
 
 def _strapdown(rec: Recording) -> np.ndarray:
@@ -121,6 +121,46 @@ def test_a_rectified_vibration_is_a_bias_that_follows_the_shaking() -> None:
     given = ImuBatch(t, np.zeros((len(t), 3)), np.zeros((len(t), 3)), vibration=np.full((len(t), 3), 0.3))
     make_effect("imu_vibration_rectification", {"gain": [-2.0, 0.0, 0.5]}).apply_imu(given, None)
     np.testing.assert_allclose(given.accel, np.tile([-0.6, 0.0, 0.15], (len(t), 1)))
+
+
+def test_the_rotors_shake_the_flight_and_not_the_ground(survey_0425: Path) -> None:
+    """The rotors' vibration is noise of its configured size at hover while the motors
+    run (growing with the rotors' speed) and none on the ground before take-off and
+    after touch-down; a rectification on it comes and goes with the motors."""
+    vibration = {"effect": "imu_vibration", "params": {"accel_std": [1.0, 0.5, 0.0], "gyro_std": [0.0, 0.0, 0.2]}}
+    rectification = {"effect": "imu_vibration_rectification", "params": {"gain": [-1.0, 0.0, 0.0]}}
+    cfg = SimConfig(trajectory="circle", survey=str(survey_0425), duration=30.0, seed=2,
+                    effects=[vibration, rectification], resolution=FULL_PRECISION)
+    rec, trajectory = simulate(cfg), parametric(cfg.trajectory, duration=cfg.duration, seed=cfg.seed)
+    shaking = rec.accel.xyz - trajectory.specific_force(rec.accel.t)
+    spin = rec.gyro.xyz - trajectory.angular_rate(rec.gyro.t)
+    rotor, t, plan = trajectory.rotor_speed(rec.accel.t), rec.accel.t, trajectory.plan
+    on = rotor > 0
+    assert not on[t < plan.ground_before].any() and not on[t > trajectory.t_end - plan.ground_after].any()
+    still = (t < plan.ground_before - 0.2) | (t > trajectory.t_end - plan.ground_after + 0.2)   # past the RMS window
+    assert np.all(shaking[still] == 0.0) and np.all(spin[~on] == 0.0)
+    hover = on & (np.abs(rotor - 1.0) < 0.01)
+    np.testing.assert_allclose(np.std(shaking[hover] / rotor[hover, None], axis=0), [1.0, 0.5, 0.0], rtol=0.03,
+                               atol=1e-12)
+    np.testing.assert_allclose(np.std(spin[hover], axis=0), [0.0, 0.0, 0.2], rtol=0.03, atol=1e-12)
+    steady = on & (rec.accel.t > plan.ground_before + 0.5) & (rec.accel.t < trajectory.t_end - plan.ground_after - 0.5)
+    assert abs(np.mean(shaking[steady, 0]) + 0.975) < 0.05           # −gain × the level of 1 m/s² shaking
+
+
+def test_a_recorded_flights_motors_run_from_take_off_to_touch_down(data_dir: Path) -> None:
+    """A real flight sits on the floor at its start and end: the motors are off there
+    and the rotors turn at about hover speed in between; an injected vibration shakes
+    the recording in flight only."""
+    rec = load_any(data_dir / "flights" / "0426-traj1")
+    predictor = Predictor(rec)
+    on, t = predictor.accel_rotor > 0, rec.accel.t
+    assert not on[t < t[0] + 0.5].any() and not on[t > t[-1] - 0.5].any()
+    assert 0.8 < on.mean() < 0.99
+    assert abs(np.median(predictor.accel_rotor[on]) - 1.0) < 0.05
+    shaken = inject(rec, [{"effect": "imu_vibration", "params": {"accel_std": [0.5, 0.5, 0.5]}}], seed=1)
+    added = shaken.accel.xyz - rec.accel.xyz
+    assert np.all(added[~on] == 0.0)
+    np.testing.assert_allclose(np.std(added[on], axis=0), 0.5, rtol=0.05)
 
 
 def test_a_delay_changed_in_a_window_keeps_its_own_value_outside(survey_0425: Path) -> None:
