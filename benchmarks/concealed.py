@@ -4,10 +4,11 @@ untouched flight as control, judged by the suite's own tolerances.
 
     .venv/bin/python benchmarks/concealed.py [--flights sim 0426-traj1 ...] [--out out/concealed.json] [--rejudge]
 
-By default the simulated flight and fourteen real ones (about 17 minutes on two cores).
+By default the simulated flight and fourteen real ones (about 21 minutes on two cores).
 `sim` is the suite's simulated flight (or, for an effect the suite flies on its own
-circle, that circle, with its own control). Prints a line per effect and flight (found or
-missed, the recovered parameters after subtracting the control) and a count per flight.
+circle or with its own shaking, that flight, with its own control). Prints a line per
+effect and flight (found or missed, the recovered parameters after subtracting the
+control) and a count per flight.
 The findings themselves go to OUT with `.findings.json` for a suffix; `--rejudge` judges
 those again without diagnosing (after a change to the judging)."""
 
@@ -39,13 +40,14 @@ FLIGHTS = ["0426-traj1", "0426-traj4", "0425-traj5", "0422-log01", "0422-log00",
 def diagnosed(job: tuple[str, str]) -> tuple[str, str, list, list | None]:
     """The findings on the flight with the effect injected, and on its own untouched
     flight when it is not the flight's shared control (a simulated case with its own
-    circle)."""
+    circle or shaking)."""
     flight, name = job
     effects = [] if name == "control" else [{"effect": name, "params": cases.CASES[name][0]}]
     if flight == "sim":
-        survey, own = paths.data_dir() / "surveys" / "anchor_0425.txt", cases.SIM_FLIGHT.get(name)
-        found = _listed(cases.diagnose(simulate(cases.sim_config(survey, effects, own))))
-        control = _listed(cases.diagnose(simulate(cases.sim_config(survey, [], own)))) if own else None
+        survey = paths.data_dir() / "surveys" / "anchor_0425.txt"
+        found = _listed(cases.diagnose(simulate(cases.sim_case(survey, name, effects))))
+        own = cases.own_sim_control(name)
+        control = _listed(cases.diagnose(simulate(cases.sim_case(survey, name, [])))) if own else None
         return flight, name, found, control
     rec = load_any(paths.data_dir() / "flights" / flight)
     if effects:

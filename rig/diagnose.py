@@ -530,6 +530,11 @@ def _richer(term: Term, terms: list[Term]) -> list[Term]:
     return [t for t in terms if ORDER[t.candidate.effect][0] == group and ORDER[t.candidate.effect][1] > rank]
 
 
+def _simpler(term: Term, terms: list[Term]) -> list[Term]:
+    group, rank = ORDER[term.candidate.effect]
+    return [t for t in terms if ORDER[t.candidate.effect][0] == group and ORDER[t.candidate.effect][1] < rank]
+
+
 # Delays are measured relative to each other (TDOA does not see a delay common to all
 # anchors): once one anchor's delay is supported, every anchor's is kept and reported,
 # so the delays of two recordings of the same flight compare anchor by anchor.
@@ -1009,10 +1014,11 @@ def diagnose(rec: Recording, progress=None) -> Diagnosis:
             if id(term) in simulated:
                 model.append(_effect_of(problem, channel, term, term.theta))
                 z_with, theta = z_model, term.theta
+                peers = _simpler(term, [t for t in terms if id(t) in simulated])
             else:
-                z_with, theta = z_named, named_theta[id(term)]
+                z_with, theta, peers = z_named, named_theta[id(term)], _simpler(term, terms)
             findings.append(_finding(problem, channel, term, _effect_of(problem, channel, term, term.estimate),
-                                     z_with, theta, id(term) in simulated))
+                                     z_with, theta, peers, id(term) in simulated))
     after = {name: problem.recorded(name) - pred for name, pred in problem.predict(model).items()}
     if "tdoa" in after:
         floor = _floor_finding(problem, after["tdoa"])
@@ -1054,12 +1060,12 @@ def _model_terms(z: np.ndarray, named: list[Term]) -> list[Term]:
 
 
 def _finding(problem: Problem, channel: Channel, term: Term, effect: fx.Effect, z_with: np.ndarray,
-             theta: np.ndarray, simulated: bool) -> Finding:
+             theta: np.ndarray, peers: list[Term], simulated: bool) -> Finding:
     """The effect as estimated (given the simpler explanations); fit_before/fit_after:
     the affected rows' mismatch under the re-simulating model without and with this
     effect (the whole model re-simulated is in Diagnosis.channel_fits); for an effect
     beyond its physical bounds, which the model leaves out, under all named effects
-    fitted jointly (`z_with` and `theta` are the fit it is judged in)."""
+    fitted jointly (`z_with` and `theta` are the fit it is judged in, with `peers`)."""
     rows = np.any(term.columns != 0, axis=1)
     scale = channel.scale[rows]
     z_without = z_with + term.columns @ theta
@@ -1067,7 +1073,7 @@ def _finding(problem: Problem, channel: Channel, term: Term, effect: fx.Effect, 
     std_err, not_identified = _uncertainty(term)
     return Finding(effect.name, channel.name, anchors, rounded_floats(effect.params()), round(float(term.evidence), 2),
                    robust_rms(z_without[rows] * scale, scale), robust_rms(z_with[rows] * scale, scale),
-                   _where(problem, channel, term, rows, z_with, theta),
+                   _where(problem, channel, term, rows, z_with, theta, peers),
                    [{"candidate": key, "evidence": gain} for key, gain in term.look_alikes],
                    not simulated or bool(np.abs(term.param_map() @ term.estimate).max() > term.candidate.bound),
                    std_err, not_identified)
@@ -1160,7 +1166,7 @@ def _span(t: np.ndarray) -> list[float]:
 
 
 def _where(problem: Problem, channel: Channel, term: Term, rows: np.ndarray, z_after: np.ndarray,
-           theta: np.ndarray) -> dict:
+           theta: np.ndarray, peers: list[Term]) -> dict:
     where: dict = {"time": term.extra.get("during") or _span(channel.t[rows])}
     if channel.name == "tdoa":
         positions = problem.tag_positions()[rows]
@@ -1169,17 +1175,25 @@ def _where(problem: Problem, channel: Channel, term: Term, rows: np.ndarray, z_a
         if "anchor" in term.candidate.fixed:
             where["anchors"] = [term.candidate.fixed["anchor"]]
         return where
-    where["axes"] = [AXES[j] for j in _significant_axes(term.columns, theta, z_after)]
+    where["axes"] = [AXES[j] for j in _significant_axes(term, theta, z_after, peers)]
     return where
 
 
-def _significant_axes(columns: np.ndarray, theta: np.ndarray, z_after: np.ndarray) -> list[int]:
+def _significant_axes(term: Term, theta: np.ndarray, z_after: np.ndarray, peers: list[Term]) -> list[int]:
     """Axes whose parameter matters: zeroing it (all else as fitted) raises the robust
-    loss by more than 4 (about 2.8 standard errors)."""
+    loss by more than 4 (about 2.8 standard errors), with the simpler effects' (`peers`)
+    refitted, so one that would make up for it does (simplest first, as in the
+    selection): a rectification's gain on an axis that shakes evenly all flight is the
+    bias's offset shared out between the two. Look-alikes of equal rank stay as fitted:
+    each has its axes, as in the fit, where a bias and a scale are told apart."""
     best = huber_loss(z_after).sum()
+    simpler = _stack(peers)
     out = []
-    for j in range(columns.shape[1]):
-        if huber_loss(z_after + columns[:, j] * theta[j]).sum() - best > 4.0:
+    for j in range(term.columns.shape[1]):
+        shifted = z_after + term.columns[:, j] * theta[j]
+        if simpler is not None:
+            shifted = shifted - simpler[0] @ irls(shifted, *simpler)
+        if huber_loss(shifted).sum() - best > 4.0:
             out.append(j)
     return out
 
