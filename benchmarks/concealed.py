@@ -4,7 +4,7 @@ untouched flight as control, judged by the suite's own tolerances.
 
     .venv/bin/python benchmarks/concealed.py [--flights sim 0426-traj1 ...] [--out out/concealed.json] [--rejudge]
 
-By default the simulated flight and fourteen real ones (about 21 minutes on two cores).
+By default the simulated flight and fourteen real ones (15–21 minutes on two cores).
 `sim` is the suite's simulated flight (or, for an effect the suite flies on its own
 circle or with its own shaking, that flight, with its own control). Prints a line per
 effect and flight (found or missed, the recovered parameters after subtracting the
