@@ -177,6 +177,7 @@ class Predictor:
         self.accel_vibration = fx.vibration_level(rec.accel.t, rec.accel.xyz)   # the recording's own
         self.accel_rotor = self.trajectory.rotor_speed(rec.accel.t, self.accel_true)
         self.gyro_true = self.trajectory.angular_rate(rec.gyro.t)
+        self.gyro_rotor = _resampled(rec.gyro.t, rec.accel.t, self.accel_rotor)     # the gyroscope's own clock
         self._kinematics: dict[bytes, tuple[np.ndarray, object]] = {}
 
     def world(self, effects: list[fx.Effect]) -> fx.World:
@@ -223,7 +224,7 @@ class Predictor:
         # gyroscope's carries no accelerometer readings, so no vibration to measure on them
         nothing = np.zeros_like(self.gyro_true)
         g = fx.ImuBatch(self.rec.gyro.t, nothing.copy(), (self.gyro_true if gyro is None else gyro).copy(),
-                        vibration=nothing, rotor=_resampled(self.rec.gyro.t, self.rec.accel.t, self.accel_rotor))
+                        vibration=nothing, rotor=self.gyro_rotor)
         for effect in _staged(effects):
             effect.apply_imu(a, rng)
             effect.apply_imu(g, rng)
