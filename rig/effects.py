@@ -16,6 +16,7 @@ from typing import ClassVar
 
 import numpy as np
 from scipy.ndimage import uniform_filter1d
+from scipy.signal import butter, lfilter, lfilter_zi
 from scipy.spatial.transform import Rotation
 
 # Stages, in order of application.
@@ -25,7 +26,8 @@ SIGNAL = 2      # deterministic additive sensor errors (biases, delays, antenna 
 NOISE = 3       # random errors (white noise, NLOS excess delays)
 RECTIFIED = 4   # errors made of the noise itself (vibration rectification)
 CORRUPTION = 5  # rare gross errors (outliers)
-TIMING = 6      # timestamps (offsets, drift)
+FILTERED = 6    # what the flight controller does to the readings before logging them (low-pass)
+TIMING = 7      # timestamps (offsets, drift)
 
 VIBRATION_HIGHPASS_S = 0.02    # vibration: the accelerometer less its running mean this long ...
 VIBRATION_RMS_S = 0.2          # ... as a running RMS this long
@@ -275,6 +277,54 @@ class ImuVibration(Effect):
         rotor = np.ones(len(imu.t)) if imu.rotor is None else imu.rotor
         imu.accel += rng.normal(0.0, 1.0, imu.accel.shape) * self.accel_std * rotor[:, None]
         imu.gyro += rng.normal(0.0, 1.0, imu.gyro.shape) * self.gyro_std * rotor[:, None]
+
+
+class ImuLowpass(Effect):
+    """The flight controller's low-pass filter on the IMU readings it logs: a causal
+    second-order Butterworth filter with corners `accel_hz` and `gyro_hz` (the
+    Crazyflie firmware's defaults are 30 and 80 Hz at 1 kHz), applied to everything the
+    sensor reads, true motion, errors and noise alike. It gives the noise the spectrum of
+    a real log: its power below the corner, where block means and a 100 Hz estimator do
+    not average it away. A corner of 0, or at or above LOWPASS_MAX_SHARE of the sample
+    rate, leaves that stream as it is (no roll-off to model)."""
+
+    name, stage = "imu_lowpass", FILTERED
+
+    def __init__(self, accel_hz: float = 0.0, gyro_hz: float = 0.0):
+        self.accel_hz, self.gyro_hz = _corner(accel_hz, "accel_hz"), _corner(gyro_hz, "gyro_hz")
+
+    def params(self) -> dict:
+        return {"accel_hz": self.accel_hz, "gyro_hz": self.gyro_hz}
+
+    def apply_imu(self, imu: ImuBatch, rng: np.random.Generator | None) -> None:
+        imu.accel = lowpass(imu.t, imu.accel, self.accel_hz)
+        imu.gyro = lowpass(imu.t, imu.gyro, self.gyro_hz)
+
+
+LOWPASS_ORDER = 2
+LOWPASS_MAX_SHARE = 0.45       # of the sample rate: a corner closer to Nyquist filters nothing
+
+
+def _corner(value, name: str) -> float:
+    hz = float(value)
+    if not np.isfinite(hz) or hz < 0:
+        raise ValueError(f"{name} must be a corner frequency >= 0 Hz (0: no filter), got {value!r}")
+    return hz
+
+
+def lowpass(t: np.ndarray, values: np.ndarray, corner_hz: float) -> np.ndarray:
+    """`values` (rows in time) through a causal Butterworth low-pass of LOWPASS_ORDER
+    at `corner_hz`, started settled on the first reading (no start-up transient). Rows
+    that are not finite are skipped and kept as they are, so one bad reading does not
+    spread into the rest."""
+    ok = np.all(np.isfinite(np.atleast_2d(values.T).T), axis=1) if len(values) else np.zeros(0, bool)
+    if corner_hz <= 0 or ok.sum() < 3 or corner_hz >= LOWPASS_MAX_SHARE * sample_rate(t[ok]):
+        return values
+    b, a = butter(LOWPASS_ORDER, corner_hz, fs=sample_rate(t[ok]))
+    out = values.copy()
+    x = values[ok]
+    out[ok] = lfilter(b, a, x, axis=0, zi=np.multiply.outer(lfilter_zi(b, a), x[0]))[0]
+    return out
 
 
 class TdoaNoise(Effect):
@@ -536,7 +586,7 @@ class MultipathFloor(Effect):
 
 EFFECTS: dict[str, type[Effect]] = {
     cls.name: cls for cls in (ImuAccelBias, ImuGyroBias, ImuAccelScale, ImuGyroScale, ImuVibrationRectification,
-                              ImuNoise, ImuVibration, TdoaNoise, Outliers,
+                              ImuNoise, ImuVibration, ImuLowpass, TdoaNoise, Outliers,
                               TimeOffset, ClockDrift, AnchorPosition, LeverArm, AnchorDelay, AntennaPattern, Nlos,
                               MultipathFloor)
 }

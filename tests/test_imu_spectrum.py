@@ -1,0 +1,67 @@
+"""The IMU's noise spectrum: the low-pass the flight controller runs on the readings
+before logging them (effects.ImuLowpass), found again from the readings alone
+(imu_spectrum.fit_corner), with the white noise it turns into the recorded spread."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rig import imu_spectrum
+from rig.effects import ImuBatch, lowpass, make_effect
+from rig.recording import Vec3Series
+
+RATE = 1000.0
+T = np.arange(0.0, 40.0, 1.0 / RATE)
+
+
+def white(std: float = 0.5, seed: int = 0) -> np.ndarray:
+    return np.random.default_rng(seed).normal(0.0, std, (len(T), 3))
+
+
+def test_the_lowpass_passes_the_motion_and_takes_the_noise_above_its_corner() -> None:
+    """A 1 Hz manoeuvre passes whole; a 120 Hz tone loses a second-order filter's
+    (30/120)² (to 6 %); white noise keeps its share below the corner (about a quarter
+    of its spread at 30 Hz of 500). Both streams are filtered, each at its corner."""
+    slow, tone = np.sin(2 * np.pi * 1.0 * T), np.sin(2 * np.pi * 120.0 * T)
+    imu = ImuBatch(T, np.column_stack([slow, tone, white()[:, 0]]), np.column_stack([tone, tone, tone]))
+    make_effect("imu_lowpass", {"accel_hz": 30.0, "gyro_hz": 240.0}).apply_imu(imu, None)
+    settled = T > 1.0
+    gain = imu.accel[settled].std(axis=0) / np.array([slow, tone, white()[:, 0]]).T[settled].std(axis=0)
+    assert gain[0] == pytest.approx(1.0, abs=0.01)
+    assert gain[1] == pytest.approx(1 / np.hypot(1, 4 ** 2), rel=0.1)
+    assert gain[2] == pytest.approx(imu_spectrum.noise_gain(30.0, RATE), rel=0.03)
+    assert 0.2 < gain[2] < 0.3
+    assert imu.gyro[settled].std() == pytest.approx(np.sqrt(0.5) / np.hypot(1, 0.5 ** 2), rel=0.05)
+
+
+def test_the_lowpass_starts_settled_and_skips_bad_readings() -> None:
+    """No start-up transient (a reading held from the start stays put); a reading that
+    is not a number stays as it is and does not spread into the rest; a corner at or
+    above 0.45 × the sample rate, or 0, leaves the readings as they are."""
+    held = np.tile([0.1, -0.2, 9.81], (len(T), 1))
+    np.testing.assert_allclose(lowpass(T, held, 30.0), held, rtol=1e-12)
+    broken = white()
+    broken[500] = np.nan
+    out = lowpass(T, broken, 30.0)
+    assert np.isnan(out[500]).all() and np.isfinite(np.delete(out, 500, axis=0)).all()
+    for corner in (0.0, 450.0, 2000.0):
+        assert lowpass(T, broken, corner) is broken
+
+
+def test_a_negative_or_non_finite_corner_is_refused() -> None:
+    for bad in (-1.0, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="corner frequency"):
+            make_effect("imu_lowpass", {"accel_hz": bad})
+
+
+@pytest.mark.parametrize("corner", [20.0, 30.0, 80.0, 200.0])
+def test_the_corner_of_filtered_noise_is_found(corner: float) -> None:
+    readings = Vec3Series(T, lowpass(T, white() * [1.0, 0.3, 2.0], corner))
+    assert imu_spectrum.fit_corner(readings) == pytest.approx(corner, rel=0.08)
+
+
+def test_white_noise_has_no_corner_and_a_short_series_is_not_fitted() -> None:
+    assert imu_spectrum.fit_corner(Vec3Series(T, white())) == 0.0
+    assert imu_spectrum.fit_corner(Vec3Series(T[:1000], white()[:1000])) == 0.0
+    assert imu_spectrum.noise_gain(0.0, RATE) == 1.0
