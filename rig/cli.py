@@ -644,7 +644,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--config", type=Path, help="simulation config JSON (see recordings/default.sim.json)")
     p.add_argument("--trajectory", choices=("circle", "circle-sine", "smooth-random", "recording"))
     p.add_argument("--duration", type=float, help="seconds of pattern flight (parametric trajectories)")
-    p.add_argument("--recording", type=Path, help="fly this recording's ground truth past its anchors")
+    p.add_argument("--recording", type=Path, help="fly this recording's ground truth (MCAP, or a flight log of the "
+                   "shared data) past its anchors")
     p.add_argument("--survey", type=Path, help="anchor survey file")
     p.add_argument("--imu-hz", type=float)
     p.add_argument("--tdoa-hz", type=float)
@@ -663,7 +664,8 @@ def build_parser() -> argparse.ArgumentParser:
                                    "robust loss reduction pays for their parameters (simplest explanation first) "
                                    "and re-simulate. "
                                    "Writes DIR/report.json (findings sorted by evidence), DIR/report.md with "
-                                   "plots and DIR/model.json (the fitted effects, usable as a `rig simulate` "
+                                   "plots and DIR/model.json (the fitted effects and the noise they leave, with "
+                                   "the IMU's low-pass when its spectrum rolls off, usable as a `rig simulate` "
                                    "effect list). See docs/diagnosis.md.")
     p.add_argument("recording", type=Path, help="recording (MCAP, or a flight log of the shared data)")
     _survey_option(p)
@@ -677,9 +679,8 @@ def build_parser() -> argparse.ArgumentParser:
                                    "least half of the flights, each with its median parameters; path-bound ones "
                                    "(NLOS regions, displacements, patterns, lever arms) are left out; a vibration "
                                    "rectification enters as the accelerometer bias it made on its flight. Replaces "
-                                   "the config's effects, keeping its own outliers, IMU white noise and rotor "
-                                   "vibration (the recorded vibration is low-pass filtered, not white). See "
-                                   "docs/diagnosis.md.")
+                                   "the config's effects, keeping its own outliers, IMU noise, rotor vibration and "
+                                   "IMU low-pass (a flight's noise is its own). See docs/diagnosis.md.")
     p.add_argument("models", type=Path, nargs="+", help="DIR/model.json files of `rig diagnose`")
     p.add_argument("--config", type=Path, required=True, help="the simulation config to update")
     p.set_defaults(func=cmd_combine_models)

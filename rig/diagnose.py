@@ -44,10 +44,9 @@ import logging
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy.ndimage import uniform_filter1d
 
 from rig import effects as fx
-from rig import nlos_mixture
+from rig import imu_spectrum, nlos_mixture
 from rig.recording import Recording, Vec3Series
 from rig.region_scan import BoxScan
 from rig.simulate import Predictor
@@ -73,7 +72,6 @@ IMU_BLOCK_S = {"accel": 0.2, "gyro": 0.5}
 IMU_SMOOTHING_S = {"accel": 0.0, "gyro": ATTITUDE_WINDOW_S}
 IMU_MIN_BLOCK = 5              # samples a block needs
 AXES = "xyz"
-VIBRATION_WINDOW_S = 0.2       # IMU noise: spread around a running mean this long
 GROSS_Z = 50.0                 # a row this many noise deviations out is a corrupt one (see Problem)
 
 
@@ -971,28 +969,33 @@ class Diagnosis:
     def noise_model(self) -> list[dict]:
         """The noise the fitted model leaves, per sample, so `model` simulates data like
         the recording: the TDOA residual after the effects; for the IMU, the raw
-        samples' spread around their own running mean (VIBRATION_WINDOW_S): the
+        samples' spread around their own running mean (imu_spectrum.SLOW_S): the
         vibration and sensor noise. Not the spread around the ground truth, whose
-        attitude noise, differentiated, is 10–50 times the gyroscope's own noise."""
+        attitude noise, differentiated, is 10–50 times the gyroscope's own noise. When
+        the readings were low-pass filtered before logging (their spectrum rolls off),
+        the model has the filter (`imu_lowpass`) and the white noise before it that
+        comes out of it with that spread."""
         out = []
         if "tdoa" in self.residual_after:
             out.append({"effect": "tdoa_noise", "params": {"std_m": _mad_scale(self.residual_after["tdoa"])}})
         rec = self.problem.rec
         if len(rec.accel) and len(rec.gyro):
-            out.append({"effect": "imu_noise", "params": {"accel_std": vibration_spread(rec.accel),
-                                                          "gyro_std": vibration_spread(rec.gyro)}})
+            corners = {"accel": imu_spectrum.fit_corner(rec.accel), "gyro": imu_spectrum.fit_corner(rec.gyro)}
+            std = {name: vibration_spread(series) / imu_spectrum.noise_gain(corners[name], fx.sample_rate(series.t))
+                   for name, series in (("accel", rec.accel), ("gyro", rec.gyro))}
+            out.append({"effect": "imu_noise", "params": {"accel_std": std["accel"], "gyro_std": std["gyro"]}})
+            if any(corners.values()):
+                out.append({"effect": "imu_lowpass", "params": {"accel_hz": corners["accel"],
+                                                                "gyro_hz": corners["gyro"]}})
         return out
 
 
 def vibration_spread(series: Vec3Series) -> float:
     """Robust spread of an IMU series around its own running mean, averaged over the
     axes: what the slow motion of a flight leaves out."""
-    values = series.xyz[np.all(np.isfinite(series.xyz), axis=1)]
-    if len(values) < 3:
+    fast, _ = imu_spectrum.fast_part(series)
+    if len(fast) < 3:
         return 0.0
-    rate = fx.sample_rate(series.t)
-    window = int(np.clip(VIBRATION_WINDOW_S * rate, 3, len(values)))
-    fast = values - uniform_filter1d(values, window, axis=0, mode="nearest")
     return float(np.mean([_mad_scale(fast[:, axis]) for axis in range(3)]))
 
 

@@ -14,7 +14,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from rig import effects as fx  # noqa: E402
-from rig.diagnose import AXES, GROSS_Z, Diagnosis, Finding, left_out_text  # noqa: E402
+from rig import imu_spectrum  # noqa: E402
+from rig.diagnose import AXES, GROSS_Z, Diagnosis, Finding, left_out_text, vibration_spread  # noqa: E402
 
 REPORT_JSON, REPORT_MD, MODEL_JSON = "report.json", "report.md", "model.json"
 
@@ -110,9 +111,33 @@ def _markdown(diagnosis: Diagnosis, report: dict, images: list[tuple[str, str]])
               "pattern over a small range of viewing angles as a displacement; an accelerometer scale on z "
               "reads as a bias in hover. Once one anchor's delay is supported, every anchor's delay is reported "
               "(some with little evidence of their own): TDOA measures them relative to each other.", ""]
+    lines += _noise_lines(report["model"])
     for title, name in images:
         lines += [f"## {title}", "", f"![{title}]({name})", ""]
     return "\n".join(lines)
+
+
+def _noise_lines(model: list[dict]) -> list[str]:
+    """What the model's noise is, in words: the TDOA noise per measurement, and the
+    IMU's white noise, with the low-pass it went through when the spectrum rolls off."""
+    noise = {e["effect"]: e["params"] for e in model}
+    lines = ["## The noise the model leaves", ""]
+    if "tdoa_noise" in noise:
+        lines.append(f"- TDOA: {noise['tdoa_noise']['std_m']:.3f} m per measurement (robust σ after the effects).")
+    if "imu_noise" in noise:
+        imu = noise["imu_noise"]
+        white = f"white noise of {imu['accel_std']:.3g} m/s² and {imu['gyro_std']:.3g} rad/s per sample"
+        lowpass = noise.get("imu_lowpass")
+        if lowpass:
+            lines.append(f"- IMU: the readings were low-pass filtered before they were logged (the flight "
+                         f"controller's filter): their spectrum rolls off above {lowpass['accel_hz']:.0f} Hz on "
+                         f"the accelerometer and {lowpass['gyro_hz']:.0f} Hz on the gyroscope, where white noise "
+                         f"would put most of its power above 100 Hz. The model carries the filter "
+                         f"(`imu_lowpass`) and the {white} before it, which comes out of it with the recorded "
+                         "spread (see the spectrum below).")
+        else:
+            lines.append(f"- IMU: {white} (the readings' spectrum does not roll off).")
+    return lines + [""] if len(lines) > 2 else []
 
 
 def _unit(f: Finding) -> str:
@@ -150,6 +175,9 @@ def _plots(diagnosis: Diagnosis, out: Path) -> list[tuple[str, str]]:
     if rectified:
         images.append(("Accelerometer residual against its vibration",
                        _vibration_plot(diagnosis, rectified[0], out)))
+    lowpass = next((e["params"] for e in diagnosis.noise_model() if e["effect"] == "imu_lowpass"), None)
+    if lowpass:
+        images.append(("IMU noise spectrum, recorded and modelled", _spectrum_plot(diagnosis, lowpass, out)))
     if diagnosis.findings:
         fig, ax = plt.subplots(figsize=(9, 0.4 * len(diagnosis.findings) + 1.2))
         labels = [f"{f.effect} {f.anchors or ''}" for f in diagnosis.findings]
@@ -204,6 +232,35 @@ def _vibration_plot(diagnosis: Diagnosis, finding: Finding, out: Path) -> str:
         ax.legend(fontsize=8, markerscale=3)
     fig.suptitle("accelerometer 0.2 s means against the RMS of the axis' vibration")
     return _save(fig, out, "accel_vibration.png")
+
+
+def _spectrum_plot(diagnosis: Diagnosis, lowpass: dict, out: Path) -> str:
+    """Each IMU sensor's recorded noise spectrum (mean over the axes) against the
+    model's, white noise through the fitted low-pass, and against white noise of the
+    recorded spread (what the model was without the filter)."""
+    rec = diagnosis.problem.rec
+    fig, axes = plt.subplots(1, 2, figsize=(11, 3.8), layout="constrained")
+    sensors = (("accelerometer", rec.accel, "m/s²", "accel_hz"), ("gyroscope", rec.gyro, "rad/s", "gyro_hz"))
+    for ax, (name, series, unit, corner_key) in zip(axes, sensors):
+        spec = imu_spectrum.spectrum(series)
+        if spec is None:
+            continue
+        corner = lowpass[corner_key]
+        spread = vibration_spread(series)
+        keep = (spec.freq > 0) & (spec.freq <= fx.LOWPASS_MAX_SHARE * spec.rate)   # the filter's zero at Nyquist
+        freq = spec.freq[keep]
+        white = np.full(len(freq), 2 * spread ** 2 / spec.rate)      # one-sided density of that spread
+        recorded = spec.power[:, keep].mean(axis=0)
+        ax.loglog(freq, recorded, label="recorded")
+        ax.loglog(freq, white, label="white noise of the recorded spread")
+        if corner > 0:
+            shape = imu_spectrum.filter_power(corner, spec.rate, freq) / imu_spectrum.noise_gain(corner, spec.rate) ** 2
+            ax.loglog(freq, white * shape, label=f"model: white through a {corner:.0f} Hz low-pass")
+        ax.set(title=name, xlabel="frequency [Hz]", ylabel=f"power [({unit})²/Hz]",
+               ylim=(recorded.min() / 10, max(recorded.max(), white[0]) * 10))
+        ax.legend(fontsize=8)
+    fig.suptitle("noise spectrum: the readings less their 0.2 s running mean")
+    return _save(fig, out, "imu_spectrum.png")
 
 
 def _position_plot(diagnosis: Diagnosis, k: int, out: Path) -> str:

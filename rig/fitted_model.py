@@ -121,12 +121,11 @@ def _centre_delays(effects: list[dict]) -> None:
 
 
 # kept from the config when its fitted effects are replaced: the heavy tails beyond the
-# diagnosis's robust noise scale (not fitted), and the IMU noise: the diagnosis
-# measures the recorded vibration (0.3-1.3 m/s2 on the accelerometer), which the
-# board's low-pass filter leaves below about 50 Hz; the simulator's noise is white,
-# and white at that size would differ from the recording sample to sample (and more
-# than double the bytes a replay sends per window); the rotors' vibration likewise
-KEPT_FROM_CONFIG = ("outliers", "imu_noise", "imu_vibration")
+# diagnosis's robust noise scale (not fitted), and the IMU's noise, the rotors'
+# vibration and the low-pass they go through: a flight's noise is its own (0.3-1.3
+# m/s2 of vibration on the accelerometer), and noise of that size would more than
+# double the bytes a replay sends per window
+KEPT_FROM_CONFIG = ("outliers", "imu_noise", "imu_vibration", "imu_lowpass")
 
 
 def replace_fitted(config: dict, effects: list[dict]) -> dict:

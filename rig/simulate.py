@@ -16,7 +16,8 @@ from pathlib import Path
 import numpy as np
 
 from rig import effects as fx
-from rig.recording import PoseSeries, Recording, TdoaSeries, Vec3Series, read_recording
+from rig.importer import load_any
+from rig.recording import PoseSeries, Recording, TdoaSeries, Vec3Series
 from rig.survey import Anchor, parse_survey
 from rig.trajectory import RecordedTrajectory, Trajectory, parametric
 
@@ -95,7 +96,7 @@ def _trajectory_and_anchors(cfg: SimConfig) -> tuple[Trajectory, list[Anchor], d
     if cfg.trajectory == "recording":
         if not cfg.recording:
             raise ValueError("trajectory 'recording' needs a recording path")
-        source = read_recording(Path(cfg.recording))
+        source = load_any(Path(cfg.recording))        # an MCAP recording or a flight log
         trajectory: Trajectory = RecordedTrajectory(source.truth)
         anchors = source.anchors
         meta["trajectory_source"] = str(cfg.recording)

@@ -19,7 +19,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from conftest import RIG
-from rig.diagnose import Candidate, Problem, Term, _estimate, _free_offset, _mad_scale, candidates, diagnose
+from rig import imu_spectrum
+from rig.diagnose import (Candidate, Problem, Term, _estimate, _free_offset, _mad_scale, candidates, diagnose,
+                          vibration_spread)
 from rig.diagnosis_report import write as write_report
 from rig.fitted_model import outside_window
 from rig.importer import load_any
@@ -56,8 +58,13 @@ def real(data_dir: Path):
 
 
 @pytest.fixture(scope="module")
-def real_control(real):
-    return findings(diagnose(real[0]))
+def real_diagnosis(real):
+    return diagnose(real[0])
+
+
+@pytest.fixture(scope="module")
+def real_control(real_diagnosis):
+    return findings(real_diagnosis)
 
 
 def findings(result) -> dict[tuple, dict]:
@@ -379,6 +386,58 @@ def test_the_fitted_model_carries_the_per_sample_noise(survey) -> None:
     model = {e["effect"]: e["params"] for e in diagnose(simulate(sim_config(survey, []))).to_json()["model"]}
     assert model["tdoa_noise"]["std_m"] == pytest.approx(0.15, rel=0.1)
     assert model["imu_noise"]["accel_std"] == pytest.approx(0.5, rel=0.1)
+    assert "imu_lowpass" not in model            # white noise: its spectrum does not roll off
+
+
+def test_a_low_pass_on_the_imu_is_in_the_model_with_the_white_noise_before_it(survey) -> None:
+    """A flight whose IMU readings went through the flight controller's low-pass (the
+    Crazyflie's defaults, 30 and 80 Hz): model.json has the filter's corners and the
+    white noise before it, and the filter alone makes no finding."""
+    lowpass = {"effect": "imu_lowpass", "params": {"accel_hz": 30.0, "gyro_hz": 80.0}}
+    result = diagnose(simulate(sim_config(survey, [lowpass]))).to_json()
+    model = {e["effect"]: e["params"] for e in result["model"]}
+    assert model["imu_lowpass"]["accel_hz"] == pytest.approx(30.0, rel=0.1)
+    assert model["imu_lowpass"]["gyro_hz"] == pytest.approx(80.0, rel=0.1)
+    assert model["imu_noise"]["accel_std"] == pytest.approx(0.5, rel=0.1)
+    assert model["imu_noise"]["gyro_std"] == pytest.approx(0.05, rel=0.1)
+    assert result["findings"] == []
+
+
+def test_a_real_flights_model_has_its_noise_spectrum(tmp_path: Path, real, real_diagnosis) -> None:
+    """The real flight's IMU readings roll off above a few tens of Hz (the firmware's
+    filter): its model carries the low-pass, and a simulation of the flight from the
+    model's noise has the recorded spectrum (log spectral distance, 10 Hz to 0.45 ×
+    the sample rate, under a third of what white noise of the recorded spread gives;
+    under 10 % of the power above 100 Hz, where white noise has most of it). The
+    report says so and plots the spectra."""
+    rec, _ = real
+    write_report(real_diagnosis, tmp_path, REAL_FLIGHT)
+    markdown = (tmp_path / "report.md").read_text()
+    assert "low-pass filtered before they were logged" in markdown and "](imu_spectrum.png)" in markdown
+    assert (tmp_path / "imu_spectrum.png").stat().st_size > 1000
+    model = {e["effect"]: e for e in real_diagnosis.to_json()["model"]}
+    assert 25.0 <= model["imu_lowpass"]["params"]["accel_hz"] <= 60.0
+    assert 30.0 <= model["imu_lowpass"]["params"]["gyro_hz"] <= 100.0
+    white = [{"effect": "imu_noise", "params": {"accel_std": vibration_spread(rec.accel),
+                                                "gyro_std": vibration_spread(rec.gyro)}}]
+    config = SimConfig(trajectory="recording", recording=str(rec.metadata["source"]), seed=1)
+    modelled = simulate(replace(config, effects=[model["imu_noise"], model["imu_lowpass"]]))
+    unfiltered = simulate(replace(config, effects=white))
+    for sensor in ("accel", "gyro"):
+        recorded = _band_spectrum(getattr(rec, sensor))
+        fitted, flat = _band_spectrum(getattr(modelled, sensor)), _band_spectrum(getattr(unfiltered, sensor))
+        assert _log_distance(fitted, recorded) < _log_distance(flat, recorded) / 3, sensor
+        assert imu_spectrum.share_above(*fitted, 100.0) < 0.1 < 0.5 < imu_spectrum.share_above(*flat, 100.0), sensor
+
+
+def _band_spectrum(series) -> tuple[np.ndarray, np.ndarray]:
+    spec = imu_spectrum.spectrum(series)
+    band = imu_spectrum.fit_band(spec)
+    return spec.freq[band], spec.power[:, band].mean(axis=0)
+
+
+def _log_distance(a: tuple, b: tuple) -> float:
+    return float(np.mean(np.abs(np.log10(a[1] / np.interp(a[0], *b)))))
 
 
 def test_corrupt_ranges_and_a_ground_truth_glitch_are_left_out_not_chased(survey, sim_control) -> None:
