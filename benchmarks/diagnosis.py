@@ -3,7 +3,8 @@
     .venv/bin/python benchmarks/diagnosis.py [--out out/diagnosis] [--reuse] [--doc docs/diagnosis.md]
 
 Runs `rig diagnose` on each flight (two at a time) into OUT/<flight>/ (--reuse keeps
-reports already there), prints the table and writes OUT/summary.json."""
+reports already there), prints the tables (the findings; the IMU low-pass the models
+carry and how much of the noise power lies above 100 Hz) and writes OUT/summary.json."""
 
 from __future__ import annotations
 
@@ -19,8 +20,12 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from rig import paths  # noqa: E402
+import numpy as np  # noqa: E402
+
+from rig import effects as fx  # noqa: E402
+from rig import imu_spectrum, paths  # noqa: E402
 from rig.diagnose import left_out_text  # noqa: E402
+from rig.importer import load_any  # noqa: E402
 
 
 def run(flight: Path, out: Path, reuse: bool) -> None:
@@ -47,8 +52,10 @@ def main() -> None:
     print(table)
     (args.out / "summary.json").write_text(json.dumps(
         {name: {"channels": r["channels"], "findings": r["findings"]} for name, r in reports.items()}, indent=1))
+    spectra = imu_spectra(reports, {f.name: f for f in flights})
+    print(spectra)
     text = (ROOT / "docs" / "diagnosis.md.in").read_text()
-    args.doc.write_text(text.replace("{{TABLE}}", table))
+    args.doc.write_text(text.replace("{{TABLE}}", table).replace("{{IMU_SPECTRUM}}", spectra))
     print(f"wrote {args.doc} and {args.out / 'summary.json'}")
 
 
@@ -89,6 +96,64 @@ def tables(reports: dict) -> str:
         flights = sum(1 for r in reports.values() if any(f["effect"] == effect for f in r["findings"]))
         print(f"| {effect} | {flights} |")
     return "\n".join(lines)
+
+
+def imu_spectra(reports: dict, flights: dict[str, Path]) -> str:
+    """The IMU low-pass each flight's model carries (corner range and median over the
+    flights, per sensor) and the share of the noise power above SHARE_ABOVE_HZ: in the
+    recording, in the model (white noise through its low-pass) and in white noise, the
+    model without it (over FIT_FROM_HZ to the highest corner a filter can have)."""
+    rows = {"accel": [], "gyro": []}
+    for name, report in reports.items():
+        model = {e["effect"]: e["params"] for e in report["model"]}
+        rec = load_any(flights[name])
+        for sensor in rows:
+            spec = imu_spectrum.spectrum(getattr(rec, sensor))
+            corner = model.get("imu_lowpass", {}).get(f"{sensor}_hz", 0.0)
+            if spec is None:
+                continue
+            band = imu_spectrum.fit_band(spec)
+            freq, recorded = spec.freq[band], spec.power[:, band].mean(axis=0)
+            shape = imu_spectrum.filter_power(corner, spec.rate, freq) if corner else np.ones(len(freq))
+            shares = [imu_spectrum.share_above(freq, p, SHARE_ABOVE_HZ) for p in (recorded, shape, np.ones(len(freq)))]
+            rows[sensor].append((corner, *shares, *_estimator_spread(getattr(rec, sensor), model, sensor)))
+    lines = [f"| sensor | flights with a low-pass | corner [Hz]: median (range) | power above {SHARE_ABOVE_HZ:g} Hz: "
+             "recorded | model | white | 10 ms means' spread: model ÷ recorded | white ÷ recorded |",
+             "|---|---|---|---|---|---|---|---|"]
+    for sensor, values in rows.items():
+        v = np.array(values)
+        found = v[v[:, 0] > 0, 0]
+        corners = f"{np.median(found):.0f} ({found.min():.0f}–{found.max():.0f})" if len(found) else "—"
+        lines.append(f"| {sensor} | {len(found)} of {len(v)} | {corners} | "
+                     + " | ".join(f"{np.median(v[:, k]):.1%}" for k in (1, 2, 3)) + " | "
+                     + " | ".join(f"{np.median(v[:, k]):.2f}" for k in (4, 5)) + " |")
+    lines.append("")
+    lines.append("(medians over the flights; a 10 ms mean is what an estimator running at 100 Hz takes in)")
+    return "\n".join(lines)
+
+
+SHARE_ABOVE_HZ = 100.0
+ESTIMATOR_S = 0.01             # the estimator's step: it takes in 10 ms means of the IMU
+
+
+def _estimator_spread(series, model: dict, sensor: str) -> tuple[float, float]:
+    """The spread of 10 ms means of the model's noise (its white noise through its
+    low-pass) and of white noise of the recorded spread, each over that of the
+    recording's fast part (the readings less their 0.2 s running mean)."""
+    fast, rate = imu_spectrum.fast_part(series)
+    noise = np.random.default_rng(0).normal(size=fast.shape)
+    std = model["imu_noise"][f"{sensor}_std"]
+    corner = model.get("imu_lowpass", {}).get(f"{sensor}_hz", 0.0)
+    modelled = fx.lowpass(series.t[: len(fast)], noise * std, corner)
+    white = noise * std * imu_spectrum.noise_gain(corner, rate)       # the recorded spread, unfiltered
+    recorded = _means_spread(fast, rate)
+    return _means_spread(modelled, rate) / recorded, _means_spread(white, rate) / recorded
+
+
+def _means_spread(values: np.ndarray, rate: float) -> float:
+    n = max(1, int(round(ESTIMATOR_S * rate)))
+    blocks = values[: len(values) // n * n].reshape(-1, n, 3).mean(axis=1)
+    return float(np.mean(blocks.std(axis=0)))
 
 
 if __name__ == "__main__":
