@@ -3,6 +3,7 @@ runs: each catalog effect injected alone into a flight, diagnosed, compared with
 untouched flight as control, judged by the suite's own tolerances.
 
     .venv/bin/python benchmarks/concealed.py [--flights sim 0426-traj1 ...] [--out out/concealed.json] [--rejudge]
+    .venv/bin/python benchmarks/concealed.py --variants --out out/variants.json     # 7 minutes
 
 By default the simulated flight and fourteen real ones (15–21 minutes on two cores).
 `sim` is the suite's simulated flight (or, for an effect the suite flies on its own
@@ -10,7 +11,9 @@ circle or with its own shaking, that flight, with its own control). Prints a lin
 effect and flight (found or missed, the recovered parameters after subtracting the
 control) and a count per flight.
 The findings themselves go to OUT with `.findings.json` for a suffix; `--rejudge` judges
-those again without diagnosing (after a change to the judging)."""
+those again without diagnosing (after a change to the judging). `--variants` runs other
+sizes, signs, anchors and axes of the catalog effects (VARIANTS) on six real flights
+instead of the suite's cases."""
 
 from __future__ import annotations
 
@@ -37,30 +40,63 @@ FLIGHTS = ["0426-traj1", "0426-traj4", "0425-traj5", "0422-log01", "0422-log00",
            "0425-traj9", "0425-traj13", "0425-traj17", "0425-traj21", "0426-traj2", "0426-traj6", "0426-traj8"]
 
 
-def diagnosed(job: tuple[str, str]) -> tuple[str, str, list, list | None]:
+# Other sizes, signs, anchors and axes than the suite's cases (--variants), each with a
+# tolerance of the suite's kind for its size: whether the tool generalises beyond the
+# cases it was built on. label: (effect, params, check)
+VARIANTS = {
+    "time_offset -50 ms": ("time_offset", {"seconds": -0.05}, cases._scalar_close("seconds", 0.35)),
+    "time_offset +100 ms": ("time_offset", {"seconds": 0.1}, cases._scalar_close("seconds", 0.35)),
+    "clock_drift -1500 ppm": ("clock_drift", {"ppm": -1500.0}, cases._scalar_close("ppm", 0.25)),
+    "anchor_delay 1 -0.15 m": ("anchor_delay", {"anchor": 1, "meters": -0.15}, cases._scalar_close("meters", 0.25)),
+    "anchor_delay 7 +0.10 m": ("anchor_delay", {"anchor": 7, "meters": 0.1}, cases._scalar_close("meters", 0.25)),
+    "anchor_position 0 up 0.2 m": ("anchor_position", {"anchor": 0, "offset_m": [0.0, 0.0, 0.2]},
+                                   cases._vector_close("offset_m", 0.06)),
+    "anchor_position 6 oblique": ("anchor_position", {"anchor": 6, "offset_m": [-0.15, 0.1, 0.1]},
+                                  cases._vector_close("offset_m", 0.06)),
+    "imu_accel_bias 3 axes": ("imu_accel_bias", {"bias_mps2": [0.1, -0.1, 0.1]}, cases._vector_close("bias_mps2", 0.03)),
+    "imu_gyro_bias x, y": ("imu_gyro_bias", {"bias_rps": [0.01, -0.01, 0.0]}, cases._vector_close("bias_rps", 0.004)),
+    "imu_accel_scale z 0.97": ("imu_accel_scale", {"scale": [1.0, 1.0, 0.97]},
+                               lambda got, want, slack=1.0: abs(got["scale"][2] - 0.97) < 0.01 * slack),
+    "imu_accel_scale 3 axes 1.03": ("imu_accel_scale", {"scale": [1.03, 1.03, 1.03]}, cases._vector_close("scale", 0.01)),
+    "imu_gyro_scale 3 axes 1.05": ("imu_gyro_scale", {"scale": [1.05, 1.05, 1.05]}, cases._vector_close("scale", 0.03)),
+    "imu_gyro_scale z 0.9": ("imu_gyro_scale", {"scale": [1.0, 1.0, 0.9]},
+                             lambda got, want, slack=1.0: abs(got["scale"][2] - 0.9) < 0.03 * slack),
+    "lever_arm y 6 cm": ("lever_arm", {"offset_m": [0.0, 0.06, 0.0]}, cases._vector_close("offset_m", 0.03)),
+    "lever_arm x, y 5 cm": ("lever_arm", {"offset_m": [0.05, -0.05, 0.0]}, cases._vector_close("offset_m", 0.03)),
+}
+VARIANT_FLIGHTS = ["0426-traj1", "0425-traj5", "0422-log00", "0425-traj13", "0426-traj6", "0425-traj21"]
+
+
+def case_set(variants: bool) -> dict[str, tuple]:
+    """label: (effect, params, check) of the suite's cases or of the variants."""
+    if variants:
+        return VARIANTS
+    return {name: (name, params, check) for name, (params, check) in cases.CASES.items()}
+
+
+def diagnosed(job: tuple[str, str, str, dict]) -> tuple[str, str, list, list | None]:
     """The findings on the flight with the effect injected, and on its own untouched
     flight when it is not the flight's shared control (a simulated case with its own
     circle or shaking)."""
-    flight, name = job
-    effects = [] if name == "control" else [{"effect": name, "params": cases.CASES[name][0]}]
+    flight, label, name, params = job
+    effects = [] if label == "control" else [{"effect": name, "params": params}]
     if flight == "sim":
         survey = paths.data_dir() / "surveys" / "anchor_0425.txt"
         found = _listed(cases.diagnose(simulate(cases.sim_case(survey, name, effects))))
         own = cases.own_sim_control(name)
         control = _listed(cases.diagnose(simulate(cases.sim_case(survey, name, [])))) if own else None
-        return flight, name, found, control
+        return flight, label, found, control
     rec = load_any(paths.data_dir() / "flights" / flight)
     if effects:
         rec = inject(rec, effects, seed=1, predictor=Predictor(rec))
-    return flight, name, _listed(cases.diagnose(rec)), None
+    return flight, label, _listed(cases.diagnose(rec)), None
 
 
 def _listed(diagnosis) -> list:
     return diagnosis.to_json()["findings"]
 
 
-def judge(found: dict, control: dict, name: str, real: bool) -> tuple[bool, str]:
-    params, check = cases.CASES[name]
+def judge(found: dict, control: dict, name: str, params: dict, check, real: bool) -> tuple[bool, str]:
     try:
         cases._check(found, control, name, params, check, real=real)
         return True, "found"
@@ -73,35 +109,40 @@ def main() -> None:
     parser.add_argument("--flights", nargs="+", default=["sim", *FLIGHTS])
     parser.add_argument("--out", type=Path, default=ROOT / "out" / "concealed.json")
     parser.add_argument("--rejudge", action="store_true", help="judge the findings of the last run again")
+    parser.add_argument("--variants", action="store_true",
+                        help=f"other sizes, signs, anchors and axes than the suite's cases (default flights: "
+                             f"{' '.join(VARIANT_FLIGHTS)})")
     args = parser.parse_args()
+    chosen = case_set(args.variants)
     raw = args.out.with_suffix(".findings.json")
     if args.rejudge:
         results = {tuple(key.split("|")): value for key, value in json.loads(raw.read_text()).items()}
         flights = list(dict.fromkeys(flight for flight, _ in results))
     else:
-        flights = args.flights
-        jobs = [(f, n) for f in flights for n in ["control", *cases.CASES]]
+        flights = VARIANT_FLIGHTS if args.variants and args.flights == parser.get_default("flights") else args.flights
+        jobs = [(f, label, *(chosen[label][:2] if label != "control" else ("", {})))
+                for f in flights for label in ["control", *chosen]]
         with Pool(2) as pool:
             done = {(f, n): (found, own) for f, n, found, own in pool.imap_unordered(diagnosed, jobs)}
-        results = {job: done[job] for job in jobs}             # in the order of the flights, for --rejudge
+        results = {job[:2]: done[job[:2]] for job in jobs}     # in the order of the flights, for --rejudge
         raw.parent.mkdir(parents=True, exist_ok=True)
         raw.write_text(json.dumps({f"{f}|{n}": value for (f, n), value in results.items()}))
     summary = {}
     for flight in flights:
         rows = {}
-        for name in cases.CASES:
-            found, own = results[(flight, name)]
+        for label, (name, params, check) in chosen.items():
+            found, own = results[(flight, label)]
             control = cases.keyed(own or results[(flight, "control")][0])
-            ok, how = judge(cases.keyed(found), control, name, real=flight != "sim")
-            rows[name] = {"found": ok, "detail": how}
-            print(f"{flight:12s} {name:16s} {'found ' if ok else 'MISSED'} {'' if ok else how}")
+            ok, how = judge(cases.keyed(found), control, name, params, check, real=flight != "sim")
+            rows[label] = {"found": ok, "detail": how}
+            print(f"{flight:12s} {label:28s} {'found ' if ok else 'MISSED'} {'' if ok else how}")
         summary[flight] = {"found": sum(r["found"] for r in rows.values()), "of": len(rows), "cases": rows}
         print(f"{flight}: {summary[flight]['found']} of {len(rows)}")
     real = [flight for flight in flights if flight != "sim"]
-    per_effect = {name: sum(summary[f]["cases"][name]["found"] for f in real) for name in cases.CASES}
-    for name, found in per_effect.items():
-        print(f"{name:16s} found on {found} of {len(real)} real flights")
-    print(f"real: {sum(per_effect.values())} of {len(real) * len(cases.CASES)}")
+    per_effect = {label: sum(summary[f]["cases"][label]["found"] for f in real) for label in chosen}
+    for label, found in per_effect.items():
+        print(f"{label:28s} found on {found} of {len(real)} real flights")
+    print(f"real: {sum(per_effect.values())} of {len(real) * len(chosen)}")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps({"flights": summary, "real_flights_per_effect": per_effect}, indent=1))
 

@@ -133,8 +133,18 @@ CASES = {
     # reads as delays of the ceiling anchors against the floor ones (not identifiable)
     "lever_arm": ({"offset_m": [0.08, 0.0, 0.0]}, _vector_close("offset_m", 0.03)),
 }
-WHERE = {"imu_accel_bias": ("axes", ["y"]), "imu_gyro_bias": ("axes", ["z"]), "imu_accel_scale": ("axes", ["z"]),
-         "imu_gyro_scale": ("axes", ["z"]), "imu_vibration_rectification": ("axes", ["y"])}
+IMU_VECTOR = {"imu_accel_bias": "bias_mps2", "imu_gyro_bias": "bias_rps", "imu_accel_scale": "scale",
+              "imu_gyro_scale": "scale", "imu_vibration_rectification": "gain"}
+
+
+def injected_axes(name: str, params: dict) -> list[str] | None:
+    """The axes an injected IMU effect moves off neutral, which its finding must
+    locate (None for the other effects)."""
+    if name not in IMU_VECTOR:
+        return None
+    neutral = 1.0 if "scale" in name else 0.0
+    return [axis for axis, value in zip("xyz", params[IMU_VECTOR[name]]) if value != neutral]
+
 
 # An antenna pattern needs the anchor seen from a wide range of angles: over the few
 # tens of degrees the suite's circle spans it reads as a displaced anchor (see
@@ -186,9 +196,9 @@ def _check(found: dict, control: dict, name: str, params: dict, check, real: boo
     _check_unidentified(found[key], got, params)
     assert check(got, params, REAL_SLACK if real else 1.0), f"{name}: got {got}, injected {params}"
     assert found[key]["fit_after"] < found[key]["fit_before"]
-    if name in WHERE:                # on a real flight, the axes of the flight's own biases come too
-        field, expected = WHERE[name]
-        located = found[key]["where"][field]
+    expected = injected_axes(name, params)
+    if expected is not None:         # on a real flight, the axes of the flight's own biases come too
+        located = found[key]["where"]["axes"]
         assert set(expected) <= set(located) if real else located == expected
     if "anchor" in params:
         assert found[key]["where"]["anchors"] == [params["anchor"]]
