@@ -317,10 +317,14 @@ def lowpass(t: np.ndarray, values: np.ndarray, corner_hz: float) -> np.ndarray:
     at `corner_hz`, started settled on the first reading (no start-up transient). Rows
     that are not finite are skipped and kept as they are, so one bad reading does not
     spread into the rest."""
-    ok = np.all(np.isfinite(np.atleast_2d(values.T).T), axis=1) if len(values) else np.zeros(0, bool)
-    if corner_hz <= 0 or ok.sum() < 3 or corner_hz >= LOWPASS_MAX_SHARE * sample_rate(t[ok]):
+    finite = np.isfinite(values)
+    ok = finite.all(axis=1) if finite.ndim == 2 else finite
+    if corner_hz <= 0 or ok.sum() < 3:
         return values
-    b, a = butter(LOWPASS_ORDER, corner_hz, fs=sample_rate(t[ok]))
+    rate = sample_rate(t[ok])
+    if corner_hz >= LOWPASS_MAX_SHARE * rate:
+        return values
+    b, a = butter(LOWPASS_ORDER, corner_hz, fs=rate)
     out = values.copy()
     x = values[ok]
     out[ok] = lfilter(b, a, x, axis=0, zi=np.multiply.outer(lfilter_zi(b, a), x[0]))[0]
