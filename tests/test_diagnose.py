@@ -10,6 +10,7 @@ expected failures with the reason (strict: they fail the suite once they pass)."
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 from dataclasses import replace
 from pathlib import Path
@@ -411,6 +412,29 @@ def test_a_low_pass_on_the_imu_is_in_the_model_with_the_white_noise_before_it(su
     assert model["imu_noise"]["accel_std"] == pytest.approx(0.5, rel=0.1)
     assert model["imu_noise"]["gyro_std"] == pytest.approx(0.05, rel=0.1)
     assert result["findings"] == []
+
+
+def test_the_cli_says_the_imu_was_low_pass_filtered(tmp_path: Path, survey) -> None:
+    """`rig diagnose` names the low-pass on its console too, and model.json carries it,
+    so `rig simulate` can fly the model."""
+    config = tmp_path / "sim.json"
+    config.write_text(json.dumps({"trajectory": "circle-sine", "duration": 20.0, "survey": str(survey), "effects": [
+        {"effect": "imu_noise", "params": {"accel_std": 0.5, "gyro_std": 0.05}},
+        {"effect": "imu_lowpass", "params": {"accel_hz": 30.0, "gyro_hz": 80.0}}]}))
+    subprocess.run([*RIG, "simulate", "--config", str(config), "-o", str(tmp_path / "sim.mcap")], check=True,
+                   capture_output=True)
+    proc = subprocess.run([*RIG, "diagnose", str(tmp_path / "sim.mcap"), "--out", str(tmp_path / "d")],
+                          capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    said = re.search(r"IMU readings low-pass filtered before logging: (\d+) Hz \(accelerometer\)", proc.stdout)
+    assert said and 27 <= int(said.group(1)) <= 33, proc.stdout
+    model = json.loads((tmp_path / "d" / "model.json").read_text())["effects"]
+    lowpass = next(e["params"] for e in model if e["effect"] == "imu_lowpass")
+    assert lowpass["accel_hz"] == pytest.approx(30.0, rel=0.1)
+    config.write_text(json.dumps({"trajectory": "circle-sine", "duration": 5.0, "survey": str(survey),
+                                  "effects": model}))
+    subprocess.run([*RIG, "simulate", "--config", str(config), "-o", str(tmp_path / "again.mcap")], check=True,
+                   capture_output=True)
 
 
 def test_a_real_flights_model_has_its_noise_spectrum(tmp_path: Path, real, real_diagnosis) -> None:
