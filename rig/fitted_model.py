@@ -122,8 +122,8 @@ def _centre_delays(effects: list[dict]) -> None:
 
 # kept from the config when its fitted effects are replaced: the heavy tails beyond the
 # diagnosis's robust noise scale (not fitted), and the IMU's noise, the rotors'
-# vibration and the low-pass they go through: a flight's noise is its own (0.3-1.3
-# m/s2 of vibration on the accelerometer), and noise of that size would more than
+# vibration and the low-pass they go through: a flight's noise is its own (0.35-2.2
+# m/s2 RMS of vibration on the accelerometer), and noise of that size would more than
 # double the bytes a replay sends per window
 KEPT_FROM_CONFIG = ("outliers", "imu_noise", "imu_vibration", "imu_lowpass")
 
