@@ -114,7 +114,7 @@ def imu_spectra(reports: dict, flights: dict[str, Path]) -> str:
                 continue
             band = imu_spectrum.fit_band(spec)
             freq, recorded = spec.freq[band], spec.power[:, band].mean(axis=0)
-            shape = imu_spectrum.filter_power(corner, spec.rate, freq) if corner else np.ones(len(freq))
+            shape = imu_spectrum.filter_power(corner, spec.rate, freq)
             shares = [imu_spectrum.share_above(freq, p, SHARE_ABOVE_HZ) for p in (recorded, shape, np.ones(len(freq)))]
             rows[sensor].append((corner, *shares, *_estimator_spread(getattr(rec, sensor), model, sensor)))
     lines = [f"| sensor | flights with a low-pass | corner [Hz]: median (range) | power above {SHARE_ABOVE_HZ:g} Hz: "

@@ -66,7 +66,7 @@ def write(diagnosis: Diagnosis, out: Path, recording: str) -> dict:
     (out / REPORT_JSON).write_text(json.dumps(report, indent=2, allow_nan=False, default=_finite))
     (out / MODEL_JSON).write_text(json.dumps({"effects": report["model"],
                                               "vibration_rms_mps2": report["vibration_rms_mps2"]}, indent=2))
-    images = _plots(diagnosis, out)
+    images = _plots(diagnosis, report["model"], out)
     (out / REPORT_MD).write_text(_markdown(diagnosis, report, images))
     return report
 
@@ -152,7 +152,7 @@ def _change(c: dict) -> str:
     return f"{(c['fit_after'] - c['fit_before']) / c['fit_before']:+.1%}"
 
 
-def _plots(diagnosis: Diagnosis, out: Path) -> list[tuple[str, str]]:
+def _plots(diagnosis: Diagnosis, model: list[dict], out: Path) -> list[tuple[str, str]]:
     images = []
     p = diagnosis.problem
     names = list(diagnosis.residual_before)
@@ -175,7 +175,7 @@ def _plots(diagnosis: Diagnosis, out: Path) -> list[tuple[str, str]]:
     if rectified:
         images.append(("Accelerometer residual against its vibration",
                        _vibration_plot(diagnosis, rectified[0], out)))
-    lowpass = next((e["params"] for e in diagnosis.noise_model() if e["effect"] == "imu_lowpass"), None)
+    lowpass = next((e["params"] for e in model if e["effect"] == "imu_lowpass"), None)
     if lowpass:
         images.append(("IMU noise spectrum, recorded and modelled", _spectrum_plot(diagnosis, lowpass, out)))
     if diagnosis.findings:
@@ -253,7 +253,7 @@ def _spectrum_plot(diagnosis: Diagnosis, lowpass: dict, out: Path) -> str:
         recorded = spec.power[:, keep].mean(axis=0)
         ax.loglog(freq, recorded, label="recorded")
         ax.loglog(freq, white, label="white noise of the recorded spread")
-        if corner > 0:
+        if corner > 0:                       # a sensor the fit found no roll-off on has no model line
             shape = imu_spectrum.filter_power(corner, spec.rate, freq) / imu_spectrum.noise_gain(corner, spec.rate) ** 2
             ax.loglog(freq, white * shape, label=f"model: white through a {corner:.0f} Hz low-pass")
         ax.set(title=name, xlabel="frequency [Hz]", ylabel=f"power [({unit})²/Hz]",

@@ -312,19 +312,26 @@ def _corner(value, name: str) -> float:
     return hz
 
 
+def lowpass_design(corner_hz: float, rate: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """The coefficients (b, a) of the Butterworth low-pass of LOWPASS_ORDER at
+    `corner_hz` for readings at `rate`, or None where it filters nothing: a corner of
+    0, or at or above LOWPASS_MAX_SHARE of the rate."""
+    if corner_hz <= 0 or corner_hz >= LOWPASS_MAX_SHARE * rate:
+        return None
+    return butter(LOWPASS_ORDER, corner_hz, fs=rate)
+
+
 def lowpass(t: np.ndarray, values: np.ndarray, corner_hz: float) -> np.ndarray:
-    """`values` (rows in time) through a causal Butterworth low-pass of LOWPASS_ORDER
-    at `corner_hz`, started settled on the first reading (no start-up transient). Rows
-    that are not finite are skipped and kept as they are, so one bad reading does not
-    spread into the rest."""
+    """`values` (rows in time) through the causal low-pass `lowpass_design` gives,
+    started settled on the first reading (no start-up transient). Rows that are not
+    finite are skipped and kept as they are, so one bad reading does not spread into
+    the rest."""
     finite = np.isfinite(values)
     ok = finite.all(axis=1) if finite.ndim == 2 else finite
-    if corner_hz <= 0 or ok.sum() < 3:
+    design = lowpass_design(corner_hz, sample_rate(t[ok])) if ok.sum() >= 3 else None
+    if design is None:
         return values
-    rate = sample_rate(t[ok])
-    if corner_hz >= LOWPASS_MAX_SHARE * rate:
-        return values
-    b, a = butter(LOWPASS_ORDER, corner_hz, fs=rate)
+    b, a = design
     out = values.copy()
     x = values[ok]
     out[ok] = lfilter(b, a, x, axis=0, zi=np.multiply.outer(lfilter_zi(b, a), x[0]))[0]

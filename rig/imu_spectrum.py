@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import uniform_filter1d
 from scipy.optimize import nnls
-from scipy.signal import butter, freqz, lfilter, welch
+from scipy.signal import freqz, lfilter, welch
 
 from rig import effects as fx
 from rig.recording import Vec3Series
@@ -68,9 +68,12 @@ def share_above(freq: np.ndarray, power: np.ndarray, hz: float) -> float:
 
 
 def filter_power(corner_hz: float, rate: float, freq: np.ndarray) -> np.ndarray:
-    """|H(f)|² of the low-pass `effects.ImuLowpass` applies."""
-    b, a = butter(fx.LOWPASS_ORDER, corner_hz, fs=rate)
-    return np.abs(freqz(b, a, worN=freq, fs=rate)[1]) ** 2
+    """|H(f)|² of the low-pass `effects.ImuLowpass` applies (1 where it filters
+    nothing)."""
+    design = fx.lowpass_design(corner_hz, rate)
+    if design is None:
+        return np.ones(len(freq))
+    return np.abs(freqz(*design, worN=freq, fs=rate)[1]) ** 2
 
 
 def fit_corner(series: Vec3Series) -> float:
@@ -110,9 +113,9 @@ def _log_misfit(shape: np.ndarray, power: np.ndarray) -> float:
 def noise_gain(corner_hz: float, rate: float) -> float:
     """Standard deviation of white noise after the low-pass, per unit before it (1
     without a filter)."""
-    if corner_hz <= 0 or corner_hz >= fx.LOWPASS_MAX_SHARE * rate:
+    design = fx.lowpass_design(corner_hz, rate)
+    if design is None:
         return 1.0
-    b, a = butter(fx.LOWPASS_ORDER, corner_hz, fs=rate)
     impulse = np.zeros(int(20 * rate / corner_hz) + 16)
     impulse[0] = 1.0
-    return float(np.sqrt(np.sum(lfilter(b, a, impulse) ** 2)))
+    return float(np.sqrt(np.sum(lfilter(*design, impulse) ** 2)))
