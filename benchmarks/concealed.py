@@ -106,7 +106,8 @@ def judge(found: dict, control: dict, name: str, params: dict, check, real: bool
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--flights", nargs="+", default=["sim", *FLIGHTS])
+    parser.add_argument("--flights", nargs="+",
+                        help="default: sim and the fourteen real flights (FLIGHTS); with --variants, VARIANT_FLIGHTS")
     parser.add_argument("--out", type=Path, default=ROOT / "out" / "concealed.json")
     parser.add_argument("--rejudge", action="store_true", help="judge the findings of the last run again")
     parser.add_argument("--variants", action="store_true",
@@ -119,7 +120,7 @@ def main() -> None:
         results = {tuple(key.split("|")): value for key, value in json.loads(raw.read_text()).items()}
         flights = list(dict.fromkeys(flight for flight, _ in results))
     else:
-        flights = VARIANT_FLIGHTS if args.variants and args.flights == parser.get_default("flights") else args.flights
+        flights = args.flights or (VARIANT_FLIGHTS if args.variants else ["sim", *FLIGHTS])
         jobs = [(f, label, *(chosen[label][:2] if label != "control" else ("", {})))
                 for f in flights for label in ["control", *chosen]]
         with Pool(2) as pool:
