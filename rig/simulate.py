@@ -128,8 +128,7 @@ def simulate(cfg: SimConfig) -> Recording:
     t_imu = _quantize(np.arange(t0, t1, 1.0 / cfg.imu_hz), res["time"])
     force = trajectory.specific_force(t_imu)
     imu = fx.ImuBatch(t_imu, force, trajectory.angular_rate(t_imu), rotor=trajectory.rotor_speed(t_imu, force))
-    for effect in effects:
-        effect.apply_imu(imu, rng)
+    fx.apply_imu(imu, effects, rng)
 
     t_uwb, id_a, id_b = tdoa_schedule(t0, t1, cfg.tdoa_hz, cfg.uwb_mode, [a.id for a in anchors], rng)
     t_uwb = _quantize(t_uwb, res["time"])

@@ -147,6 +147,24 @@ def test_the_rotors_shake_the_flight_and_not_the_ground(survey_0425: Path) -> No
     assert abs(np.mean(shaking[steady, 0]) + 0.975) < 0.05           # −gain × the level of 1 m/s² shaking
 
 
+def test_a_rectification_behind_the_low_pass_feeds_on_the_vibration_the_log_shows(survey_0425: Path) -> None:
+    """A rectification's gain is measured against a log's vibration (the diagnosis
+    sees the readings after the flight controller's low-pass), so a simulation with
+    the low-pass offsets the readings by gain × the vibration of its own log, not of
+    the shaking before the filter (about 8 times larger at 30 Hz)."""
+    shaking = [{"effect": "imu_vibration", "params": {"accel_std": [2.0, 0.0, 0.0]}},
+               {"effect": "imu_lowpass", "params": {"accel_hz": 30.0, "gyro_hz": 80.0}}]
+    rectification = {"effect": "imu_vibration_rectification", "params": {"gain": [-1.0, 0.0, 0.0]}}
+    cfg = SimConfig(trajectory="circle", survey=str(survey_0425), duration=30.0, seed=2, effects=shaking,
+                    resolution=FULL_PRECISION)
+    logged, rectified = simulate(cfg), simulate(replace(cfg, effects=[*shaking, rectification]))
+    t, plan = logged.accel.t, parametric(cfg.trajectory, duration=cfg.duration, seed=cfg.seed).plan
+    steady = (t > plan.ground_before + 1.0) & (t < t[-1] - plan.ground_after - 1.0)
+    offset = np.mean(rectified.accel.xyz[steady, 0] - logged.accel.xyz[steady, 0])
+    level = np.mean(vibration_level(t, logged.accel.xyz)[steady, 0])
+    assert 0.1 < level < 0.5                      # the filter kept a fraction of the 2 m/s² shaking
+    assert offset == pytest.approx(-level, rel=0.05)
+
 def test_a_recorded_flights_motors_run_from_take_off_to_touch_down(data_dir: Path) -> None:
     """A real flight sits on the floor at its start and end: the motors are off there
     and the rotors turn at about hover speed in between; an injected vibration shakes
