@@ -118,17 +118,21 @@ def imu_spectra(reports: dict, flights: dict[str, Path]) -> str:
             shares = [imu_spectrum.share_above(freq, p, SHARE_ABOVE_HZ) for p in (recorded, shape, np.ones(len(freq)))]
             rows[sensor].append((corner, *shares, *_estimator_spread(getattr(rec, sensor), model, sensor)))
     lines = [f"| sensor | flights with a low-pass | corner [Hz]: median (range) | power above {SHARE_ABOVE_HZ:g} Hz: "
-             "recorded | model | white | 10 ms means' spread: model ÷ recorded | white ÷ recorded |",
-             "|---|---|---|---|---|---|---|---|"]
+             "recorded | model | white | 10 ms means' spread ÷ recorded, x, y, z: model | one size through the "
+             "low-pass | white of one size |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for sensor, values in rows.items():
-        v = np.array(values)
-        found = v[v[:, 0] > 0, 0]
+        corner = np.array([v[0] for v in values])
+        found = corner[corner > 0]
         corners = f"{np.median(found):.0f} ({found.min():.0f}–{found.max():.0f})" if len(found) else "—"
-        lines.append(f"| {sensor} | {len(found)} of {len(v)} | {corners} | "
-                     + " | ".join(f"{np.median(v[:, k]):.1%}" for k in (1, 2, 3)) + " | "
-                     + " | ".join(f"{np.median(v[:, k]):.2f}" for k in (4, 5)) + " |")
+        shares = [np.median([v[k] for v in values]) for k in (1, 2, 3)]
+        spreads = [np.median([v[k] for v in values], axis=0) for k in (4, 5, 6)]
+        lines.append(f"| {sensor} | {len(found)} of {len(values)} | {corners} | "
+                     + " | ".join(f"{share:.1%}" for share in shares) + " | "
+                     + " | ".join(", ".join(f"{r:.2f}" for r in ratio) for ratio in spreads) + " |")
     lines.append("")
-    lines.append("(medians over the flights; a 10 ms mean is what an estimator running at 100 Hz takes in)")
+    lines.append("(medians over the flights; a 10 ms mean is what an estimator running at 100 Hz takes in; "
+                 "\"one size\": the axes' mean spread on all three, the model until session 21)")
     return "\n".join(lines)
 
 
@@ -136,24 +140,27 @@ SHARE_ABOVE_HZ = 100.0
 ESTIMATOR_S = 0.01             # the estimator's step: it takes in 10 ms means of the IMU
 
 
-def _estimator_spread(series, model: dict, sensor: str) -> tuple[float, float]:
-    """The spread of 10 ms means of the model's noise (its white noise through its
-    low-pass) and of white noise of the recorded spread, each over that of the
-    recording's fast part (the readings less their 0.2 s running mean)."""
+def _estimator_spread(series, model: dict, sensor: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per axis, the spread of 10 ms means of the model's noise (its white noise, per
+    axis, through its low-pass), of white noise of one size (the axes' mean) through
+    the same low-pass, and of white noise of that one size unfiltered, each over that
+    of the recording's fast part (the readings less their 0.2 s running mean)."""
     fast, rate = imu_spectrum.fast_part(series)
     noise = np.random.default_rng(0).normal(size=fast.shape)
-    std = model["imu_noise"][f"{sensor}_std"]
+    std = np.broadcast_to(np.asarray(model["imu_noise"][f"{sensor}_std"], float), (3,))
+    one_size = np.mean(std)                  # as the model had it until session 21
     corner = model.get("imu_lowpass", {}).get(f"{sensor}_hz", 0.0)
-    modelled = fx.lowpass(series.t[: len(fast)], noise * std, corner)
-    white = noise * std * imu_spectrum.noise_gain(corner, rate)       # the recorded spread, unfiltered
+    t = series.t[: len(fast)]
     recorded = _means_spread(fast, rate)
-    return _means_spread(modelled, rate) / recorded, _means_spread(white, rate) / recorded
+    return tuple(_means_spread(values, rate) / recorded for values in (
+        fx.lowpass(t, noise * std, corner), fx.lowpass(t, noise * one_size, corner),
+        noise * one_size * imu_spectrum.noise_gain(corner, rate)))       # the recorded spread, unfiltered
 
 
-def _means_spread(values: np.ndarray, rate: float) -> float:
+def _means_spread(values: np.ndarray, rate: float) -> np.ndarray:
+    """Per axis, the spread of the `values`' means over ESTIMATOR_S."""
     n = max(1, int(round(ESTIMATOR_S * rate)))
-    blocks = values[: len(values) // n * n].reshape(-1, n, 3).mean(axis=1)
-    return float(np.mean(blocks.std(axis=0)))
+    return values[: len(values) // n * n].reshape(-1, n, 3).mean(axis=1).std(axis=0)
 
 
 if __name__ == "__main__":

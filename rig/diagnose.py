@@ -969,8 +969,8 @@ class Diagnosis:
     def noise_model(self) -> list[dict]:
         """The noise the fitted model leaves, per sample, so `model` simulates data like
         the recording: the TDOA residual after the effects; for the IMU, the raw
-        samples' spread around their own running mean (imu_spectrum.SLOW_S): the
-        vibration and sensor noise. Not the spread around the ground truth, whose
+        samples' spread around their own running mean (imu_spectrum.SLOW_S) per axis:
+        the vibration and sensor noise. Not the spread around the ground truth, whose
         attitude noise, differentiated, is 10–50 times the gyroscope's own noise. When
         the readings were low-pass filtered before logging (their spectrum rolls off),
         the model has the filter (`imu_lowpass`) and the white noise before it that
@@ -981,8 +981,8 @@ class Diagnosis:
         rec = self.problem.rec
         if len(rec.accel) and len(rec.gyro):
             corners = {"accel": imu_spectrum.fit_corner(rec.accel), "gyro": imu_spectrum.fit_corner(rec.gyro)}
-            std = {name: vibration_spread(series) / imu_spectrum.noise_gain(corners[name], fx.sample_rate(series.t))
-                   for name, series in (("accel", rec.accel), ("gyro", rec.gyro))}
+            std = {name: (vibration_spread(series) / imu_spectrum.noise_gain(corners[name], fx.sample_rate(series.t)))
+                   .tolist() for name, series in (("accel", rec.accel), ("gyro", rec.gyro))}
             out.append({"effect": "imu_noise", "params": {"accel_std": std["accel"], "gyro_std": std["gyro"]}})
             if any(corners.values()):
                 out.append({"effect": "imu_lowpass", "params": {"accel_hz": corners["accel"],
@@ -990,21 +990,22 @@ class Diagnosis:
         return out
 
 
-def vibration_spread(series: Vec3Series) -> float:
-    """RMS of an IMU series around its own running mean, averaged over the axes: what
-    the slow motion of a flight leaves out. Readings GROSS_Z robust deviations out are
-    glitches and left out, as in the comparison. Not the robust spread itself: the
-    shaking comes and goes and its tails are heavy, and noise of the robust spread's
-    size gave a 100 Hz estimator's 10 ms means 0.6–0.7 of the recorded accelerometer
-    spread and 0.3–0.5 of the gyroscope's (the RMS: 0.96–0.99 and 0.6–0.85)."""
+def vibration_spread(series: Vec3Series) -> np.ndarray:
+    """RMS of an IMU series around its own running mean, per axis: what the slow
+    motion of a flight leaves out. Readings GROSS_Z robust deviations out are glitches
+    and left out, as in the comparison. Not the robust spread itself: the shaking
+    comes and goes and its tails are heavy, and noise of the robust spread's size gave
+    a 100 Hz estimator's 10 ms means 0.6–0.7 of the recorded accelerometer spread and
+    0.3–0.5 of the gyroscope's (the RMS: 0.96–0.99 and 0.6–0.85). Per axis: the
+    airframe shakes along some axes several times more than along others."""
     fast, _ = imu_spectrum.fast_part(series)
     if len(fast) < 3:
-        return 0.0
+        return np.zeros(3)
     rms = []
     for values in fast.T:
         kept = values[np.abs(values - np.median(values)) <= GROSS_Z * max(_mad_scale(values), 1e-12)]
         rms.append(np.sqrt(np.mean((kept - np.median(values)) ** 2)) if len(kept) else 0.0)
-    return float(np.mean(rms))
+    return np.array(rms)
 
 
 def diagnose(rec: Recording, progress=None) -> Diagnosis:

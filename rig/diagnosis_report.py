@@ -126,7 +126,8 @@ def _noise_lines(model: list[dict]) -> list[str]:
         lines.append(f"- TDOA: {noise['tdoa_noise']['std_m']:.3f} m per measurement (robust σ after the effects).")
     if "imu_noise" in noise:
         imu = noise["imu_noise"]
-        white = f"white noise of {imu['accel_std']:.3g} m/s² and {imu['gyro_std']:.3g} rad/s per sample"
+        white = (f"white noise of {_per_axis(imu['accel_std'])} m/s² and {_per_axis(imu['gyro_std'])} rad/s "
+                 "per sample")
         lowpass = noise.get("imu_lowpass")
         if lowpass:
             lines.append(f"- IMU: the readings were low-pass filtered before they were logged (the flight "
@@ -234,6 +235,13 @@ def _vibration_plot(diagnosis: Diagnosis, finding: Finding, out: Path) -> str:
     return _save(fig, out, "accel_vibration.png")
 
 
+def _per_axis(std) -> str:
+    """A standard deviation for all axes, or one per axis as "x, y, z"."""
+    if isinstance(std, list):
+        return "[" + ", ".join(f"{v:.3g}" for v in std) + "] (x, y, z)"
+    return f"{std:.3g}"
+
+
 def _spectrum_plot(diagnosis: Diagnosis, lowpass: dict, out: Path) -> str:
     """Each IMU sensor's recorded noise spectrum (mean over the axes) against the
     model's, white noise through the fitted low-pass, and against white noise of the
@@ -246,7 +254,7 @@ def _spectrum_plot(diagnosis: Diagnosis, lowpass: dict, out: Path) -> str:
         if spec is None:
             continue
         corner = lowpass[corner_key]
-        spread = vibration_spread(series)
+        spread = np.sqrt(np.mean(vibration_spread(series) ** 2))      # the power of the axes' mean
         keep = (spec.freq > 0) & (spec.freq <= fx.LOWPASS_MAX_SHARE * spec.rate)   # the filter's zero at Nyquist
         freq = spec.freq[keep]
         white = np.full(len(freq), 2 * spread ** 2 / spec.rate)      # one-sided density of that spread

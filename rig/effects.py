@@ -263,12 +263,14 @@ class ImuVibrationRectification(_ImuVectorEffect):
 
 
 class ImuNoise(Effect):
-    """White noise on every IMU axis (standard deviations in m/s² and rad/s)."""
+    """White noise on every IMU axis (standard deviations in m/s² and rad/s): one for
+    all three axes, or one per axis ([x, y, z]; an airframe shakes along some axes
+    more than others)."""
 
     name, stage = "imu_noise", NOISE
 
-    def __init__(self, accel_std: float = 0.05, gyro_std: float = 0.005):
-        self.accel_std, self.gyro_std = float(accel_std), float(gyro_std)
+    def __init__(self, accel_std: float | list = 0.05, gyro_std: float | list = 0.005):
+        self.accel_std, self.gyro_std = _std(accel_std, "accel_std"), _std(gyro_std, "gyro_std")
 
     def params(self) -> dict:
         return {"accel_std": self.accel_std, "gyro_std": self.gyro_std}
@@ -278,6 +280,14 @@ class ImuNoise(Effect):
             return
         imu.accel += rng.normal(0.0, self.accel_std, imu.accel.shape)
         imu.gyro += rng.normal(0.0, self.gyro_std, imu.gyro.shape)
+
+
+def _std(value, name: str) -> float | list[float]:
+    """A standard deviation for all three axes (a number) or one per axis (a list)."""
+    std = float(value) if np.ndim(value) == 0 else _vec3(value, name).tolist()
+    if not np.all(np.isfinite(std)) or np.any(np.asarray(std) < 0):
+        raise ValueError(f"{name} must be a standard deviation >= 0, or three, got {value!r}")
+    return std
 
 
 class ImuVibration(Effect):
