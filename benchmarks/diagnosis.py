@@ -24,8 +24,9 @@ import numpy as np  # noqa: E402
 
 from rig import effects as fx  # noqa: E402
 from rig import imu_spectrum, paths  # noqa: E402
-from rig.diagnose import left_out_text  # noqa: E402
+from rig.diagnose import left_out_text, vibration_spread  # noqa: E402
 from rig.importer import load_any  # noqa: E402
+from rig.recording import Vec3Series  # noqa: E402
 
 
 def run(flight: Path, out: Path, reuse: bool) -> None:
@@ -99,10 +100,11 @@ def tables(reports: dict) -> str:
 
 
 def imu_spectra(reports: dict, flights: dict[str, Path]) -> str:
-    """The IMU low-pass each flight's model carries (corner range and median over the
-    flights, per sensor) and the share of the noise power above SHARE_ABOVE_HZ: in the
-    recording, in the model (white noise through its low-pass) and in white noise, the
-    model without it (over FIT_FROM_HZ to the highest corner a filter can have)."""
+    """The IMU low-pass and resonance each flight's model carries (corner and peak
+    frequency: range and median over the flights, per sensor), the share of the noise
+    power above SHARE_ABOVE_HZ: in the recording, in the model and in white noise, the
+    model without them (over FIT_FROM_HZ to the highest corner a filter can have), and
+    what an estimator at 100 Hz sees of the noise (_estimator_spread)."""
     rows = {"accel": [], "gyro": []}
     for name, report in reports.items():
         model = {e["effect"]: e["params"] for e in report["model"]}
@@ -114,20 +116,21 @@ def imu_spectra(reports: dict, flights: dict[str, Path]) -> str:
                 continue
             band = imu_spectrum.fit_band(spec)
             freq, recorded = spec.freq[band], spec.power[:, band].mean(axis=0)
-            shape = imu_spectrum.filter_power(corner, spec.rate, freq)
+            shape = imu_spectrum.model_density(freq, spec.rate, model, sensor)
             shares = [imu_spectrum.share_above(freq, p, SHARE_ABOVE_HZ) for p in (recorded, shape, np.ones(len(freq)))]
-            rows[sensor].append((corner, *shares, *_estimator_spread(getattr(rec, sensor), model, sensor)))
-    lines = [f"| sensor | flights with a low-pass | corner [Hz]: median (range) | power above {SHARE_ABOVE_HZ:g} Hz: "
-             "recorded | model | white | 10 ms means' spread ÷ recorded, x, y, z: model | one size through the "
-             "low-pass | white of one size |",
-             "|---|---|---|---|---|---|---|---|---|"]
+            peak = model.get("imu_resonance", {}).get(f"{sensor}_hz", 0.0)
+            rows[sensor].append((corner, *shares, *_estimator_spread(getattr(rec, sensor), model, sensor), peak))
+    lines = [f"| sensor | low-pass: flights | corner [Hz]: median (range) | peak: flights | peak [Hz]: median "
+             f"(range) | power above {SHARE_ABOVE_HZ:g} Hz: recorded | model | white | 10 ms means' spread ÷ "
+             "recorded, x, y, z: model | one size through the low-pass | white of one size |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for sensor, values in rows.items():
-        corner = np.array([v[0] for v in values])
-        found = corner[corner > 0]
-        corners = f"{np.median(found):.0f} ({found.min():.0f}–{found.max():.0f})" if len(found) else "—"
+        found = {key: [v[k] for v in values if v[k] > 0] for key, k in (("corner", 0), ("peak", 7))}
+        spans = {"corner": _span(found["corner"], 0), "peak": _span(found["peak"], 1)}
         shares = [np.median([v[k] for v in values]) for k in (1, 2, 3)]
         spreads = [np.median([v[k] for v in values], axis=0) for k in (4, 5, 6)]
-        lines.append(f"| {sensor} | {len(found)} of {len(values)} | {corners} | "
+        lines.append(f"| {sensor} | {len(found['corner'])} of {len(values)} | {spans['corner']} | "
+                     f"{len(found['peak'])} of {len(values)} | {spans['peak']} | "
                      + " | ".join(f"{share:.1%}" for share in shares) + " | "
                      + " | ".join(", ".join(f"{r:.2f}" for r in ratio) for ratio in spreads) + " |")
     lines.append("")
@@ -136,25 +139,38 @@ def imu_spectra(reports: dict, flights: dict[str, Path]) -> str:
     return "\n".join(lines)
 
 
+def _span(values: list[float], digits: int) -> str:
+    """'median (min–max)', or a dash for none."""
+    if not values:
+        return "—"
+    return f"{np.median(values):.{digits}f} ({min(values):.{digits}f}–{max(values):.{digits}f})"
+
+
 SHARE_ABOVE_HZ = 100.0
 ESTIMATOR_S = 0.01             # the estimator's step: it takes in 10 ms means of the IMU
 
 
 def _estimator_spread(series, model: dict, sensor: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per axis, the spread of 10 ms means of the model's noise (its white noise, per
-    axis, through its low-pass), of white noise of one size (the axes' mean) through
-    the same low-pass, and of white noise of that one size unfiltered, each over that
-    of the recording's fast part (the readings less their 0.2 s running mean)."""
+    """Per axis, the spread of 10 ms means of the model's noise (its white noise and
+    resonance, per axis, through its low-pass), of white noise of one size (the axes'
+    mean) through the same low-pass, and of white noise of that one size unfiltered,
+    each over that of the recording's fast part (the readings less their 0.2 s
+    running mean)."""
     fast, rate = imu_spectrum.fast_part(series)
-    noise = np.random.default_rng(0).normal(size=fast.shape)
-    std = np.broadcast_to(np.asarray(model["imu_noise"][f"{sensor}_std"], float), (3,))
-    one_size = np.mean(std)                  # as the model had it until session 21
-    corner = model.get("imu_lowpass", {}).get(f"{sensor}_hz", 0.0)
     t = series.t[: len(fast)]
+    white = np.broadcast_to(np.asarray(model["imu_noise"][f"{sensor}_std"], float), (3,))
+    corner = model.get("imu_lowpass", {}).get(f"{sensor}_hz", 0.0)
+    peak = model.get("imu_resonance", {})
+    resonance = imu_spectrum.Resonance(peak[f"{sensor}_hz"], peak[f"{sensor}_q"], np.zeros(3)) if peak else None
+    modelled = imu_spectrum.logged_noise(np.random.default_rng(0), t, corner, white, resonance,
+                                         np.asarray(peak.get(f"{sensor}_std", np.zeros(3))))
+    one_size = np.mean(vibration_spread(series))      # the model until session 21: the axes' mean spread
+    noise = np.random.default_rng(0).normal(size=fast.shape)
     recorded = _means_spread(fast, rate)
-    return tuple(_means_spread(values, rate) / recorded for values in (
-        fx.lowpass(t, noise * std, corner), fx.lowpass(t, noise * one_size, corner),
-        noise * one_size * imu_spectrum.noise_gain(corner, rate)))       # the recorded spread, unfiltered
+    candidates = (modelled, fx.lowpass(t, noise * one_size / imu_spectrum.noise_gain(corner, rate), corner),
+                  noise * one_size)
+    return tuple(_means_spread(imu_spectrum.fast_part(Vec3Series(t, values))[0], rate) / recorded
+                 for values in candidates)            # each as the recording's: less its 0.2 s running mean
 
 
 def _means_spread(values: np.ndarray, rate: float) -> np.ndarray:

@@ -118,10 +118,16 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         print(f"{name}: mismatch {c['fit_before']:.4g} -> {c['fit_after']:.4g} ({c['samples']} samples)")
     for f in result.findings:
         print(f"  {f.effect:16s} evidence {f.evidence:9.1f}  {describe(f)}")
-    lowpass = next((e["params"] for e in report["model"] if e["effect"] == "imu_lowpass"), None)
-    if lowpass:
+    noise = {e["effect"]: e["params"] for e in report["model"]}
+    if "imu_lowpass" in noise:
+        lowpass = noise["imu_lowpass"]
         print(f"  IMU readings low-pass filtered before logging: {lowpass['accel_hz']:.0f} Hz (accelerometer), "
               f"{lowpass['gyro_hz']:.0f} Hz (gyroscope); model.json carries it")
+    if "imu_resonance" in noise:
+        peak = noise["imu_resonance"]
+        peaks = [f"{peak[f'{s}_hz']:.1f} Hz ({name})" for s, name in (("accel", "accelerometer"), ("gyro", "gyroscope"))
+                 if peak[f"{s}_hz"] > 0]
+        print(f"  IMU noise peaks at {', '.join(peaks)}: the airframe's slow shaking; model.json carries it")
     print(f"wrote {args.out / REPORT_JSON} and {args.out / REPORT_MD}")
     return EXIT_OK
 

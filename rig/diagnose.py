@@ -973,21 +973,45 @@ class Diagnosis:
         the vibration and sensor noise. Not the spread around the ground truth, whose
         attitude noise, differentiated, is 10–50 times the gyroscope's own noise. When
         the readings were low-pass filtered before logging (their spectrum rolls off),
-        the model has the filter (`imu_lowpass`) and the white noise before it that
-        comes out of it with that spread."""
+        the model has the filter (`imu_lowpass`) and the noise before it that comes out
+        of it with that spread; when their spectrum peaks (the airframe's slow shaking),
+        part of that noise goes through the peak (`imu_resonance`)."""
         out = []
         if "tdoa" in self.residual_after:
             out.append({"effect": "tdoa_noise", "params": {"std_m": _mad_scale(self.residual_after["tdoa"])}})
         rec = self.problem.rec
-        if len(rec.accel) and len(rec.gyro):
-            corners = {"accel": imu_spectrum.fit_corner(rec.accel), "gyro": imu_spectrum.fit_corner(rec.gyro)}
-            std = {name: (vibration_spread(series) / imu_spectrum.noise_gain(corners[name], fx.sample_rate(series.t)))
-                   .tolist() for name, series in (("accel", rec.accel), ("gyro", rec.gyro))}
-            out.append({"effect": "imu_noise", "params": {"accel_std": std["accel"], "gyro_std": std["gyro"]}})
-            if any(corners.values()):
-                out.append({"effect": "imu_lowpass", "params": {"accel_hz": corners["accel"],
-                                                                "gyro_hz": corners["gyro"]}})
+        if not (len(rec.accel) and len(rec.gyro)):
+            return out
+        sensors = {"accel": rec.accel, "gyro": rec.gyro}
+        fits = {name: imu_spectrum.fit_noise(series) for name, series in sensors.items()}
+        corners, peaks = ({name: fit[k] for name, fit in fits.items()} for k in (0, 1))
+        sizes = {name: imu_noise_sizes(series, corners[name], peaks[name]) for name, series in sensors.items()}
+        out.append({"effect": "imu_noise", "params": {f"{name}_std": white.tolist()
+                                                      for name, (white, _) in sizes.items()}})
+        if any(peaks.values()):
+            params = {}
+            for name, (_, resonant) in sizes.items():
+                peak = peaks[name]
+                params |= {f"{name}_std": resonant.tolist(), f"{name}_hz": peak.hz if peak else 0.0,
+                           f"{name}_q": peak.q if peak else 1.0}
+            out.append({"effect": "imu_resonance", "params": params})
+        if any(corners.values()):
+            out.append({"effect": "imu_lowpass", "params": {"accel_hz": corners["accel"], "gyro_hz": corners["gyro"]}})
         return out
+
+
+def imu_noise_sizes(series: Vec3Series, corner_hz: float,
+                    peak: imu_spectrum.Resonance | None) -> tuple[np.ndarray, np.ndarray]:
+    """Per axis, the white and the resonant noise before the low-pass that come out
+    of it with the recorded spread (`vibration_spread`), in the proportion the
+    spectrum's fit gives."""
+    own, rate = vibration_spread(series), fx.sample_rate(series.t)
+    if peak is None:
+        return own / imu_spectrum.noise_gain(corner_hz, rate), np.zeros(3)
+    white, resonant = np.sqrt(1.0 - peak.share), np.sqrt(peak.share)
+    seconds = float(series.t[-1] - series.t[0])
+    scale = own / np.maximum(imu_spectrum.chain_spread(rate, seconds, corner_hz, white, peak, resonant), 1e-12)
+    return white * scale, resonant * scale
 
 
 def vibration_spread(series: Vec3Series) -> np.ndarray:

@@ -16,7 +16,7 @@ from typing import ClassVar
 
 import numpy as np
 from scipy.ndimage import uniform_filter1d
-from scipy.signal import butter, lfilter, lfilter_zi
+from scipy.signal import butter, iirpeak, lfilter, lfilter_zi
 from scipy.spatial.transform import Rotation
 
 # Stages, in order of application.
@@ -310,6 +310,67 @@ class ImuVibration(Effect):
         rotor = np.ones(len(imu.t)) if imu.rotor is None else imu.rotor
         imu.accel += rng.normal(0.0, 1.0, imu.accel.shape) * self.accel_std * rotor[:, None]
         imu.gyro += rng.normal(0.0, 1.0, imu.gyro.shape) * self.gyro_std * rotor[:, None]
+
+
+class ImuResonance(Effect):
+    """The airframe's slow shaking: white noise through a resonance (a second-order
+    peak at `accel_hz` / `gyro_hz`, quality `accel_q` / `gyro_q`: bandwidth hz / q),
+    of standard deviation `accel_std` / `gyro_std` [x, y, z]. Real logs
+    peak at 5–10 Hz, the attitude loop's wobble and the frame's sway, which the
+    ground truth does not resolve and a 100 Hz estimator takes in whole. A frequency
+    of 0 leaves that sensor as it is."""
+
+    name, stage = "imu_resonance", NOISE
+
+    def __init__(self, accel_std=(0.0, 0.0, 0.0), gyro_std=(0.0, 0.0, 0.0), accel_hz: float = 0.0,
+                 gyro_hz: float = 0.0, accel_q: float = 1.0, gyro_q: float = 1.0):
+        self.accel_std, self.gyro_std = _vec3(accel_std, "accel_std"), _vec3(gyro_std, "gyro_std")
+        self.accel_hz, self.gyro_hz = _corner(accel_hz, "accel_hz"), _corner(gyro_hz, "gyro_hz")
+        self.accel_q, self.gyro_q = _quality(accel_q, "accel_q"), _quality(gyro_q, "gyro_q")
+
+    def params(self) -> dict:
+        return {"accel_std": self.accel_std.tolist(), "gyro_std": self.gyro_std.tolist(), "accel_hz": self.accel_hz,
+                "gyro_hz": self.gyro_hz, "accel_q": self.accel_q, "gyro_q": self.gyro_q}
+
+    def apply_imu(self, imu: ImuBatch, rng: np.random.Generator | None) -> None:
+        if rng is None or len(imu.t) < 3:
+            return
+        rate = sample_rate(imu.t)
+        imu.accel += resonant_noise(rng, len(imu.t), rate, self.accel_hz, self.accel_q) * self.accel_std
+        imu.gyro += resonant_noise(rng, len(imu.t), rate, self.gyro_hz, self.gyro_q) * self.gyro_std
+
+
+def _quality(value, name: str) -> float:
+    q = float(value)
+    if not np.isfinite(q) or q <= 0:
+        raise ValueError(f"{name} must be a quality factor > 0, got {value!r}")
+    return q
+
+
+def resonance_design(hz: float, q: float, rate: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """The coefficients (b, a) of a second-order peak of unit gain at `hz`, or None
+    for a frequency of 0 or at or above LOWPASS_MAX_SHARE of the rate."""
+    if hz <= 0 or hz >= LOWPASS_MAX_SHARE * rate:
+        return None
+    return iirpeak(hz, q, fs=rate)
+
+
+def resonant_noise(rng: np.random.Generator, n: int, rate: float, hz: float, q: float) -> np.ndarray:
+    """n rows of noise of unit standard deviation on three axes: white noise through
+    the resonance (zeros where `resonance_design` gives none), started a second early
+    so it starts settled."""
+    design = resonance_design(hz, q, rate)
+    if design is None:
+        return np.zeros((n, 3))
+    lead = int(rate)
+    return lfilter(*design, rng.normal(0.0, 1.0, (n + lead, 3)), axis=0)[lead:] / resonance_gain(hz, q, rate)
+
+
+def resonance_gain(hz: float, q: float, rate: float) -> float:
+    """Standard deviation of white noise after the resonance, per unit before it."""
+    impulse = np.zeros(int(20 * q * rate / hz) + 16)
+    impulse[0] = 1.0
+    return float(np.sqrt(np.sum(lfilter(*resonance_design(hz, q, rate), impulse) ** 2)))
 
 
 class ImuLowpass(Effect):
@@ -630,7 +691,7 @@ class MultipathFloor(Effect):
 
 EFFECTS: dict[str, type[Effect]] = {
     cls.name: cls for cls in (ImuAccelBias, ImuGyroBias, ImuAccelScale, ImuGyroScale, ImuVibrationRectification,
-                              ImuNoise, ImuVibration, ImuLowpass, TdoaNoise, Outliers,
+                              ImuNoise, ImuVibration, ImuResonance, ImuLowpass, TdoaNoise, Outliers,
                               TimeOffset, ClockDrift, AnchorPosition, LeverArm, AnchorDelay, AntennaPattern, Nlos,
                               MultipathFloor)
 }

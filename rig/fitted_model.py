@@ -125,7 +125,7 @@ def _centre_delays(effects: list[dict]) -> None:
 # vibration and the low-pass they go through: a flight's noise is its own (0.35-2.2
 # m/s2 RMS of vibration on the accelerometer), and noise of that size would more than
 # double the bytes a replay sends per window
-KEPT_FROM_CONFIG = ("outliers", "imu_noise", "imu_vibration", "imu_lowpass")
+KEPT_FROM_CONFIG = ("outliers", "imu_noise", "imu_vibration", "imu_resonance", "imu_lowpass")
 
 
 def replace_fitted(config: dict, effects: list[dict]) -> dict:

@@ -399,6 +399,7 @@ def test_the_fitted_model_carries_the_per_sample_noise(survey) -> None:
     assert model["tdoa_noise"]["std_m"] == pytest.approx(0.15, rel=0.1)
     assert np.array(model["imu_noise"]["accel_std"]) == pytest.approx(0.5, rel=0.1)
     assert "imu_lowpass" not in model            # white noise: its spectrum does not roll off
+    assert "imu_resonance" not in model          # nor peak
 
 
 def test_the_imu_noise_level_is_the_rms_less_glitches() -> None:
@@ -432,15 +433,33 @@ def test_a_low_pass_on_the_imu_is_in_the_model_with_the_white_noise_before_it(su
     # on top of the suite's 0.5 m/s² and 0.05 rad/s on every axis
     assert model["imu_noise"]["accel_std"] == pytest.approx(np.hypot(0.5, [0.0, 0.5, 1.0]), rel=0.1)
     assert model["imu_noise"]["gyro_std"] == pytest.approx(np.hypot(0.05, [0.1, 0.0, 0.0]), rel=0.1)
+    assert "imu_resonance" not in model
     assert result["findings"] == []
 
 
-def test_the_cli_says_the_imu_was_low_pass_filtered(tmp_path: Path, survey) -> None:
-    """`rig diagnose` names the low-pass on its console too, and model.json carries it,
-    so `rig simulate` can fly the model."""
+def test_the_airframes_slow_shaking_is_in_the_model_as_a_resonance(survey) -> None:
+    """A gyroscope that shakes at 7 Hz on x and y (white noise through a peak, like
+    the real flights' attitude wobble), behind the low-pass: model.json has the peak's
+    frequency within 10 % and its size per axis within 15 %, the white noise apart,
+    and the shaking makes no finding."""
+    lowpass = {"effect": "imu_lowpass", "params": {"accel_hz": 30.0, "gyro_hz": 80.0}}
+    wobble = {"effect": "imu_resonance", "params": {"gyro_std": [0.1, 0.08, 0.0], "gyro_hz": 7.0, "gyro_q": 3.0}}
+    result = diagnose(simulate(sim_config(survey, [wobble, lowpass]))).to_json()
+    model = {e["effect"]: e["params"] for e in result["model"]}
+    peak = model["imu_resonance"]
+    assert peak["gyro_hz"] == pytest.approx(7.0, rel=0.1) and peak["accel_hz"] == 0.0
+    assert peak["gyro_std"] == pytest.approx([0.1, 0.08, 0.0], abs=0.015)
+    assert np.array(model["imu_noise"]["gyro_std"]) == pytest.approx(0.05, rel=0.2)
+    assert result["findings"] == []
+
+
+def test_the_cli_says_the_imu_was_low_pass_filtered_and_shook(tmp_path: Path, survey) -> None:
+    """`rig diagnose` names the low-pass and the noise's peak on its console too, and
+    model.json carries them, so `rig simulate` can fly the model."""
     config = tmp_path / "sim.json"
     config.write_text(json.dumps({"trajectory": "circle-sine", "duration": 20.0, "survey": str(survey), "effects": [
         {"effect": "imu_noise", "params": {"accel_std": 0.5, "gyro_std": 0.05}},
+        {"effect": "imu_resonance", "params": {"gyro_std": [0.1, 0.1, 0.0], "gyro_hz": 7.0, "gyro_q": 3.0}},
         {"effect": "imu_lowpass", "params": {"accel_hz": 30.0, "gyro_hz": 80.0}}]}))
     subprocess.run([*RIG, "simulate", "--config", str(config), "-o", str(tmp_path / "sim.mcap")], check=True,
                    capture_output=True)
@@ -449,9 +468,12 @@ def test_the_cli_says_the_imu_was_low_pass_filtered(tmp_path: Path, survey) -> N
     assert proc.returncode == 0, proc.stderr
     said = re.search(r"IMU readings low-pass filtered before logging: (\d+) Hz \(accelerometer\)", proc.stdout)
     assert said and 27 <= int(said.group(1)) <= 33, proc.stdout
+    peak = re.search(r"IMU noise peaks at ([\d.]+) Hz \(gyroscope\)", proc.stdout)
+    assert peak and 6.3 <= float(peak.group(1)) <= 7.7, proc.stdout
     model = json.loads((tmp_path / "d" / "model.json").read_text())["effects"]
     lowpass = next(e["params"] for e in model if e["effect"] == "imu_lowpass")
     assert lowpass["accel_hz"] == pytest.approx(30.0, rel=0.1)
+    assert any(e["effect"] == "imu_resonance" for e in model)
     config.write_text(json.dumps({"trajectory": "circle-sine", "duration": 5.0, "survey": str(survey),
                                   "effects": model}))
     subprocess.run([*RIG, "simulate", "--config", str(config), "-o", str(tmp_path / "again.mcap")], check=True,
@@ -476,7 +498,8 @@ def test_a_real_flights_model_has_its_noise_spectrum(tmp_path: Path, real, real_
     white = [{"effect": "imu_noise", "params": {"accel_std": vibration_spread(rec.accel).tolist(),
                                                 "gyro_std": vibration_spread(rec.gyro).tolist()}}]
     config = SimConfig(trajectory="recording", recording=str(rec.metadata["source"]), seed=1)
-    modelled = simulate(replace(config, effects=[model["imu_noise"], model["imu_lowpass"]]))
+    assert model["imu_resonance"]["params"]["gyro_hz"] == pytest.approx(7.0, abs=2.0)     # the attitude wobble
+    modelled = simulate(replace(config, effects=[model["imu_noise"], model["imu_resonance"], model["imu_lowpass"]]))
     unfiltered = simulate(replace(config, effects=white))
     clean = simulate(replace(config, effects=[model["imu_lowpass"]]))
     for sensor in ("accel", "gyro"):
@@ -488,6 +511,16 @@ def test_a_real_flights_model_has_its_noise_spectrum(tmp_path: Path, real, real_
         # 0.013-0.078 rad/s (the noise the model adds, through its filter: the ground truth's rates are noisy)
         noise = Vec3Series(clean.accel.t, getattr(modelled, sensor).xyz - getattr(clean, sensor).xyz)
         assert vibration_spread(noise) == pytest.approx(vibration_spread(getattr(rec, sensor)), rel=0.1), sensor
+        # what a 100 Hz estimator takes in (10 ms means), axis by axis: with the gyroscope's 7 Hz wobble
+        # in the model within 10 % of the recording's (0.80-0.85 of it without)
+        assert _means_spread(noise) == pytest.approx(_means_spread(getattr(rec, sensor)), rel=0.1), sensor
+
+
+def _means_spread(series) -> np.ndarray:
+    """Per axis, the spread of 10 ms means of a series' fast part."""
+    fast, rate = imu_spectrum.fast_part(series)
+    n = int(round(0.01 * rate))
+    return fast[: len(fast) // n * n].reshape(-1, n, 3).mean(axis=1).std(axis=0)
 
 
 def _band_spectrum(series) -> tuple[np.ndarray, np.ndarray]:

@@ -1,6 +1,8 @@
 """The IMU's noise spectrum: the low-pass the flight controller runs on the readings
 before logging them (effects.ImuLowpass), found again from the readings alone
-(imu_spectrum.fit_corner), with the white noise it turns into the recorded spread."""
+(imu_spectrum.fit_corner), with the white noise it turns into the recorded spread, and
+the peak the airframe's slow shaking puts before it (effects.ImuResonance,
+imu_spectrum.fit_noise)."""
 
 from __future__ import annotations
 
@@ -65,3 +67,42 @@ def test_white_noise_has_no_corner_and_a_short_series_is_not_fitted() -> None:
     assert imu_spectrum.fit_corner(Vec3Series(T, white())) == 0.0
     assert imu_spectrum.fit_corner(Vec3Series(T[:1000], white()[:1000])) == 0.0
     assert imu_spectrum.noise_gain(0.0, RATE) == 1.0
+
+
+def test_resonant_noise_has_its_size_per_axis_and_its_power_at_the_peak() -> None:
+    """imu_resonance: noise of the given standard deviation on each axis, nearly all
+    of its power within a few bandwidths (hz / q) of the peak; nothing on a sensor
+    whose frequency is 0. Bad frequencies and quality factors are refused."""
+    imu = ImuBatch(T, np.zeros((len(T), 3)), np.zeros((len(T), 3)))
+    make_effect("imu_resonance", {"gyro_std": [0.1, 0.05, 0.0], "gyro_hz": 8.0, "gyro_q": 3.0}).apply_imu(
+        imu, np.random.default_rng(0))
+    assert imu.gyro.std(axis=0) == pytest.approx([0.1, 0.05, 0.0], rel=0.05, abs=1e-12)
+    assert np.all(imu.accel == 0.0)
+    spec = imu_spectrum.spectrum(Vec3Series(T, imu.gyro))
+    near = (spec.freq > 4.0) & (spec.freq < 16.0)
+    assert spec.power[0, near].sum() / spec.power[0].sum() > 0.8
+    for bad in ({"gyro_hz": -1.0}, {"gyro_q": 0.0}, {"accel_std": [1.0, 2.0]}):
+        with pytest.raises(ValueError):
+            make_effect("imu_resonance", bad)
+
+
+@pytest.mark.parametrize("hz", [5.0, 10.0])
+def test_a_peak_before_the_filter_is_found_with_the_filters_corner(hz: float) -> None:
+    """White noise and a peak on x and y, through a 30 Hz low-pass: the peak is found
+    within 10 % with its share of each axis's power within 0.15 (none on z), and the corner within
+    10 %, which the peak's flank alone would pull down."""
+    imu = ImuBatch(T, white(0.5), np.zeros((len(T), 3)))
+    make_effect("imu_resonance", {"accel_std": [1.0, 0.5, 0.0], "accel_hz": hz, "accel_q": 2.0}).apply_imu(
+        imu, np.random.default_rng(1))
+    logged = Vec3Series(T, lowpass(T, imu.accel, 30.0))
+    corner, peak = imu_spectrum.fit_noise(logged)
+    assert corner == pytest.approx(30.0, rel=0.1)
+    assert peak is not None and peak.hz == pytest.approx(hz, rel=0.1)
+    assert peak.share == pytest.approx([1.0 / 1.25, 0.25 / 0.5, 0.0], abs=0.15)
+
+
+def test_white_noise_has_no_peak() -> None:
+    """White noise through a low-pass fits without a peak (its spectrum is within the
+    Welch estimate's scatter of the filter's shape)."""
+    logged = Vec3Series(T, lowpass(T, white(0.5), 30.0))
+    assert imu_spectrum.fit_noise(logged)[1] is None
