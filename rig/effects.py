@@ -368,9 +368,16 @@ def resonant_noise(rng: np.random.Generator, n: int, rate: float, hz: float, q: 
 
 def resonance_gain(hz: float, q: float, rate: float) -> float:
     """Standard deviation of white noise after the resonance, per unit before it."""
-    impulse = np.zeros(int(20 * q * rate / hz) + 16)
+    return filter_noise_gain(resonance_design(hz, q, rate), int(20 * q * rate / hz))
+
+
+def filter_noise_gain(design: tuple[np.ndarray, np.ndarray], settle: int) -> float:
+    """Standard deviation of white noise after the filter `design`, per unit before
+    it: the RMS sum of its impulse response over `settle` samples (a few time
+    constants) and a few more."""
+    impulse = np.zeros(settle + 16)
     impulse[0] = 1.0
-    return float(np.sqrt(np.sum(lfilter(*resonance_design(hz, q, rate), impulse) ** 2)))
+    return float(np.sqrt(np.sum(lfilter(*design, impulse) ** 2)))
 
 
 class ImuLowpass(Effect):

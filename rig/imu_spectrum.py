@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import uniform_filter1d
 from scipy.optimize import nnls
-from scipy.signal import freqz, lfilter, welch
+from scipy.signal import freqz, welch
 
 from rig import effects as fx
 from rig.recording import Vec3Series
@@ -117,9 +117,7 @@ def noise_gain(corner_hz: float, rate: float) -> float:
     design = fx.lowpass_design(corner_hz, rate)
     if design is None:
         return 1.0
-    impulse = np.zeros(int(20 * rate / corner_hz) + 16)
-    impulse[0] = 1.0
-    return float(np.sqrt(np.sum(lfilter(*design, impulse) ** 2)))
+    return fx.filter_noise_gain(design, int(20 * rate / corner_hz))
 
 
 # The slow shaking before the filter: a resonance (effects.ImuResonance) fitted to the
@@ -129,9 +127,9 @@ RESONANCE_FROM_HZ = 2.0
 RESONANCE_HZ = np.geomspace(3.0, 40.0, 40)
 RESONANCE_Q = (0.5, 1.0, 1.5, 2.0, 3.0, 5.0)
 RESONANCE_GAIN = 1.05          # the peak must fit this many times better than the filtered white noise alone
-CORNER_RAISE = 1.5             # how far a peak's flank may have pulled the corner's first fit down
 RESONANCE_MIN_DROP = 0.05      # and take this much off the squared log error per frequency and axis: a
                                # spectrum white noise fits to within its estimate's own scatter has no peak
+CORNER_RAISE = 1.5             # how far a peak's flank may have pulled the corner's first fit down
 
 
 @dataclass
