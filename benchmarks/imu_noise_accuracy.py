@@ -26,7 +26,7 @@ from rig.evaluate import evaluate  # noqa: E402
 from rig.simulate import SimConfig, simulate  # noqa: E402
 
 NOISE = ("imu_noise", "imu_resonance", "imu_lowpass")
-# a calm flight, the two that shook most on the accelerometer's x, and one of the third day
+# two calm flights of the third day (0426) and three that shook (0422-log01, 0425-traj1, -traj9)
 FLIGHTS = ["0426-traj1", "0422-log01", "0425-traj1", "0425-traj9", "0426-traj6"]
 SEEDS = list(range(1, 11))
 
