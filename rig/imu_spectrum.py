@@ -57,10 +57,10 @@ def spectrum(series: Vec3Series) -> Spectrum | None:
     return Spectrum(freq, power.T, rate)
 
 
-def fit_band(spec: Spectrum) -> np.ndarray:
-    """The frequencies a corner is fitted over: from FIT_FROM_HZ to the highest corner
+def fit_band(spec: Spectrum, lowest_hz: float = FIT_FROM_HZ) -> np.ndarray:
+    """The frequencies a corner is fitted over: from `lowest_hz` to the highest corner
     a filter can have (effects.LOWPASS_MAX_SHARE of the sample rate)."""
-    return (spec.freq >= FIT_FROM_HZ) & (spec.freq <= fx.LOWPASS_MAX_SHARE * spec.rate)
+    return (spec.freq >= lowest_hz) & (spec.freq <= fx.LOWPASS_MAX_SHARE * spec.rate)
 
 
 def share_above(freq: np.ndarray, power: np.ndarray, hz: float) -> float:
@@ -86,11 +86,13 @@ def fit_corner(series: Vec3Series) -> float:
     The shaking of a real airframe is not white before the filter (it peaks at 10–25 Hz
     on the flights that shook), so this is the effective corner of what was logged."""
     spec = spectrum(series)
-    if spec is None:
-        return 0.0
+    return 0.0 if spec is None else _corner_of(spec)
+
+
+def _corner_of(spec: Spectrum) -> float:
+    """`fit_corner` on a series' spectrum."""
     top = fx.LOWPASS_MAX_SHARE * spec.rate
-    band = fit_band(spec)
-    freq, power = spec.freq[band], np.maximum(spec.power[:, band], 1e-30)
+    freq, power = _band(spec, FIT_FROM_HZ)
     if len(freq) < 8:
         return 0.0
     errors = [(_log_misfit(filter_power(corner, spec.rate, freq), power), corner)
@@ -100,15 +102,17 @@ def fit_corner(series: Vec3Series) -> float:
     return 0.0 if best >= NO_ROLL_OFF_SHARE * top or misfit * ROLL_OFF_GAIN > flat else float(best)
 
 
+def _band(spec: Spectrum, lowest_hz: float) -> tuple[np.ndarray, np.ndarray]:
+    """The spectrum's frequencies in `fit_band` and each axis's power there, floored
+    above zero for the log fits."""
+    band = fit_band(spec, lowest_hz)
+    return spec.freq[band], np.maximum(spec.power[:, band], 1e-30)
+
+
 def _log_misfit(shape: np.ndarray, power: np.ndarray) -> float:
     """Sum over the axes of the squared log error of the best non-negative level ×
     `shape` + floor, each fitted in relative terms."""
-    total = 0.0
-    for p in power:
-        design = np.column_stack([shape / p, 1.0 / p])
-        level = nnls(design, np.ones(len(p)))[0]
-        total += float(np.sum(np.log(np.maximum(design @ level, 1e-12)) ** 2))
-    return total
+    return sum(_levels([shape, np.ones(len(shape))], p)[0] for p in power)
 
 
 def noise_gain(corner_hz: float, rate: float) -> float:
@@ -143,25 +147,27 @@ class Resonance:
 
 def fit_noise(series: Vec3Series) -> tuple[float, Resonance | None]:
     """The low-pass corner (`fit_corner`) and the resonance (`fit_resonance`) of a
-    series' noise. A peak's flank above it reads to the corner's fit, which takes
-    white noise before the filter, as a lower corner (a 7 Hz peak: 65 Hz for 80), so
-    with a peak found the corner is fitted again beside it, then the peak again."""
-    corner = fit_corner(series)
-    peak = fit_resonance(series, corner)
+    series' noise, from one spectrum (0 and None for a series too short for one). A
+    peak's flank above it reads to the corner's fit, which takes white noise before
+    the filter, as a lower corner (a 7 Hz peak: 65 Hz for 80), so with a peak found
+    the corner is fitted again beside it, then the peak again."""
+    spec = spectrum(series)
+    if spec is None:
+        return 0.0, None
+    corner = _corner_of(spec)
+    peak = fit_resonance(spec, corner)
     if peak is None or corner == 0.0:
         return corner, peak
-    corner = _corner_beside(series, peak, corner)
-    return corner, fit_resonance(series, corner)
+    corner = _corner_beside(spec, peak, corner)
+    return corner, fit_resonance(spec, corner)
 
 
-def _corner_beside(series: Vec3Series, peak: Resonance, first: float) -> float:
+def _corner_beside(spec: Spectrum, peak: Resonance, first: float) -> float:
     """The corner, from the `first` fit up to CORNER_RAISE times it, that fits best
     with white noise and the peak before the filter. Not further: above the corner a
     real log falls faster than a second-order filter, and a free corner lets the
     peak's flank take the whole spectrum (300 Hz and more on the gyroscopes)."""
-    spec = spectrum(series)
-    band = (spec.freq >= RESONANCE_FROM_HZ) & (spec.freq <= fx.LOWPASS_MAX_SHARE * spec.rate)
-    freq, power = spec.freq[band], np.maximum(spec.power[:, band], 1e-30)
+    freq, power = _band(spec, RESONANCE_FROM_HZ)
     dent, shape = _running_mean_dent(freq, spec.rate), _peak_power(peak.hz, peak.q, spec.rate, freq)
     trials = []
     for corner in np.geomspace(first, CORNER_RAISE * first, CORNERS // 4):
@@ -170,19 +176,15 @@ def _corner_beside(series: Vec3Series, peak: Resonance, first: float) -> float:
     return float(min(trials)[1])
 
 
-def fit_resonance(series: Vec3Series, corner_hz: float) -> Resonance | None:
+def fit_resonance(spec: Spectrum, corner_hz: float) -> Resonance | None:
     """The resonance that, with white noise, through the low-pass at `corner_hz`,
-    fits the readings' spectrum best in log power (the axes share it and have their
-    own levels), or None when it fits no better than RESONANCE_GAIN times the white
-    noise alone, or by less than RESONANCE_MIN_DROP (a white spectrum, fitted to
-    within the Welch estimate's scatter), or takes no axis's power."""
-    spec = spectrum(series)
-    if spec is None:
-        return None
-    band = (spec.freq >= RESONANCE_FROM_HZ) & (spec.freq <= fx.LOWPASS_MAX_SHARE * spec.rate)
-    freq, power = spec.freq[band], np.maximum(spec.power[:, band], 1e-30)
+    fits a series' spectrum best in log power (the axes share it and have their own
+    levels), or None when it fits no better than RESONANCE_GAIN times the white noise
+    alone, or by less than RESONANCE_MIN_DROP (a white spectrum, fitted to within the
+    Welch estimate's scatter), or takes no axis's power."""
+    freq, power = _band(spec, RESONANCE_FROM_HZ)
     white = filter_power(corner_hz, spec.rate, freq) * _running_mean_dent(freq, spec.rate)
-    plain = sum(_levels([white, np.ones(len(freq))], p)[0] for p in power)
+    plain = _log_misfit(white, power)
     trials = []
     for hz in RESONANCE_HZ[RESONANCE_HZ < fx.LOWPASS_MAX_SHARE * spec.rate]:
         for q in RESONANCE_Q:
@@ -239,8 +241,8 @@ def _peak_power(hz: float, q: float, rate: float, freq: np.ndarray) -> np.ndarra
     return np.abs(freqz(*fx.resonance_design(hz, q, rate), worN=freq, fs=rate)[1]) ** 2
 
 
-def logged_noise(rng: np.random.Generator, t: np.ndarray, corner_hz: float, white_std, resonance: Resonance | None = None,
-                 resonant_std=None) -> np.ndarray:
+def logged_noise(rng: np.random.Generator, t: np.ndarray, corner_hz: float, white_std,
+                 resonance: Resonance | None = None, resonant_std=None) -> np.ndarray:
     """The model's IMU noise as a log at stamps `t` shows it: white noise of
     `white_std` plus the resonance's of `resonant_std` (per axis), through the
     low-pass at `corner_hz` (effects.ImuNoise, ImuResonance and ImuLowpass)."""
