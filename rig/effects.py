@@ -236,15 +236,22 @@ def logged_vibration(imu: ImuBatch, effects: list["Effect"]) -> np.ndarray:
     return vibration_level(imu.t, logged.accel)
 
 
-def apply_imu(imu: ImuBatch, effects: list["Effect"], rng: np.random.Generator | None) -> None:
-    """The effects on an IMU batch in stage order. Where the vibration is not known
-    (a simulated flight), the rectifying effects get the level the log will show
+def staged(effects: list["Effect"]) -> list["Effect"]:
+    """The effects in the order they act: by stage."""
+    return sorted(effects, key=lambda e: e.stage)
+
+
+def apply_imu(effects: list["Effect"], rng: np.random.Generator | None, *batches: ImuBatch) -> None:
+    """The effects on IMU batches in stage order, each effect on every batch in turn
+    (the random draws go in that order). Where a batch's vibration is not known (a
+    simulated flight), the rectifying effects get the level the log will show
     (`logged_vibration`), measured on the readings as the stages before them leave
     them."""
-    for effect in sorted(effects, key=lambda e: e.stage):
-        if effect.stage == RECTIFIED and imu.vibration is None:
-            imu.vibration = logged_vibration(imu, effects)
-        effect.apply_imu(imu, rng)
+    for effect in staged(effects):
+        for imu in batches:
+            if effect.stage == RECTIFIED and imu.vibration is None:
+                imu.vibration = logged_vibration(imu, effects)
+            effect.apply_imu(imu, rng)
 
 
 class ImuVibrationRectification(_ImuVectorEffect):
@@ -349,10 +356,8 @@ def _quality(value, name: str) -> float:
 
 def resonance_design(hz: float, q: float, rate: float) -> tuple[np.ndarray, np.ndarray] | None:
     """The coefficients (b, a) of a second-order peak of unit gain at `hz`, or None
-    for a frequency of 0 or at or above LOWPASS_MAX_SHARE of the rate."""
-    if hz <= 0 or hz >= LOWPASS_MAX_SHARE * rate:
-        return None
-    return iirpeak(hz, q, fs=rate)
+    where `_filters` says it filters nothing."""
+    return iirpeak(hz, q, fs=rate) if _filters(hz, rate) else None
 
 
 def resonant_noise(rng: np.random.Generator, n: int, rate: float, hz: float, q: float) -> np.ndarray:
@@ -416,10 +421,14 @@ def _corner(value, name: str) -> float:
 def lowpass_design(corner_hz: float, rate: float) -> tuple[np.ndarray, np.ndarray] | None:
     """The coefficients (b, a) of the Butterworth low-pass of LOWPASS_ORDER at
     `corner_hz` for readings at `rate`, or None where it filters nothing: a corner of
-    0, or at or above LOWPASS_MAX_SHARE of the rate."""
-    if corner_hz <= 0 or corner_hz >= LOWPASS_MAX_SHARE * rate:
-        return None
-    return butter(LOWPASS_ORDER, corner_hz, fs=rate)
+    0, or at or above LOWPASS_MAX_SHARE of the rate (`_filters`)."""
+    return butter(LOWPASS_ORDER, corner_hz, fs=rate) if _filters(corner_hz, rate) else None
+
+
+def _filters(hz: float, rate: float) -> bool:
+    """Whether a filter at `hz` acts on readings at `rate`: not at 0 Hz (none asked
+    for), nor at or above LOWPASS_MAX_SHARE of the rate (too close to Nyquist)."""
+    return 0 < hz < LOWPASS_MAX_SHARE * rate
 
 
 def lowpass(t: np.ndarray, values: np.ndarray, corner_hz: float) -> np.ndarray:

@@ -114,7 +114,7 @@ def simulate(cfg: SimConfig) -> Recording:
     """Fly `cfg.trajectory` past `cfg`'s anchors and return the simulated recording."""
     rng = np.random.default_rng(cfg.seed)
     trajectory, anchors, meta = _trajectory_and_anchors(cfg)
-    effects = sorted(fx.effects_from_json(cfg.effects), key=lambda e: e.stage)
+    effects = fx.staged(fx.effects_from_json(cfg.effects))
     res = {**{k: 0.0 for k in DEFAULT_RESOLUTION}, **cfg.resolution}
     t0, t1 = trajectory.t_start, trajectory.t_end
 
@@ -128,7 +128,7 @@ def simulate(cfg: SimConfig) -> Recording:
     t_imu = _quantize(np.arange(t0, t1, 1.0 / cfg.imu_hz), res["time"])
     force = trajectory.specific_force(t_imu)
     imu = fx.ImuBatch(t_imu, force, trajectory.angular_rate(t_imu), rotor=trajectory.rotor_speed(t_imu, force))
-    fx.apply_imu(imu, effects, rng)
+    fx.apply_imu(effects, rng, imu)
 
     t_uwb, id_a, id_b = tdoa_schedule(t0, t1, cfg.tdoa_hz, cfg.uwb_mode, [a.id for a in anchors], rng)
     t_uwb = _quantize(t_uwb, res["time"])
@@ -183,14 +183,14 @@ class Predictor:
     def world(self, effects: list[fx.Effect]) -> fx.World:
         world = fx.World(anchor_positions={a.id: np.array(a.position) for a in self.rec.anchors},
                          anchor_rotations={a.id: a.rotation for a in self.rec.anchors})
-        for effect in _staged(effects):
+        for effect in fx.staged(effects):
             effect.apply_world(world)
         return world
 
     def true_uwb_times(self, effects: list[fx.Effect]) -> np.ndarray:
         """When the recorded UWB stamps were really measured, by the timing effects."""
         stamps = self.rec.tdoa.t
-        timing = [e for e in _staged(effects) if e.stage == fx.TIMING]
+        timing = [e for e in fx.staged(effects) if e.stage == fx.TIMING]
         t = stamps.copy()
         for _ in range(3 if timing else 0):   # fixed point of stamp(t) = stamps; stamp is nearly t
             forward = t
@@ -210,7 +210,7 @@ class Predictor:
         batch.value = np.full(len(d.t), np.nan)
         batch.value[known] = (fx.ranges(batch.tag_position[known], world, d.id_b[known])
                               - fx.ranges(batch.tag_position[known], world, d.id_a[known]))
-        for effect in _staged(effects):
+        for effect in fx.staged(effects):
             if effect.stage != fx.TIMING:
                 effect.apply_tdoa(batch, world, rng)
         return batch
@@ -225,9 +225,7 @@ class Predictor:
         nothing = np.zeros_like(self.gyro_true)
         g = fx.ImuBatch(self.rec.gyro.t, nothing.copy(), (self.gyro_true if gyro is None else gyro).copy(),
                         vibration=nothing, rotor=self.gyro_rotor)
-        for effect in _staged(effects):
-            effect.apply_imu(a, rng)
-            effect.apply_imu(g, rng)
+        fx.apply_imu(effects, rng, a, g)
         return a.accel, g.gyro
 
     def _uwb_kinematics(self, t: np.ndarray):
@@ -241,10 +239,6 @@ class Predictor:
 
 def _resampled(t: np.ndarray, t_from: np.ndarray, values: np.ndarray) -> np.ndarray:
     return np.interp(t, t_from, values) if len(t_from) else np.ones(len(t))
-
-
-def _staged(effects: list[fx.Effect]) -> list[fx.Effect]:
-    return sorted(effects, key=lambda e: e.stage)
 
 
 def inject(rec: Recording, effects: list[dict], seed: int = 0, predictor: Predictor | None = None) -> Recording:
@@ -261,7 +255,7 @@ def inject(rec: Recording, effects: list[dict], seed: int = 0, predictor: Predic
     changed = predictor.tdoa([e for e in chosen if e.stage != fx.TIMING], rng)
     value = rec.tdoa.distance_diff + np.nan_to_num(changed.value - base.value)
     stamps = rec.tdoa.t
-    for effect in _staged(chosen):
+    for effect in fx.staged(chosen):
         stamps = effect.stamp(stamps)
     accel, gyro = predictor.imu(chosen, rec.accel.xyz, rec.gyro.xyz, rng)
     order = np.argsort(stamps, kind="stable")
