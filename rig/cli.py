@@ -106,7 +106,7 @@ def _effects_argument(text: str) -> list[dict]:
 
 def cmd_diagnose(args: argparse.Namespace) -> int:
     from rig.diagnose import diagnose
-    from rig.diagnosis_report import REPORT_JSON, REPORT_MD, describe, write
+    from rig.diagnosis_report import REPORT_JSON, REPORT_MD, SENSORS, describe, write
     from rig.importer import load_any
 
     rec = load_any(args.recording, args.survey)
@@ -125,8 +125,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
               f"{lowpass['gyro_hz']:.0f} Hz (gyroscope); model.json carries it")
     if "imu_resonance" in noise:
         peak = noise["imu_resonance"]
-        peaks = [f"{peak[f'{s}_hz']:.1f} Hz ({name})" for s, name in (("accel", "accelerometer"), ("gyro", "gyroscope"))
-                 if peak[f"{s}_hz"] > 0]
+        peaks = [f"{peak[f'{s}_hz']:.1f} Hz ({name})" for s, (name, _) in SENSORS.items() if peak[f"{s}_hz"] > 0]
         print(f"  IMU noise peaks at {', '.join(peaks)}: the airframe's slow shaking; model.json carries it")
     print(f"wrote {args.out / REPORT_JSON} and {args.out / REPORT_MD}")
     return EXIT_OK

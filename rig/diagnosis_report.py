@@ -18,6 +18,7 @@ from rig import imu_spectrum  # noqa: E402
 from rig.diagnose import AXES, GROSS_Z, Diagnosis, Finding, left_out_text, vibration_spread  # noqa: E402
 
 REPORT_JSON, REPORT_MD, MODEL_JSON = "report.json", "report.md", "model.json"
+SENSORS = {"accel": ("accelerometer", "m/s²"), "gyro": ("gyroscope", "rad/s")}     # the IMU's, in words
 
 PLAIN = {
     "time_offset": "the UWB timestamps are late by {seconds:.3f} s against the IMU and ground-truth clock",
@@ -118,8 +119,9 @@ def _markdown(diagnosis: Diagnosis, report: dict, images: list[tuple[str, str]])
 
 
 def _noise_lines(model: list[dict]) -> list[str]:
-    """What the model's noise is, in words: the TDOA noise per measurement, and the
-    IMU's white noise, with the low-pass it went through when the spectrum rolls off."""
+    """What the model's noise is, in words: the TDOA noise per measurement, the
+    IMU's peak (the airframe's slow shaking) when its spectrum peaks, and its white
+    noise, with the low-pass it went through when the spectrum rolls off."""
     noise = {e["effect"]: e["params"] for e in model}
     lines = ["## The noise the model leaves", ""]
     if "tdoa_noise" in noise:
@@ -127,8 +129,7 @@ def _noise_lines(model: list[dict]) -> list[str]:
     if "imu_resonance" in noise:
         peak = noise["imu_resonance"]
         shaking = [f"at {peak[f'{s}_hz']:.1f} Hz on the {name} ({_per_axis(peak[f'{s}_std'])} {unit})"
-                   for s, name, unit in (("accel", "accelerometer", "m/s²"), ("gyro", "gyroscope", "rad/s"))
-                   if peak[f"{s}_hz"] > 0]
+                   for s, (name, unit) in SENSORS.items() if peak[f"{s}_hz"] > 0]
         lines.append(f"- IMU: the readings' spectrum peaks {' and '.join(shaking)}: the airframe's slow "
                      "shaking (the attitude loop's wobble, the frame's sway), which the ground truth does not "
                      "resolve and a 100 Hz estimator takes in whole. The model carries it (`imu_resonance`: "
@@ -257,8 +258,8 @@ def _spectrum_plot(diagnosis: Diagnosis, model: dict, out: Path) -> str:
     noise of the recorded spread (what the model was without the filter)."""
     rec = diagnosis.problem.rec
     fig, axes = plt.subplots(1, 2, figsize=(11, 3.8), layout="constrained")
-    sensors = (("accelerometer", rec.accel, "m/s²", "accel"), ("gyroscope", rec.gyro, "rad/s", "gyro"))
-    for ax, (name, series, unit, sensor) in zip(axes, sensors):
+    for ax, (sensor, (name, unit)) in zip(axes, SENSORS.items()):
+        series = rec.accel if sensor == "accel" else rec.gyro
         spec = imu_spectrum.spectrum(series)
         if spec is None:
             continue
@@ -271,7 +272,8 @@ def _spectrum_plot(diagnosis: Diagnosis, model: dict, out: Path) -> str:
         ax.loglog(freq, white, label="white noise of the recorded spread")
         corner, peak = model["imu_lowpass"][f"{sensor}_hz"], model.get("imu_resonance", {}).get(f"{sensor}_hz", 0.0)
         if corner > 0:                       # a sensor the fit found no roll-off on has no model line
-            label = f"model: {f'a {peak:.1f} Hz peak and ' if peak else ''}white noise through a {corner:.0f} Hz low-pass"
+            peaked = f"a {peak:.1f} Hz peak and " if peak else ""
+            label = f"model: {peaked}white noise through a {corner:.0f} Hz low-pass"
             ax.loglog(freq, imu_spectrum.model_density(freq, spec.rate, model, sensor), label=label)
         ax.set(title=name, xlabel="frequency [Hz]", ylabel=f"power [({unit})²/Hz]",
                ylim=(recorded.min() / 10, max(recorded.max(), white[0]) * 10))
