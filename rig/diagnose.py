@@ -622,22 +622,25 @@ def posterior_cov(z: np.ndarray, x: np.ndarray, prior: np.ndarray, theta: np.nda
     return np.linalg.inv(normal)
 
 
-def _name(z: np.ndarray, terms: list[Term]) -> list[Term]:
+def _name(z: np.ndarray, terms: list[Term], pool: list[Term] = ()) -> list[Term]:
     """Backward elimination: every term's evidence is the robust loss it removes given
     all the others but its richer look-alikes, and the weakest goes while it does not
     pay for its parameters. Look-alikes of equal rank are judged given each other, so
     of two the one that adds less goes first and the other keeps the signal they
     share (a scale factor in hover reads as a bias unless the thrust varies enough
-    to tell them apart). A supported delay keeps every anchor's delay: they are
-    measured against each other."""
+    to tell them apart). A clock drift is judged about a free time offset from `pool`
+    (named or not), and of the two, when neither is supported given the other, the
+    drift goes first: a drift is an offset that grows, and only the growth tells it
+    from one. A supported delay keeps every anchor's delay: they are measured
+    against each other."""
     terms = list(terms)
     while terms:
         design = _Design(z, terms)
         _take_fit(terms, design.theta)
-        _judge(z, terms, design)
+        _judge(z, terms, design, _free_offset(terms, pool))
         supported = {t.candidate.effect for t in terms if t.evidence - t.cost >= MIN_EVIDENCE}
         removable = [t for t in terms if t.candidate.effect not in FAMILIES & supported]
-        weakest = min(removable, key=lambda t: t.evidence - t.cost, default=None)
+        weakest = _weakest(removable)
         if weakest is None or weakest.evidence - weakest.cost >= MIN_EVIDENCE:
             return terms
         log.debug("- %s (evidence %.1f given the others)", weakest.key, weakest.evidence)
@@ -645,11 +648,22 @@ def _name(z: np.ndarray, terms: list[Term]) -> list[Term]:
     return terms
 
 
-def _judge(z: np.ndarray, terms: list[Term], design: _Design) -> None:
+def _weakest(removable: list[Term]) -> Term | None:
+    """The term to drop: the least supported, but a clock drift before a time offset
+    when neither pays given the other (a flight that cannot tell them apart has its
+    timing named as the offset, the same on every run and on its control)."""
+    weakest = min(removable, key=lambda t: t.evidence - t.cost, default=None)
+    if weakest is None or weakest.candidate.effect != "time_offset":
+        return weakest
+    drift = [t for t in removable if t.candidate.effect == "clock_drift" and t.evidence - t.cost < MIN_EVIDENCE]
+    return drift[0] if drift else weakest
+
+
+def _judge(z: np.ndarray, terms: list[Term], design: _Design, free_offset: list[Term] = ()) -> None:
     """Every term's evidence given the others but its richer look-alikes. A complete
     delay family is judged against a reference anchor, the median one (against all
     the others an anchor's delay adds nothing: they can all move together), and the
-    reference against the next one."""
+    reference against the next one. A clock drift is judged with `free_offset` too."""
     family = sorted(_delay_family(terms), key=lambda t: t.theta[0])
     judges = {id(t): design for t in terms}
     if family:
@@ -658,6 +672,9 @@ def _judge(z: np.ndarray, terms: list[Term], design: _Design) -> None:
         without_reference = _Design(z, [t for t in terms if t is not reference])
         judges.update({id(t): without_reference for t in family if t is not reference})
         judges[id(reference)] = _Design(z, [t for t in terms if t is not second])
+    if free_offset:
+        with_offset = _Design(z, terms + list(free_offset))
+        judges.update({id(t): with_offset for t in terms if t.candidate.effect == "clock_drift"})
     for t in terms:
         t.evidence = judges[id(t)].gain(t, _richer(t, terms))
 
@@ -687,13 +704,13 @@ def select(problem: Problem, channel: Channel, pool: list[Candidate]
     z = z_before_shapes = channel.z
     folds = channel.folds()
     terms = [Term(c, c.columns) for c in pool if c.channel == channel.name]
-    named = _name(z, terms)
+    named = _name(z, terms, terms)
     shapes = []
     if channel.name == "tdoa":
         nlos = _nlos_terms(problem, channel, folds, terms)
         if nlos:
             terms += nlos
-            named = _name(z, named + nlos)
+            named = _name(z, named + nlos, terms)
     _refit(z, named)                 # the NLOS search refits every candidate
     if channel.name == "tdoa":
         taken = {t.candidate.fixed["anchor"] for t in named if t.candidate.effect == "nlos"}
@@ -702,10 +719,10 @@ def select(problem: Problem, channel: Channel, pool: list[Candidate]
             residual = problem.recorded("tdoa") - problem.predict_channel("tdoa", [f.effect() for f in shapes])
             channel = replace(channel, residual=residual)
             z = channel.z
-            named = _name(z, terms)
+            named = _name(z, terms, terms)
             _refit(z, named)
     if _confine_in_time(channel, named):
-        named = _name(z, named)      # leaves them fitted jointly
+        named = _name(z, named, terms)      # leaves them fitted jointly
     _estimate(z, named, z_before_shapes, _free_offset(named, terms))
     _note_look_alikes(z, named, terms)
     return named, channel, shapes
