@@ -594,12 +594,12 @@ def _estimate(z: np.ndarray, terms: list[Term], z_simplest: np.ndarray | None = 
 
 
 def _free_offset(named: list[Term], pool: list[Term]) -> list[Term]:
-    """A clock drift is measured about a free time offset, named or not: the drift's
-    growth over the flight is what tells it from an offset, and a flight's own offset
-    named on one run and not on another (of equal rank, each is judged given the
-    other) would otherwise move the drift by that offset over the flight's mean
-    time (0422-log03: a drift of 2000 ppm added to the flight's own came out as
-    +335 ppm when its −85 ms offset went unnamed)."""
+    """A clock drift is judged and measured about a free time offset, named or not:
+    the drift's growth over the flight is what tells it from an offset, and a
+    flight's own offset named on one run and not on another would otherwise move the
+    drift by that offset over the flight's mean time (0422-log03: a drift of 2000 ppm
+    added to the flight's own came out as +335 ppm when its −85 ms offset went
+    unnamed)."""
     effects = {t.candidate.effect for t in named}
     if "clock_drift" not in effects or "time_offset" in effects:
         return []
@@ -622,7 +622,7 @@ def posterior_cov(z: np.ndarray, x: np.ndarray, prior: np.ndarray, theta: np.nda
     return np.linalg.inv(normal)
 
 
-def _name(z: np.ndarray, terms: list[Term], pool: list[Term] = ()) -> list[Term]:
+def _name(z: np.ndarray, terms: list[Term], pool: list[Term]) -> list[Term]:
     """Backward elimination: every term's evidence is the robust loss it removes given
     all the others but its richer look-alikes, and the weakest goes while it does not
     pay for its parameters. Look-alikes of equal rank are judged given each other, so
