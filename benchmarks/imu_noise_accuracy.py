@@ -22,6 +22,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from rig.diagnosis_report import SENSORS  # noqa: E402
 from rig.evaluate import evaluate  # noqa: E402
 from rig.simulate import SimConfig, simulate  # noqa: E402
 
@@ -46,7 +47,7 @@ def described(noise: list[dict]) -> str:
     """The accelerometer's and gyroscope's noise in a few words (sizes per axis)."""
     sizes = {e["effect"]: e["params"] for e in noise}
     words = []
-    for sensor, unit in (("accel", "m/s²"), ("gyro", "rad/s")):
+    for sensor, (_, unit) in SENSORS.items():
         white = sizes["imu_noise"][f"{sensor}_std"]
         text = f"{sensor} {json.dumps(white if isinstance(white, float) else [round(v, 3) for v in white])} {unit}"
         peak = sizes.get("imu_resonance", {})

@@ -1001,7 +1001,8 @@ class Diagnosis:
             return out
         sensors = {"accel": rec.accel, "gyro": rec.gyro}
         fits = {name: imu_spectrum.fit_noise(series) for name, series in sensors.items()}
-        corners, peaks = ({name: fit[k] for name, fit in fits.items()} for k in (0, 1))
+        corners = {name: corner for name, (corner, _) in fits.items()}
+        peaks = {name: peak for name, (_, peak) in fits.items()}
         sizes = {name: imu_noise_sizes(series, corners[name], peaks[name]) for name, series in sensors.items()}
         out.append({"effect": "imu_noise", "params": {f"{name}_std": white.tolist()
                                                       for name, (white, _) in sizes.items()}})

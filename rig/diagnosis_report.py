@@ -259,7 +259,7 @@ def _spectrum_plot(diagnosis: Diagnosis, model: dict, out: Path) -> str:
     rec = diagnosis.problem.rec
     fig, axes = plt.subplots(1, 2, figsize=(11, 3.8), layout="constrained")
     for ax, (sensor, (name, unit)) in zip(axes, SENSORS.items()):
-        series = rec.accel if sensor == "accel" else rec.gyro
+        series = getattr(rec, sensor)
         spec = imu_spectrum.spectrum(series)
         if spec is None:
             continue

@@ -168,10 +168,10 @@ def _corner_beside(spec: Spectrum, peak: Resonance, first: float) -> float:
     real log falls faster than a second-order filter, and a free corner lets the
     peak's flank take the whole spectrum (300 Hz and more on the gyroscopes)."""
     freq, power = _band(spec, RESONANCE_FROM_HZ)
-    dent, shape = _running_mean_dent(freq, spec.rate), _peak_power(peak.hz, peak.q, spec.rate, freq)
+    shape = _peak_power(peak.hz, peak.q, spec.rate, freq)
     trials = []
     for corner in np.geomspace(first, CORNER_RAISE * first, CORNERS // 4):
-        white = filter_power(corner, spec.rate, freq) * dent
+        white = _logged_shape(corner, spec.rate, freq)
         trials.append((sum(_levels([white, white * shape, np.ones(len(freq))], p)[0] for p in power), corner))
     return float(min(trials)[1])
 
@@ -183,7 +183,7 @@ def fit_resonance(spec: Spectrum, corner_hz: float) -> Resonance | None:
     alone, or by less than RESONANCE_MIN_DROP (a white spectrum, fitted to within the
     Welch estimate's scatter), or takes no axis's power."""
     freq, power = _band(spec, RESONANCE_FROM_HZ)
-    white = filter_power(corner_hz, spec.rate, freq) * _running_mean_dent(freq, spec.rate)
+    white = _logged_shape(corner_hz, spec.rate, freq)
     plain = _log_misfit(white, power)
     trials = []
     for hz in RESONANCE_HZ[RESONANCE_HZ < fx.LOWPASS_MAX_SHARE * spec.rate]:
@@ -207,6 +207,12 @@ def _levels(shapes: list[np.ndarray], power: np.ndarray) -> tuple[float, np.ndar
     design = np.column_stack([shape / power for shape in shapes])
     level = nnls(design, np.ones(len(power)))[0]
     return float(np.sum(np.log(np.maximum(design @ level, 1e-12)) ** 2)), level
+
+
+def _logged_shape(corner_hz: float, rate: float, freq: np.ndarray) -> np.ndarray:
+    """What a log's fast part shows of a flat density before the low-pass at
+    `corner_hz`: the filter's |H(f)|² and the running mean's dent."""
+    return filter_power(corner_hz, rate, freq) * _running_mean_dent(freq, rate)
 
 
 def _running_mean_dent(freq: np.ndarray, rate: float) -> np.ndarray:
@@ -234,7 +240,7 @@ def model_density(freq: np.ndarray, rate: float, model: dict, sensor: str) -> np
         resonant = np.mean(np.square(peak[f"{sensor}_std"])) / fx.resonance_gain(hz, q, rate) ** 2
         density += 2 * resonant / rate * _peak_power(hz, q, rate, freq)
     corner = model.get("imu_lowpass", {}).get(f"{sensor}_hz", 0.0)
-    return density * filter_power(corner, rate, freq) * _running_mean_dent(freq, rate)
+    return density * _logged_shape(corner, rate, freq)
 
 
 def _peak_power(hz: float, q: float, rate: float, freq: np.ndarray) -> np.ndarray:

@@ -165,6 +165,7 @@ def test_a_rectification_behind_the_low_pass_feeds_on_the_vibration_the_log_show
     assert 0.1 < level < 0.5                      # the filter kept a fraction of the 2 m/s² shaking
     assert offset == pytest.approx(-level, rel=0.05)
 
+
 def test_a_recorded_flights_motors_run_from_take_off_to_touch_down(data_dir: Path) -> None:
     """A real flight sits on the floor at its start and end: the motors are off there
     and the rotors turn at about hover speed in between; an injected vibration shakes
