@@ -769,6 +769,96 @@ def _note_look_alikes(z: np.ndarray, kept: list[Term], pool: list[Term]) -> None
                 term.look_alikes.append((alt.key, round(gain, 1)))
 
 
+# An IMU bias and scale are look-alikes axis by axis: over a flight in which an axis
+# reads about the same all along (the accelerometer's z in hover) a scale on it is a
+# bias, and no trajectory-independent rule can say which of the two a recording has.
+AXIS_LOOK_ALIKES = {"imu_accel_bias": "imu_accel_scale", "imu_accel_scale": "imu_accel_bias",
+                    "imu_gyro_bias": "imu_gyro_scale", "imu_gyro_scale": "imu_gyro_bias"}
+
+
+@dataclass
+class Alternative:
+    """An unnamed look-alike fitted in place of some axes of a named term: it explains
+    them as well and the flight cannot tell the two apart."""
+
+    term: Term                  # the look-alike, fitted (theta, estimate, std_err, evidence), neutral off `axes`
+    cost: float                 # what its parameters on `axes` must pay for
+    replaces: Term              # the named term
+    axes: list[int]             # the named term's axes it takes
+    z_with: np.ndarray          # what the named terms leave with it in place of those axes
+
+
+def axis_alternatives(z: np.ndarray, named: list[Term], pool: list[Term]) -> list[Alternative]:
+    """For each named whole-flight IMU term, its axes that the unnamed look-alike's same
+    axes explain as well (AXIS_LOOK_ALIKES): neither is supported given the other,
+    and the named one's axis is supported on its own. The look-alike is fitted on
+    those axes in their place and reported when it pays for its parameters, so a
+    flight that cannot tell a z scale from a z bias says both, and either compares
+    with a control recording of the same flight."""
+    out = []
+    keys = {t.key for t in named}
+    for term in named:
+        alike = AXIS_LOOK_ALIKES.get(term.candidate.effect)
+        found = [t for t in pool if t.candidate.effect == alike and t.key not in keys]
+        if not found or term.extra:
+            continue
+        richer = {id(t) for t in _richer(term, named)}
+        rivals = [t for t in named if t is not term and id(t) not in richer]
+        axes = [j for j in range(term.columns.shape[1]) if _cannot_tell(z, term, found[0], j, rivals)]
+        if axes:
+            alternative = _in_place(z, term, Term(found[0].candidate, found[0].columns), axes, named)
+            if alternative.term.evidence - alternative.cost >= MIN_EVIDENCE:
+                out.append(alternative)
+    return out
+
+
+def _without_axes(term: Term, axes: list[int]) -> Term:
+    keep = [j for j in range(term.columns.shape[1]) if j not in axes]
+    return Term(term.candidate, term.columns[:, keep])
+
+
+def _axis(term: Term, j: int) -> Term:
+    return Term(term.candidate, term.columns[:, [j]])
+
+
+def _cannot_tell(z: np.ndarray, term: Term, alike: Term, j: int, rivals: list[Term]) -> bool:
+    """Axis j of `term` is supported given the others, and neither it nor the same axis
+    of `alike` adds enough given the other."""
+    rest, own, other = [*rivals, _without_axes(term, [j])], _axis(term, j), _axis(alike, j)
+    if _Design(z, [*rest, own]).gain(own) < MIN_EVIDENCE:
+        return False
+    return (_Design(z, [*rest, own, other]).gain(other) < MIN_EVIDENCE
+            and _Design(z, [*rest, other, own]).gain(own) < MIN_EVIDENCE)
+
+
+def _in_place(z: np.ndarray, term: Term, alike: Term, axes: list[int], named: list[Term]) -> Alternative:
+    """`alike` on `axes` only, fitted with the named terms, `term` without those axes:
+    its evidence given the others but its richer look-alikes, its estimate given the
+    simpler ones (as a named term's, see _estimate) and what the whole model leaves
+    with it. Its other axes are neutral and not identified (their standard error is
+    the prior's): the flight supported the look-alike on none of them."""
+    others = [_without_axes(term, axes) if t is term else Term(t.candidate, t.columns, t.extra) for t in named]
+    stand_in = Term(alike.candidate, alike.columns[:, axes])
+    richer = {id(t) for t in _richer(stand_in, others)}
+    simple = [t for t in others if id(t) not in richer]
+    evidence = _Design(z, [*simple, stand_in]).gain(stand_in)
+    reported = [t for t in simple if _rank(t) <= _rank(stand_in)] + [stand_in]
+    x, prior = _stack(reported)
+    theta = irls(z, x, prior)
+    part = _slices(reported)[-1]
+    std_err = np.sqrt(np.diag(posterior_cov(z, x, prior, theta)[part, part]))
+    z_with = _refit(z, [*others, stand_in])
+
+    def on_axes(values: np.ndarray, elsewhere: float) -> np.ndarray:
+        full = np.full(alike.columns.shape[1], elsewhere)
+        full[axes] = values
+        return full
+
+    fitted = Term(alike.candidate, alike.columns, theta=on_axes(stand_in.theta, 0.0), evidence=evidence,
+                  estimate=on_axes(theta[part], 0.0), std_err=on_axes(std_err, alike.candidate.prior))
+    return Alternative(fitted, stand_in.cost, term, axes, z_with)
+
+
 def _confine_in_time(channel: Channel, kept: list[Term]) -> bool:
     """An effect present in part of the flight only: try every run of whole time
     blocks; keep the best window when it explains clearly more than the whole flight.
@@ -938,6 +1028,7 @@ class Finding:
     beyond_bound: bool = False      # larger than the effect can physically be: stands for something else, not simulated
     std_err: dict | None = None     # standard errors of the fitted parameter (None: not a fitted term)
     not_identified: list = field(default_factory=list)   # its components this trajectory does not identify
+    alternative_to: dict | None = None   # {"effect", "axes"}: in place of those axes of that finding, as good
 
     def to_json(self) -> dict:
         out = {"effect": self.effect, "channel": self.channel, "params": self.params, "evidence": self.evidence,
@@ -950,6 +1041,8 @@ class Finding:
             out["look_alikes"] = self.look_alikes
         if self.beyond_bound:
             out["beyond_physical_bound"] = True
+        if self.alternative_to:
+            out["alternative_to"] = self.alternative_to
         return out
 
 
@@ -1073,6 +1166,9 @@ def diagnose(rec: Recording, progress=None) -> Diagnosis:
                 z_with, theta, peers = z_named, named_theta[id(term)], _simpler(term, terms)
             findings.append(_finding(problem, channel, term, _effect_of(problem, channel, term, term.estimate),
                                      z_with, theta, peers, id(term) in simulated))
+        own_pool = [Term(c, c.columns) for c in pool if c.channel == name]
+        findings += [_alternative_finding(problem, channel, alt, terms)
+                     for alt in axis_alternatives(channel.z, terms, own_pool)]
     after = {name: problem.recorded(name) - pred for name, pred in problem.predict(model).items()}
     if "tdoa" in after:
         floor = _floor_finding(problem, after["tdoa"])
@@ -1131,6 +1227,16 @@ def _finding(problem: Problem, channel: Channel, term: Term, effect: fx.Effect, 
                    [{"candidate": key, "evidence": gain} for key, gain in term.look_alikes],
                    not simulated or bool(np.abs(term.param_map() @ term.estimate).max() > term.candidate.bound),
                    std_err, not_identified)
+
+
+def _alternative_finding(problem: Problem, channel: Channel, alt: Alternative, named: list[Term]) -> Finding:
+    """A look-alike in place of some axes of a named effect: reported with the named
+    one, not simulated with it (the model keeps the named effect)."""
+    term = alt.term
+    finding = _finding(problem, channel, term, _effect_of(problem, channel, term, term.estimate), alt.z_with,
+                       term.theta, _simpler(term, named), True)
+    return replace(finding, alternative_to={"effect": alt.replaces.candidate.effect,
+                                            "axes": [AXES[j] for j in alt.axes]})
 
 
 def _shape_finding(problem: Problem, fit: nlos_mixture.NlosShapeFit) -> Finding:

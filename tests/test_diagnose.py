@@ -357,6 +357,28 @@ def test_a_pattern_seen_in_a_narrow_cone_reads_as_a_displaced_anchor(survey) -> 
     assert ("anchor_position", (2,)) in found and ("antenna_pattern", (2,)) not in found
 
 
+def test_a_flight_that_cannot_tell_a_z_scale_from_a_z_bias_says_both(survey) -> None:
+    """A level circle at a constant speed asks the same thrust all flight: an
+    accelerometer z scale is a z bias there. One of the two is named (the model
+    simulates it) and the other is reported in its place on z, with its value, so
+    either compares with a control recording; where the thrust varies (the suite's
+    flight) the scale is named itself."""
+    level = {"z_amplitude": 0.0, "yaw_amplitude": 0.0}
+    scale = {"effect": "imu_accel_scale", "params": {"scale": [1.0, 1.0, 1.03]}}
+    diagnosis = diagnose(simulate(sim_config(survey, [scale], level)))
+    found = findings(diagnosis)
+    bias, scaled = found[("imu_accel_bias", ())], found[("imu_accel_scale", ())]
+    assert abs(bias["params"]["bias_mps2"][2] - 0.03 * 9.81) < 0.03
+    assert abs(scaled["params"]["scale"][2] - 1.03) < 0.005
+    named, alternative = (bias, scaled) if "alternative_to" in scaled else (scaled, bias)
+    assert alternative["alternative_to"] == {"effect": named["effect"], "axes": ["z"]}
+    assert alternative["fit_after"] < alternative["fit_before"]
+    simulated = [e.name for e in diagnosis.model]
+    assert named["effect"] in simulated and alternative["effect"] not in simulated, "one of the two, not both"
+    varying = findings(diagnose(simulate(sim_config(survey, [scale]))))
+    assert "alternative_to" not in varying[("imu_accel_scale", ())]
+
+
 def test_cli_writes_the_report_contract(tmp_path: Path, survey) -> None:
     recording = tmp_path / "sim.mcap"
     subprocess.run([*RIG, "simulate", "--trajectory", "circle-sine", "--survey", str(survey), "--duration", "20",
