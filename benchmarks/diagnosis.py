@@ -91,11 +91,13 @@ def tables(reports: dict) -> str:
     print("")
     print("Samples left out as corrupt (step 2; IMU samples are block means of an axis): " + ("; ".join(gross) or "none") + ".")
     print("")
-    print("| effect | flights where it was found (of %d) |" % len(reports))
-    print("|---|---|")
+    print("| effect | flights where it was named (of %d) | reported in a look-alike's place (`alternative_to`) |"
+          % len(reports))
+    print("|---|---|---|")
     for effect, n in counts.most_common():
-        flights = sum(1 for r in reports.values() if any(f["effect"] == effect for f in r["findings"]))
-        print(f"| {effect} | {flights} |")
+        ways = [{"alternative_to" in f for f in r["findings"] if f["effect"] == effect} for r in reports.values()]
+        named, alternative = sum(False in w for w in ways), sum(True in w for w in ways)
+        print(f"| {effect} | {named} | {alternative or '—'} |")
     return "\n".join(lines)
 
 
