@@ -25,6 +25,9 @@ Method, per channel (TDOA, accelerometer, gyroscope):
    carries its standard error (the posterior's, in that fit); a parameter whose
    standard error is more than half its prior's is reported as not identified by
    this trajectory: the data hardly told it apart from the simpler explanations.
+   An IMU bias and scale that the flight cannot tell apart on an axis (the
+   accelerometer's z in hover) are both reported: the one named, and the other
+   fitted in its place on that axis (`alternative_to`, not simulated).
 5. Effects that may be confined in time are tried on windows of the flight; NLOS
    candidates get a region found on the training blocks only (held out), on what
    the parametric candidates leave; an NLOS the mean shift misses (a region so
@@ -798,15 +801,15 @@ def axis_alternatives(z: np.ndarray, named: list[Term], pool: list[Term]) -> lis
     out = []
     keys = {t.key for t in named}
     for term in named:
-        alike = AXIS_LOOK_ALIKES.get(term.candidate.effect)
-        found = [t for t in pool if t.candidate.effect == alike and t.key not in keys]
-        if not found or term.extra:
+        effect = AXIS_LOOK_ALIKES.get(term.candidate.effect)
+        alike = next((t for t in pool if t.candidate.effect == effect and t.key not in keys), None)
+        if alike is None or term.extra:
             continue
         richer = {id(t) for t in _richer(term, named)}
         rivals = [t for t in named if t is not term and id(t) not in richer]
-        axes = [j for j in range(term.columns.shape[1]) if _cannot_tell(z, term, found[0], j, rivals)]
+        axes = [j for j in range(term.columns.shape[1]) if _cannot_tell(z, term, alike, j, rivals)]
         if axes:
-            alternative = _in_place(z, term, Term(found[0].candidate, found[0].columns), axes, named)
+            alternative = _in_place(z, term, alike, axes, named)
             if alternative.term.evidence - alternative.cost >= MIN_EVIDENCE:
                 out.append(alternative)
     return out
