@@ -26,8 +26,9 @@ Method, per channel (TDOA, accelerometer, gyroscope):
    standard error is more than half its prior's is reported as not identified by
    this trajectory: the data hardly told it apart from the simpler explanations.
    An IMU bias and scale that the flight cannot tell apart on an axis (the
-   accelerometer's z in hover) are both reported: the one named, and the other
-   fitted in its place on that axis (`alternative_to`, not simulated).
+   accelerometer's z in hover), or a time offset and a clock drift, are both
+   reported: the one named, and the other fitted in its place on that axis
+   (`alternative_to`, not simulated).
 5. Effects that may be confined in time are tried on windows of the flight; NLOS
    candidates get a region found on the training blocks only (held out), on what
    the parametric candidates leave; an NLOS the mean shift misses (a region so
@@ -772,11 +773,13 @@ def _note_look_alikes(z: np.ndarray, kept: list[Term], pool: list[Term]) -> None
                 term.look_alikes.append((alt.key, round(gain, 1)))
 
 
-# An IMU bias and scale are look-alikes axis by axis: over a flight in which an axis
-# reads about the same all along (the accelerometer's z in hover) a scale on it is a
-# bias, and no trajectory-independent rule can say which of the two a recording has.
+# Look-alikes of one shape, axis by axis: over a flight in which an axis reads about
+# the same all along (the accelerometer's z in hover) an IMU scale on it is a bias;
+# far from the zero of the recording's clock a drift is an offset that hardly grows.
+# No rule that does not depend on the trajectory can say which of two a recording has.
 AXIS_LOOK_ALIKES = {"imu_accel_bias": "imu_accel_scale", "imu_accel_scale": "imu_accel_bias",
-                    "imu_gyro_bias": "imu_gyro_scale", "imu_gyro_scale": "imu_gyro_bias"}
+                    "imu_gyro_bias": "imu_gyro_scale", "imu_gyro_scale": "imu_gyro_bias",
+                    "time_offset": "clock_drift", "clock_drift": "time_offset"}
 
 
 @dataclass
@@ -791,13 +794,16 @@ class Alternative:
     z_with: np.ndarray          # what the named terms leave with it in place of those axes
 
 
-def axis_alternatives(z: np.ndarray, named: list[Term], pool: list[Term]) -> list[Alternative]:
-    """For each named whole-flight IMU term, its axes that the unnamed look-alike's same
-    axes explain as well (AXIS_LOOK_ALIKES): neither is supported given the other,
-    and the named one's axis is supported on its own. The look-alike is fitted on
-    those axes in their place and reported when it pays for its parameters, so a
-    flight that cannot tell a z scale from a z bias says both, and either compares
-    with a control recording of the same flight."""
+def axis_alternatives(z: np.ndarray, named: list[Term], pool: list[Term],
+                      z_simplest: np.ndarray | None = None) -> list[Alternative]:
+    """For each named whole-flight term with a look-alike of the same shape
+    (AXIS_LOOK_ALIKES), its axes that the unnamed look-alike's same axes explain
+    nearly as well in their place, where the named one's axis does not pay for itself
+    given the look-alike's (_cannot_tell). The look-alike is fitted on those axes in
+    their place and reported when it pays for its parameters, so a flight that cannot
+    tell a z scale from a z bias, or a drift from an offset, says both, and either
+    compares with a control recording of the same flight. A simplest (rank 0) look-alike is
+    estimated on `z_simplest` if given, as the named ones are (see _estimate)."""
     out = []
     keys = {t.key for t in named}
     for term in named:
@@ -809,15 +815,16 @@ def axis_alternatives(z: np.ndarray, named: list[Term], pool: list[Term]) -> lis
         rivals = [t for t in named if t is not term and id(t) not in richer]
         axes = [j for j in range(term.columns.shape[1]) if _cannot_tell(z, term, alike, j, rivals)]
         if axes:
-            alternative = _in_place(z, term, alike, axes, named)
+            alternative = _in_place(z, term, alike, axes, named, pool, z_simplest)
             if alternative.term.evidence - alternative.cost >= MIN_EVIDENCE:
                 out.append(alternative)
     return out
 
 
-def _without_axes(term: Term, axes: list[int]) -> Term:
+def _without_axes(term: Term, axes: list[int]) -> list[Term]:
+    """`term` without `axes` (none when nothing is left)."""
     keep = [j for j in range(term.columns.shape[1]) if j not in axes]
-    return Term(term.candidate, term.columns[:, keep])
+    return [Term(term.candidate, term.columns[:, keep])] if keep else []
 
 
 def _axis(term: Term, j: int) -> Term:
@@ -825,31 +832,36 @@ def _axis(term: Term, j: int) -> Term:
 
 
 def _cannot_tell(z: np.ndarray, term: Term, alike: Term, j: int, rivals: list[Term]) -> bool:
-    """Axis j of `term` is supported given the others, and neither it nor the same axis
-    of `alike` adds enough given the other."""
-    rest, own, other = [*rivals, _without_axes(term, [j])], _axis(term, j), _axis(alike, j)
-    if _Design(z, [*rest, own]).gain(own) < MIN_EVIDENCE:
+    """Axis j of `term` is supported given the others, does not pay for itself given the
+    same axis of `alike`, and that axis in its place explains nearly as much (within
+    LOOK_ALIKE_MARGIN, as a look-alike)."""
+    rest, own, other = [*rivals, *_without_axes(term, [j])], _axis(term, j), _axis(alike, j)
+    alone = _Design(z, [*rest, own]).gain(own)
+    if alone < MIN_EVIDENCE or _Design(z, [*rest, other, own]).gain(own) - own.cost >= MIN_EVIDENCE:
         return False
-    return (_Design(z, [*rest, own, other]).gain(other) < MIN_EVIDENCE
-            and _Design(z, [*rest, other, own]).gain(own) < MIN_EVIDENCE)
+    return _Design(z, [*rest, other]).gain(other) >= alone - LOOK_ALIKE_MARGIN
 
 
-def _in_place(z: np.ndarray, term: Term, alike: Term, axes: list[int], named: list[Term]) -> Alternative:
+def _in_place(z: np.ndarray, term: Term, alike: Term, axes: list[int], named: list[Term], pool: list[Term],
+              z_simplest: np.ndarray | None = None) -> Alternative:
     """`alike` on `axes` only, fitted with the named terms, `term` without those axes:
     its evidence given the others but its richer look-alikes, its estimate given the
-    simpler ones (as a named term's, see _estimate) and what the whole model leaves
-    with it. Its other axes are neutral and not identified (their standard error is
+    simpler ones as a named term's (see _estimate: a drift about a free offset, so it
+    compares with a drift named on a control) and what the whole model leaves with it. Its other axes are neutral and not identified (their standard error is
     the prior's): the flight supported the look-alike on none of them."""
-    others = [_without_axes(term, axes) if t is term else Term(t.candidate, t.columns, t.extra) for t in named]
+    others = [kept for t in named
+              for kept in (_without_axes(term, axes) if t is term else [Term(t.candidate, t.columns, t.extra)])]
     stand_in = Term(alike.candidate, alike.columns[:, axes])
     richer = {id(t) for t in _richer(stand_in, others)}
     simple = [t for t in others if id(t) not in richer]
     evidence = _Design(z, [*simple, stand_in]).gain(stand_in)
     reported = [t for t in simple if _rank(t) <= _rank(stand_in)] + [stand_in]
-    x, prior = _stack(reported)
-    theta = irls(z, x, prior)
-    part = _slices(reported)[-1]
-    std_err = np.sqrt(np.diag(posterior_cov(z, x, prior, theta)[part, part]))
+    nested = reported + _free_offset(reported, pool)
+    x, prior = _stack(nested)
+    z_rank = z if _rank(stand_in) or z_simplest is None else z_simplest
+    theta = irls(z_rank, x, prior)
+    part = _slices(nested)[len(reported) - 1]
+    std_err = np.sqrt(np.diag(posterior_cov(z_rank, x, prior, theta)[part, part]))
     z_with = _refit(z, [*others, stand_in])
 
     def on_axes(values: np.ndarray, elsewhere: float) -> np.ndarray:
@@ -1152,7 +1164,8 @@ def diagnose(rec: Recording, progress=None) -> Diagnosis:
     before = problem.residual_before
     findings, model, names = [], [], list(before)
     for name in progress(names) if progress else names:
-        terms, channel, shapes = select(problem, problem.channel(name), pool)     # fitted jointly
+        as_recorded = problem.channel(name)
+        terms, channel, shapes = select(problem, as_recorded, pool)     # fitted jointly
         for fit in shapes:
             findings.append(_shape_finding(problem, fit))
             model.append(fit.effect())
@@ -1171,7 +1184,7 @@ def diagnose(rec: Recording, progress=None) -> Diagnosis:
                                      z_with, theta, peers, id(term) in simulated))
         own_pool = [Term(c, c.columns) for c in pool if c.channel == name]
         findings += [_alternative_finding(problem, channel, alt, terms)
-                     for alt in axis_alternatives(channel.z, terms, own_pool)]
+                     for alt in axis_alternatives(channel.z, terms, own_pool, as_recorded.z)]
     after = {name: problem.recorded(name) - pred for name, pred in problem.predict(model).items()}
     if "tdoa" in after:
         floor = _floor_finding(problem, after["tdoa"])
@@ -1238,8 +1251,10 @@ def _alternative_finding(problem: Problem, channel: Channel, alt: Alternative, n
     term = alt.term
     finding = _finding(problem, channel, term, _effect_of(problem, channel, term, term.estimate), alt.z_with,
                        term.theta, _simpler(term, named), True)
-    return replace(finding, alternative_to={"effect": alt.replaces.candidate.effect,
-                                            "axes": [AXES[j] for j in alt.axes]})
+    instead = {"effect": alt.replaces.candidate.effect}
+    if channel.name != "tdoa":
+        instead["axes"] = [AXES[j] for j in alt.axes]
+    return replace(finding, alternative_to=instead)
 
 
 def _shape_finding(problem: Problem, fit: nlos_mixture.NlosShapeFit) -> Finding:

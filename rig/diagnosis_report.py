@@ -58,9 +58,10 @@ def describe(finding: Finding) -> str:
         text += (" — beyond what this effect can physically be: it stands for something the catalog does not "
                  "model, and the re-simulation leaves it out")
     if finding.alternative_to:
-        axes, named = ", ".join(finding.alternative_to["axes"]), finding.alternative_to["effect"]
-        text += (f" — as good an explanation as the {named} on {axes}, in its place: this flight cannot tell the "
-                 f"two apart there (the re-simulation has the {named})")
+        named = finding.alternative_to["effect"]
+        axes = f" on {', '.join(finding.alternative_to['axes'])}" if "axes" in finding.alternative_to else ""
+        text += (f" — nearly as good an explanation as the {named}{axes}, in its place: this flight cannot tell "
+                 f"the two apart (the re-simulation has the {named})")
     return text
 
 
@@ -114,9 +115,11 @@ def _markdown(diagnosis: Diagnosis, report: dict, images: list[tuple[str, str]])
               "each one's standard error (`std_err`). Look-alikes: an "
               "anchor displacement along the line of sight reads as a delay, and a second-order antenna "
               "pattern over a small range of viewing angles as a displacement; an accelerometer scale on z "
-              "reads as a bias in hover (then both are reported, each with its value, and the one not "
-              "simulated is marked `alternative_to` the other in report.json). Once one anchor's delay is supported, every anchor's delay is reported "
-              "(some with little evidence of their own): TDOA measures them relative to each other.", ""]
+              "reads as a bias in hover, and far from the zero of the recording's clock a drift as a time offset "
+              "(then both are reported, each with its value, and the one not simulated is marked "
+              "`alternative_to` the other in report.json). Once one anchor's delay is supported, every "
+              "anchor's delay is reported (some with little evidence of their own): TDOA measures them relative "
+              "to each other.", ""]
     lines += _noise_lines(report["model"])
     for title, name in images:
         lines += [f"## {title}", "", f"![{title}]({name})", ""]
