@@ -788,10 +788,14 @@ class Alternative:
     them as well and the flight cannot tell the two apart."""
 
     term: Term                  # the look-alike, fitted (theta, estimate, std_err, evidence), neutral off `axes`
-    cost: float                 # what its parameters on `axes` must pay for
     replaces: Term              # the named term
     axes: list[int]             # the named term's axes it takes
     z_with: np.ndarray          # what the named terms leave with it in place of those axes
+
+    @property
+    def cost(self) -> float:
+        """What its parameters on `axes` must pay for."""
+        return self.term.candidate.penalty * len(self.axes)
 
 
 def axis_alternatives(z: np.ndarray, named: list[Term], pool: list[Term],
@@ -802,8 +806,9 @@ def axis_alternatives(z: np.ndarray, named: list[Term], pool: list[Term],
     given the look-alike's (_cannot_tell). The look-alike is fitted on those axes in
     their place and reported when it pays for its parameters, so a flight that cannot
     tell a z scale from a z bias, or a drift from an offset, says both, and either
-    compares with a control recording of the same flight. A simplest (rank 0) look-alike is
-    estimated on `z_simplest` if given, as the named ones are (see _estimate)."""
+    compares with a control recording of the same flight. A simplest (rank 0)
+    look-alike is estimated on `z_simplest` if given, as the named ones are
+    (_estimate)."""
     out = []
     keys = {t.key for t in named}
     for term in named:
@@ -846,22 +851,17 @@ def _in_place(z: np.ndarray, term: Term, alike: Term, axes: list[int], named: li
               z_simplest: np.ndarray | None = None) -> Alternative:
     """`alike` on `axes` only, fitted with the named terms, `term` without those axes:
     its evidence given the others but its richer look-alikes, its estimate given the
-    simpler ones as a named term's (see _estimate: a drift about a free offset, so it
-    compares with a drift named on a control) and what the whole model leaves with it. Its other axes are neutral and not identified (their standard error is
-    the prior's): the flight supported the look-alike on none of them."""
+    simpler ones as a named term's (_estimate: a drift about a free offset, so it
+    compares with a drift named on a control) and what the whole model leaves with
+    it. Its other axes are neutral and not identified (their standard error is the
+    prior's): the flight supported the look-alike on none of them."""
     others = [kept for t in named
               for kept in (_without_axes(term, axes) if t is term else [Term(t.candidate, t.columns, t.extra)])]
     stand_in = Term(alike.candidate, alike.columns[:, axes])
     richer = {id(t) for t in _richer(stand_in, others)}
-    simple = [t for t in others if id(t) not in richer]
-    evidence = _Design(z, [*simple, stand_in]).gain(stand_in)
-    reported = [t for t in simple if _rank(t) <= _rank(stand_in)] + [stand_in]
-    nested = reported + _free_offset(reported, pool)
-    x, prior = _stack(nested)
-    z_rank = z if _rank(stand_in) or z_simplest is None else z_simplest
-    theta = irls(z_rank, x, prior)
-    part = _slices(nested)[len(reported) - 1]
-    std_err = np.sqrt(np.diag(posterior_cov(z_rank, x, prior, theta)[part, part]))
+    evidence = _Design(z, [t for t in others if id(t) not in richer] + [stand_in]).gain(stand_in)
+    reported = [t for t in others if _rank(t) <= _rank(stand_in)] + [stand_in]
+    _estimate(z, reported, z_simplest, _free_offset(reported, pool))
     z_with = _refit(z, [*others, stand_in])
 
     def on_axes(values: np.ndarray, elsewhere: float) -> np.ndarray:
@@ -870,8 +870,8 @@ def _in_place(z: np.ndarray, term: Term, alike: Term, axes: list[int], named: li
         return full
 
     fitted = Term(alike.candidate, alike.columns, theta=on_axes(stand_in.theta, 0.0), evidence=evidence,
-                  estimate=on_axes(theta[part], 0.0), std_err=on_axes(std_err, alike.candidate.prior))
-    return Alternative(fitted, stand_in.cost, term, axes, z_with)
+                  estimate=on_axes(stand_in.estimate, 0.0), std_err=on_axes(stand_in.std_err, alike.candidate.prior))
+    return Alternative(fitted, term, axes, z_with)
 
 
 def _confine_in_time(channel: Channel, kept: list[Term]) -> bool:
