@@ -122,7 +122,7 @@ class Candidate:
     prior: float = 0.5                              # plausible size of the parameter (a weak ridge)
     bound: float = 1.0                              # largest physical size: a fit beyond is a misfit
     penalty: float = PENALTY_PER_PARAMETER          # evidence each parameter must pay for
-    on_recorded: bool = False                       # a scale regressed on the recording (see design_columns)
+    recorded_weight: np.ndarray | float = 0.0       # share of the regressor that is the recording (design_columns)
     columns: np.ndarray | None = None               # design columns (standardised), rows x size
     key: str = ""
 
@@ -130,18 +130,23 @@ class Candidate:
         self.key = self.effect + "".join(f":{v}" for v in self.fixed.values())
 
     def value(self, theta: np.ndarray) -> np.ndarray:
-        """The parameter for fitted column weights θ. A scale regressed on the recording
-        (recorded − predicted = θ · recorded) is 1 / (1 − θ) = neutral + θ / (1 − θ)."""
+        """The parameter for fitted column weights θ. A scale s regressed on w × the
+        recorded reading + (1 − w) × the predicted one (w: `recorded_weight`) has
+        recorded − predicted = (s − 1) / (w s + 1 − w) × that regressor, so
+        s = 1 + θ / (1 − w θ) (w = 1: 1 / (1 − θ); w = 0: 1 + θ)."""
         theta = np.asarray(theta, float)
-        return self.neutral + (theta / (1.0 - theta) if self.on_recorded else theta)
+        return self.neutral + theta / (1.0 - self.recorded_weight * theta)
 
     def value_slope(self, theta: np.ndarray) -> np.ndarray:
         """d value / d θ: carries a standard error of θ into the parameter's unit."""
         theta = np.asarray(theta, float)
-        return 1.0 / (1.0 - theta) ** 2 if self.on_recorded else np.ones_like(theta)
+        return 1.0 / (1.0 - self.recorded_weight * theta) ** 2
 
     def make(self, theta: np.ndarray, extra: dict | None = None) -> fx.Effect:
-        value = self.value(theta)
+        return self.effect_at(self.value(theta), extra)
+
+    def effect_at(self, value: np.ndarray, extra: dict | None = None) -> fx.Effect:
+        """The effect with its parameter at `value`."""
         params = {**self.fixed, self.param: float(value[0]) if self.size == 1 else value.tolist(), **(extra or {})}
         return fx.make_effect(self.effect, params)
 
@@ -288,10 +293,28 @@ class Problem:
 
     def recorded_under(self, name: str, effects: list[fx.Effect]) -> np.ndarray:
         """An IMU channel's recorded rows with `effects` applied to the readings."""
-        series, rows = self._series(name), self.imu_rows[name]
         accel, gyro = self.predictor.imu(effects, accel=self.rec.accel.xyz, gyro=self.rec.gyro.xyz)
-        values, t, window = (accel if name == "accel" else gyro)[rows], series.t[rows], IMU_SMOOTHING_S[name]
-        return self._block_means(name, window_mean(t, values, t, window) if window > 0 else values)
+        return self._rows_of(name, (accel if name == "accel" else gyro)[self.imu_rows[name]])
+
+    def _rows_of(self, name: str, readings: np.ndarray) -> np.ndarray:
+        """An IMU channel's rows from readings at its sample rows: smoothed like the
+        ground truth's rates (IMU_SMOOTHING_S), then block means."""
+        t, window = self._series(name).t[self.imu_rows[name]], IMU_SMOOTHING_S[name]
+        return self._block_means(name, window_mean(t, readings, t, window) if window > 0 else readings)
+
+    def truth_noise_share(self, name: str) -> np.ndarray:
+        """Per axis, the share of the noise of an IMU channel's residual (recorded −
+        predicted) that is the ground truth's: all but the recorded readings' own. The
+        readings' own is their sample-to-sample noise (differences / √2, given random
+        signs: white noise of that size) carried through the rows' smoothing and
+        block means; a slow wobble the ground truth misses counts as the truth's."""
+        readings = self._series(name).xyz[self.imu_rows[name]]
+        steps = np.diff(readings, axis=0, prepend=readings[:1]) / np.sqrt(2.0)
+        white = steps * np.random.default_rng(0).choice([-1.0, 1.0], size=steps.shape)
+        rows = self._rows_of(name, white).reshape(-1, 3)
+        own = np.array([_mad_scale(rows[:, axis]) for axis in range(3)])
+        total = self.scales[name][:3]
+        return np.clip(1.0 - (own / total) ** 2, 0.0, 1.0)
 
     def _block_means(self, name: str, values: np.ndarray) -> np.ndarray:
         """IMU rows are block means (axis-interleaved): the vibration noise of a flying
@@ -372,7 +395,7 @@ def candidates(problem: Problem) -> list[Candidate]:
     if len(problem.imu_rows["gyro"]):
         out += [Candidate("imu_gyro_bias", "gyro", "bias_rps", 3, step=1e-3, prior=0.2, bound=0.5),
                 Candidate("imu_gyro_scale", "gyro", "scale", 3, neutral=1.0, step=1e-3, prior=0.2, bound=0.5,
-                          on_recorded=True)]
+                          recorded_weight=problem.truth_noise_share("gyro"))]
     for c in out:
         c.columns = design_columns(problem, c)
     return out
@@ -381,23 +404,32 @@ def candidates(problem: Problem) -> list[Candidate]:
 def design_columns(problem: Problem, c: Candidate, model: list[fx.Effect] = ()) -> np.ndarray:
     """d prediction / d parameter, through the effect's own simulator code, standardised.
 
-    A gyroscope scale is regressed on the recording instead (`on_recorded`: errors in
-    variables). Its regressor, the rate, is far noisier on the ground-truth side: the
-    motion capture's attitude noise, differentiated, is a few per cent of the small
-    rates of these flights even when averaged, and a regression on the predicted
-    rate shrinks every fitted scale by as much (slopes 0.95–0.97 on real flights)."""
-    def channel_under(effects: list[fx.Effect]) -> np.ndarray:
-        if c.on_recorded:
-            return problem.recorded_under(c.channel, effects)
-        return problem.predict_channel(c.channel, [*model, *effects])
+    A gyroscope scale is regressed on the rate both the recording and the ground truth
+    measure, each weighted by the other's share of the noise (`recorded_weight`:
+    errors in variables; the difference of the two is then uncorrelated with their
+    weighted mean). On the real flights the ground truth's side is far the noisier
+    (the motion capture's attitude noise, differentiated, is a few per cent of their
+    small rates even when averaged, and a regression on the predicted rate shrinks
+    every fitted scale by as much: slopes 0.95–0.97), and the regressor is the
+    recording; in a simulation with an exact ground truth it is the prediction, and an
+    axis that does not rotate carries no scale (regressed on the recording, the
+    gyroscope's noise would explain itself: a z scale of 2.36 on a level circle)."""
+    columns = _derivative(c, lambda effects: problem.predict_channel(c.channel, [*model, *effects]))
+    if np.any(c.recorded_weight):
+        recorded = _derivative(c, lambda effects: problem.recorded_under(c.channel, effects))
+        columns = c.recorded_weight * recorded + (1.0 - c.recorded_weight) * columns
+    return np.nan_to_num(columns) / problem.scales[c.channel][:, None]
 
+
+def _derivative(c: Candidate, channel_under) -> np.ndarray:
+    """d channel / d parameter by a step of each component from neutral."""
     base = channel_under([])
     cols = []
     for j in range(c.size):
-        theta = np.zeros(c.size)
-        theta[j] = c.step
-        cols.append((channel_under([c.make(theta)]) - base) / c.step)
-    return np.nan_to_num(np.stack(cols, axis=1)) / problem.scales[c.channel][:, None]
+        value = np.full(c.size, c.neutral)
+        value[j] += c.step
+        cols.append((channel_under([c.effect_at(value)]) - base) / c.step)
+    return np.stack(cols, axis=1)
 
 
 # ----------------------------------------------------------------------------- selection

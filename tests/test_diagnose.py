@@ -276,6 +276,17 @@ def test_a_gyro_scale_is_not_shrunk_by_the_ground_truths_attitude_noise(survey) 
     assert abs(found[("imu_gyro_scale", ())]["params"]["scale"][2] - 1.3) < 0.04
 
 
+def test_a_gyroscope_axis_that_does_not_rotate_carries_no_scale(survey) -> None:
+    """On a level circle without yaw the z rate is the gyroscope's noise alone: a scale
+    regressed on the recorded rate would explain that noise by itself (z 2.36, named
+    on d107c30). With an exact ground truth the regressor is the predicted rate, and
+    a z scale is not named on that flight, untouched or with one injected."""
+    level = {"z_amplitude": 0.0, "yaw_amplitude": 0.0}
+    for effects in ([], [{"effect": "imu_gyro_scale", "params": {"scale": [1.0, 1.0, 1.1]}}]):
+        found = findings(diagnose(simulate(sim_config(survey, effects, level))))
+        assert ("imu_gyro_scale", ()) not in found
+
+
 def test_two_effects_at_once_are_both_found(survey) -> None:
     both = [{"effect": "anchor_delay", "params": {"anchor": 1, "meters": -0.1}},
             {"effect": "time_offset", "params": {"seconds": 0.05}}]
@@ -604,14 +615,20 @@ def test_corrupt_ranges_and_a_ground_truth_glitch_are_left_out_not_chased(survey
 
 
 def test_a_scale_regressed_on_the_recording_reports_its_value_and_error_in_the_scales_unit() -> None:
-    """recorded − predicted = θ · recorded: the scale is 1 / (1 − θ), and a standard
-    error of θ is carried by that map's slope; any other parameter is neutral + θ."""
+    """recorded − predicted = θ · (w · recorded + (1 − w) · predicted): the scale is
+    1 + θ / (1 − w θ) (on the recording alone 1 / (1 − θ)), and a standard error of θ
+    is carried by that map's slope; any other parameter is neutral + θ."""
     theta = np.array([0.05, -0.1, 0.0])
-    on_recording = Candidate("imu_gyro_scale", "gyro", "scale", 3, neutral=1.0, on_recorded=True)
+    on_recording = Candidate("imu_gyro_scale", "gyro", "scale", 3, neutral=1.0, recorded_weight=1.0)
     assert np.allclose(on_recording.value(theta), 1.0 / (1.0 - theta))
     assert np.allclose(on_recording.make(theta).params()["scale"], 1.0 / (1.0 - theta))
+    weights = np.array([0.0, 0.5, 1.0])
+    mixed = Candidate("imu_gyro_scale", "gyro", "scale", 3, neutral=1.0, recorded_weight=weights)
+    for s in (0.9, 1.1):    # noise-free: the fitted θ of a scale s maps back to s
+        assert np.allclose(mixed.value((s - 1.0) / (weights * s + 1.0 - weights)), s)
     h = 1e-6
-    numeric = (on_recording.value(theta + h) - on_recording.value(theta - h)) / (2 * h)
-    assert np.allclose(on_recording.value_slope(theta), numeric, rtol=1e-6)
+    for candidate in (on_recording, mixed):
+        numeric = (candidate.value(theta + h) - candidate.value(theta - h)) / (2 * h)
+        assert np.allclose(candidate.value_slope(theta), numeric, rtol=1e-6)
     plain = Candidate("imu_gyro_bias", "gyro", "bias_rps", 3)
     assert np.allclose(plain.value(theta), theta) and np.allclose(plain.value_slope(theta), 1.0)
