@@ -469,6 +469,15 @@ class Term:
         return self.candidate.penalty * self.columns.shape[1] + (2 * PENALTY_PER_PARAMETER if self.window_cost else 0)
 
     @property
+    def net_evidence(self) -> float:
+        """Its evidence beyond what its parameters must pay for."""
+        return self.evidence - self.cost
+
+    @property
+    def supported(self) -> bool:
+        return self.net_evidence >= MIN_EVIDENCE
+
+    @property
     def on_top(self) -> bool:
         """Confined in time on top of its whole-flight value (a delay of the family):
         its whole-flight column, then its change inside the window."""
@@ -674,10 +683,10 @@ def _name(z: np.ndarray, terms: list[Term], pool: list[Term]) -> list[Term]:
         design = _Design(z, terms)
         _take_fit(terms, design.theta)
         _judge(z, terms, design, _free_offset(terms, pool))
-        supported = {t.candidate.effect for t in terms if t.evidence - t.cost >= MIN_EVIDENCE}
+        supported = {t.candidate.effect for t in terms if t.supported}
         removable = [t for t in terms if t.candidate.effect not in FAMILIES & supported]
         weakest = _weakest(removable)
-        if weakest is None or weakest.evidence - weakest.cost >= MIN_EVIDENCE:
+        if weakest is None or weakest.supported:
             return terms
         log.debug("- %s (evidence %.1f given the others)", weakest.key, weakest.evidence)
         terms.remove(weakest)
@@ -688,10 +697,10 @@ def _weakest(removable: list[Term]) -> Term | None:
     """The term to drop: the least supported, but a clock drift before a time offset
     when neither pays given the other (a flight that cannot tell them apart has its
     timing named as the offset, the same on every run and on its control)."""
-    weakest = min(removable, key=lambda t: t.evidence - t.cost, default=None)
+    weakest = min(removable, key=lambda t: t.net_evidence, default=None)
     if weakest is None or weakest.candidate.effect != "time_offset":
         return weakest
-    drift = [t for t in removable if t.candidate.effect == "clock_drift" and t.evidence - t.cost < MIN_EVIDENCE]
+    drift = [t for t in removable if t.candidate.effect == "clock_drift" and not t.supported]
     return drift[0] if drift else weakest
 
 
@@ -739,7 +748,7 @@ def select(problem: Problem, channel: Channel, pool: list[Candidate]
     were fitted on and the NLOS found by shape."""
     z = z_before_shapes = channel.z
     folds = channel.folds()
-    terms = [Term(c, c.columns) for c in pool if c.channel == channel.name]
+    terms = _fresh_terms(pool, channel.name)
     named = _name(z, terms, terms)
     shapes = []
     if channel.name == "tdoa":
@@ -762,6 +771,11 @@ def select(problem: Problem, channel: Channel, pool: list[Candidate]
     _estimate(z, named, z_before_shapes, _free_offset(named, terms))
     _note_look_alikes(z, named, terms)
     return named, channel, shapes
+
+
+def _fresh_terms(pool: list[Candidate], channel: str) -> list[Term]:
+    """The channel's candidates as unfitted terms, with their catalog columns."""
+    return [Term(c, c.columns) for c in pool if c.channel == channel]
 
 
 def _nlos_terms(problem: Problem, channel: Channel, folds: np.ndarray, kept: list[Term]) -> list[Term]:
@@ -801,7 +815,7 @@ def _note_look_alikes(z: np.ndarray, kept: list[Term], pool: list[Term]) -> None
                     and t.candidate.effect in LOOK_ALIKES.get(term.candidate.effect, ())
                     and t.candidate.fixed.get("anchor") == anchor]:
             gain = _Design(z, others + [alt]).gain(alt)
-            if gain - alt.cost >= term.evidence - term.cost - LOOK_ALIKE_MARGIN:
+            if gain - alt.cost >= term.net_evidence - LOOK_ALIKE_MARGIN:
                 term.look_alikes.append((alt.key, round(gain, 1)))
 
 
@@ -1214,9 +1228,8 @@ def diagnose(rec: Recording, progress=None) -> Diagnosis:
                 z_with, theta, peers = z_named, named_theta[id(term)], _simpler(term, terms)
             findings.append(_finding(problem, channel, term, _effect_of(problem, channel, term, term.estimate),
                                      z_with, theta, peers, id(term) in simulated))
-        own_pool = [Term(c, c.columns) for c in pool if c.channel == name]
         findings += [_alternative_finding(problem, channel, alt, terms)
-                     for alt in axis_alternatives(channel.z, terms, own_pool, as_recorded.z)]
+                     for alt in axis_alternatives(channel.z, terms, _fresh_terms(pool, name), as_recorded.z)]
     after = {name: problem.recorded(name) - pred for name, pred in problem.predict(model).items()}
     if "tdoa" in after:
         floor = _floor_finding(problem, after["tdoa"])
