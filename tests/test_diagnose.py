@@ -287,6 +287,16 @@ def test_a_gyroscope_axis_that_does_not_rotate_carries_no_scale(survey) -> None:
         assert ("imu_gyro_scale", ()) not in found
 
 
+@pytest.mark.parametrize("trajectory, params, mode", [("smooth-random", {}, "TDOA2"), ("circle", {"omega": 0.4}, "TDOA2"),
+                                                      ("circle-sine", {"yaw_amplitude": 1.0}, "TDOA3")])
+def test_an_untouched_simulated_flight_names_nothing(survey, trajectory, params, mode) -> None:
+    """No false alarms: flights of other shapes and UWB modes than the suite's, with its
+    noise and outliers and nothing else, name no effect."""
+    config = SimConfig(trajectory=trajectory, survey=str(survey), duration=40.0, seed=5, trajectory_params=params,
+                       uwb_mode=mode, effects=NOISE)
+    assert findings(diagnose(simulate(config))) == {}
+
+
 def test_two_effects_at_once_are_both_found(survey) -> None:
     both = [{"effect": "anchor_delay", "params": {"anchor": 1, "meters": -0.1}},
             {"effect": "time_offset", "params": {"seconds": 0.05}}]
