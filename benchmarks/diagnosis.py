@@ -109,7 +109,7 @@ def imu_spectra(reports: dict, flights: dict[str, Path]) -> str:
     what an estimator at 100 Hz sees of the noise (_estimator_spread)."""
     rows = {"accel": [], "gyro": []}
     for name, report in reports.items():
-        model = {e["effect"]: e["params"] for e in report["model"]}
+        model = fx.params_by_name(report["model"])
         rec = load_any(flights[name])
         for sensor in rows:
             spec = imu_spectrum.spectrum(getattr(rec, sensor))

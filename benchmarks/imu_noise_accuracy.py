@@ -22,6 +22,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from rig import effects as fx  # noqa: E402
 from rig.diagnosis_report import SENSORS  # noqa: E402
 from rig.evaluate import evaluate  # noqa: E402
 from rig.simulate import SimConfig, simulate  # noqa: E402
@@ -45,7 +46,7 @@ def rmse_with(config: SimConfig, noise: list[dict], seed: int | None = None) -> 
 
 def described(noise: list[dict]) -> str:
     """The accelerometer's and gyroscope's noise in a few words (sizes per axis)."""
-    sizes = {e["effect"]: e["params"] for e in noise}
+    sizes = fx.params_by_name(noise)
     words = []
     for sensor, (_, unit) in SENSORS.items():
         white = sizes["imu_noise"][f"{sensor}_std"]

@@ -105,6 +105,7 @@ def _effects_argument(text: str) -> list[dict]:
 
 
 def cmd_diagnose(args: argparse.Namespace) -> int:
+    from rig import effects as fx
     from rig.diagnose import diagnose
     from rig.diagnosis_report import REPORT_JSON, REPORT_MD, SENSORS, describe, write
     from rig.importer import load_any
@@ -118,7 +119,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         print(f"{name}: mismatch {c['fit_before']:.4g} -> {c['fit_after']:.4g} ({c['samples']} samples)")
     for f in result.findings:
         print(f"  {f.effect:16s} evidence {f.evidence:9.1f}  {describe(f)}")
-    noise = {e["effect"]: e["params"] for e in report["model"]}
+    noise = fx.params_by_name(report["model"])
     if "imu_lowpass" in noise:
         lowpass = noise["imu_lowpass"]
         print(f"  IMU readings low-pass filtered before logging: {lowpass['accel_hz']:.0f} Hz (accelerometer), "

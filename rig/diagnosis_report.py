@@ -130,7 +130,7 @@ def _noise_lines(model: list[dict]) -> list[str]:
     """What the model's noise is, in words: the TDOA noise per measurement, the
     IMU's peak (the airframe's slow shaking) when its spectrum peaks, and its white
     noise, with the low-pass it went through when the spectrum rolls off."""
-    noise = {e["effect"]: e["params"] for e in model}
+    noise = fx.params_by_name(model)
     lines = ["## The noise the model leaves", ""]
     if "tdoa_noise" in noise:
         lines.append(f"- TDOA: {noise['tdoa_noise']['std_m']:.3f} m per measurement (robust σ after the effects).")
@@ -194,7 +194,7 @@ def _plots(diagnosis: Diagnosis, model: list[dict], out: Path) -> list[tuple[str
     if rectified:
         images.append(("Accelerometer residual against its vibration",
                        _vibration_plot(diagnosis, rectified[0], out)))
-    noise = {e["effect"]: e["params"] for e in model}
+    noise = fx.params_by_name(model)
     if "imu_lowpass" in noise:
         images.append(("IMU noise spectrum, recorded and modelled", _spectrum_plot(diagnosis, noise, out)))
     if diagnosis.findings:

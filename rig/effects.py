@@ -724,3 +724,9 @@ def make_effect(name: str, params: dict | None = None) -> Effect:
 
 def effects_from_json(items: list[dict]) -> list[Effect]:
     return [make_effect(item["effect"], item.get("params", {})) for item in items]
+
+
+def params_by_name(items: list[dict]) -> dict[str, dict]:
+    """The parameters of effects listed as JSON, by effect name: for the effects a
+    model has once (its noise, low-pass, resonance); of one per anchor, the last."""
+    return {item["effect"]: item.get("params", {}) for item in items}

@@ -20,6 +20,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from conftest import RIG
+from rig import effects as fx
 from rig import imu_spectrum
 from rig.diagnose import (Candidate, Problem, Term, _estimate, _free_offset, _mad_scale, candidates, diagnose,
                           vibration_spread)
@@ -467,7 +468,7 @@ def test_bad_effects_are_refused_clearly(tmp_path: Path) -> None:
 def test_the_fitted_model_carries_the_per_sample_noise(survey) -> None:
     """model.json simulates data like the recording: its noise is per sample (not the
     block means the IMU channels are compared on)."""
-    model = {e["effect"]: e["params"] for e in diagnose(simulate(sim_config(survey, []))).to_json()["model"]}
+    model = fx.params_by_name(diagnose(simulate(sim_config(survey, []))).to_json()["model"])
     assert model["tdoa_noise"]["std_m"] == pytest.approx(0.15, rel=0.1)
     assert np.array(model["imu_noise"]["accel_std"]) == pytest.approx(0.5, rel=0.1)
     assert "imu_lowpass" not in model            # white noise: its spectrum does not roll off
@@ -499,7 +500,7 @@ def test_a_low_pass_on_the_imu_is_in_the_model_with_the_white_noise_before_it(su
     lowpass = {"effect": "imu_lowpass", "params": {"accel_hz": 30.0, "gyro_hz": 80.0}}
     uneven = {"effect": "imu_noise", "params": {"accel_std": [0.0, 0.5, 1.0], "gyro_std": [0.1, 0.0, 0.0]}}
     result = diagnose(simulate(sim_config(survey, [uneven, lowpass]))).to_json()
-    model = {e["effect"]: e["params"] for e in result["model"]}
+    model = fx.params_by_name(result["model"])
     assert model["imu_lowpass"]["accel_hz"] == pytest.approx(30.0, rel=0.1)
     assert model["imu_lowpass"]["gyro_hz"] == pytest.approx(80.0, rel=0.1)
     # on top of the suite's 0.5 m/s² and 0.05 rad/s on every axis
@@ -517,7 +518,7 @@ def test_the_airframes_slow_shaking_is_in_the_model_as_a_resonance(survey) -> No
     lowpass = {"effect": "imu_lowpass", "params": {"accel_hz": 30.0, "gyro_hz": 80.0}}
     wobble = {"effect": "imu_resonance", "params": {"gyro_std": [0.1, 0.08, 0.0], "gyro_hz": 7.0, "gyro_q": 3.0}}
     result = diagnose(simulate(sim_config(survey, [wobble, lowpass]))).to_json()
-    model = {e["effect"]: e["params"] for e in result["model"]}
+    model = fx.params_by_name(result["model"])
     peak = model["imu_resonance"]
     assert peak["gyro_hz"] == pytest.approx(7.0, rel=0.1) and peak["accel_hz"] == 0.0
     assert peak["gyro_std"] == pytest.approx([0.1, 0.08, 0.0], abs=0.015)
