@@ -46,6 +46,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 
 import numpy as np
 
@@ -1127,7 +1128,7 @@ class Diagnosis:
         return {"recording": rec.metadata.get("source", ""), "duration_s": float(rec.truth.t[-1] - rec.truth.t[0]),
                 "findings": [f.to_json() for f in self.findings], "channels": self.channel_fits(),
                 "mismatch": locate(self.problem, self.residual_before),
-                "model": [e.to_json() for e in self.model] + self.noise_model(),
+                "model": [e.to_json() for e in self.model] + self.noise_model,
                 "vibration_rms_mps2": self.vibration_rms()}
 
     def vibration_rms(self) -> list[float] | None:
@@ -1137,6 +1138,7 @@ class Diagnosis:
             return None
         return self.problem.vibration().reshape(-1, 3).mean(axis=0).tolist()
 
+    @cached_property
     def noise_model(self) -> list[dict]:
         """The noise the fitted model leaves, per sample, so `model` simulates data like
         the recording: the TDOA residual after the effects; for the IMU, the raw
