@@ -168,17 +168,12 @@ def _estimator_spread(series, model: dict, sensor: str) -> tuple[np.ndarray, np.
                                          np.asarray(peak.get(f"{sensor}_std", np.zeros(3))))
     one_size = np.mean(vibration_spread(series))      # the model until session 21: the axes' mean spread
     noise = np.random.default_rng(0).normal(size=fast.shape)
-    recorded = _means_spread(fast, rate)
+    recorded = imu_spectrum.means_spread(fast, rate, ESTIMATOR_S)
     candidates = (modelled, fx.lowpass(t, noise * one_size / imu_spectrum.noise_gain(corner, rate), corner),
                   noise * one_size)
-    return tuple(_means_spread(imu_spectrum.fast_part(Vec3Series(t, values))[0], rate) / recorded
+    return tuple(imu_spectrum.means_spread(imu_spectrum.fast_part(Vec3Series(t, values))[0], rate, ESTIMATOR_S)
+                 / recorded
                  for values in candidates)            # each as the recording's: less its 0.2 s running mean
-
-
-def _means_spread(values: np.ndarray, rate: float) -> np.ndarray:
-    """Per axis, the spread of the `values`' means over ESTIMATOR_S."""
-    n = max(1, int(round(ESTIMATOR_S * rate)))
-    return values[: len(values) // n * n].reshape(-1, n, 3).mean(axis=1).std(axis=0)
 
 
 if __name__ == "__main__":

@@ -259,6 +259,13 @@ def logged_noise(rng: np.random.Generator, t: np.ndarray, corner_hz: float, whit
     return fx.lowpass(t, noise, corner_hz)
 
 
+def means_spread(values: np.ndarray, rate: float, seconds: float) -> np.ndarray:
+    """Per axis, the spread of the means of `values` (samples at `rate`) over
+    consecutive `seconds`: what an estimator stepping that often takes in of them."""
+    n = max(1, int(round(seconds * rate)))
+    return values[: len(values) // n * n].reshape(-1, n, values.shape[1]).mean(axis=1).std(axis=0)
+
+
 def chain_spread(rate: float, seconds: float, corner_hz: float, white_std: np.ndarray,
                  resonance: Resonance | None = None, resonant_std: np.ndarray | None = None) -> np.ndarray:
     """Per axis, the RMS of the fast part of `logged_noise`, as `seconds` of a log at

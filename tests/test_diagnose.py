@@ -591,9 +591,7 @@ def test_a_real_flights_model_has_its_noise_spectrum(tmp_path: Path, real, real_
 
 def _means_spread(series) -> np.ndarray:
     """Per axis, the spread of 10 ms means of a series' fast part."""
-    fast, rate = imu_spectrum.fast_part(series)
-    n = int(round(0.01 * rate))
-    return fast[: len(fast) // n * n].reshape(-1, n, 3).mean(axis=1).std(axis=0)
+    return imu_spectrum.means_spread(*imu_spectrum.fast_part(series), 0.01)
 
 
 def _band_spectrum(series) -> tuple[np.ndarray, np.ndarray]:
