@@ -844,6 +844,11 @@ class Alternative:
         """What its parameters on `axes` must pay for."""
         return self.term.candidate.penalty * len(self.axes)
 
+    @property
+    def supported(self) -> bool:
+        """It pays for its parameters on `axes`, as a named term must (Term.supported)."""
+        return self.term.evidence - self.cost >= MIN_EVIDENCE
+
 
 def axis_alternatives(z: np.ndarray, named: list[Term], pool: list[Term],
                       z_simplest: np.ndarray | None = None) -> list[Alternative]:
@@ -868,7 +873,7 @@ def axis_alternatives(z: np.ndarray, named: list[Term], pool: list[Term],
         axes = [j for j in range(term.columns.shape[1]) if _cannot_tell(z, term, alike, j, rivals)]
         if axes:
             alternative = _in_place(z, term, alike, axes, named, pool, z_simplest)
-            if alternative.term.evidence - alternative.cost >= MIN_EVIDENCE:
+            if alternative.supported:
                 out.append(alternative)
     return out
 
