@@ -15,8 +15,8 @@ Method, per channel (TDOA, accelerometer, gyroscope):
    given all remaining terms but its richer look-alikes (half a chi-square in the
    Gaussian limit, so it grows with the recording's length and compares runs of
    equal length); the weakest goes while below a bar (a penalty per parameter).
-   Delays are reported relative to their median: TDOA does not see a delay common
-   to all anchors.
+   Delays are reported relative to their robust centre (`delay_centre`): TDOA does
+   not see a delay common to all anchors.
 4. Estimates (Huber IRLS with weak priors): a named term's estimate is its value in
    the joint fit of the named terms of its rank or a simpler one (ORDER: a delay
    before a displacement before a pattern before NLOS), so the simplest explanation
@@ -521,7 +521,7 @@ def _take_fit(terms: list[Term], theta: np.ndarray) -> None:
     """Hand each term its slice of a joint fit of `terms`."""
     for t, part in _split(terms, theta):
         t.theta = part
-    _median_gauge(terms)
+    _centre_gauge(terms)
 
 
 def _left(z: np.ndarray, terms: list[Term]) -> np.ndarray:
@@ -538,13 +538,34 @@ def _delay_family(terms: list[Term]) -> list[Term]:
     return delays
 
 
-def _median_gauge(terms: list[Term], attribute: str = "theta") -> None:
+GAUGE_SPREAD_M = 0.3           # the delays' centre: delays further off than this count as the anchor's own
+
+
+def delay_centre(delays: np.ndarray) -> float:
+    """The centre delays are reported against: a Huber M-estimate of location with a
+    fixed spread (GAUGE_SPREAD_M). Like a median, one anchor's large delay moves it by
+    a bounded amount, the spread over the number of anchors (so it shows on that
+    anchor nearly alone, where a mean would spread it as −1/n over all the others);
+    unlike a median of eight, which averages the middle two, a delay that changes on
+    one anchor moves it smoothly by about 1/n of the change, not by up to half of it
+    (0425-traj13: 12 cm added to a middle anchor's delay read as 6.7 cm against its
+    control). A spread scaled by the delays' own MAD would jump with it."""
+    centre = float(np.median(delays))
+    for _ in range(100):
+        weights = np.minimum(1.0, GAUGE_SPREAD_M / np.maximum(np.abs(delays - centre), 1e-12))
+        moved = float(np.sum(weights * delays) / np.sum(weights))
+        if abs(moved - centre) < 1e-9:
+            break
+        centre = moved
+    return centre
+
+
+def _centre_gauge(terms: list[Term], attribute: str = "theta") -> None:
     """TDOA sees delays only relative to each other: they are reported relative to
-    their median, so one anchor's delay shows on that anchor alone (a fit of the
-    minimum norm would spread it as −1/n over all the others)."""
+    their robust centre (delay_centre)."""
     family = _delay_family(terms)
     if family:
-        shift = np.median([getattr(t, attribute)[0] for t in family])
+        shift = delay_centre(np.array([getattr(t, attribute)[0] for t in family]))
         for t in family:
             setattr(t, attribute, getattr(t, attribute) - shift)
 
@@ -636,7 +657,7 @@ def _estimate(z: np.ndarray, terms: list[Term], z_simplest: np.ndarray | None = 
             if _rank(t) == rank:
                 m = t.param_map()
                 t.estimate, t.std_err = theta[part], np.sqrt(np.diag(m @ cov[part, part] @ m.T))
-    _median_gauge(terms, "estimate")
+    _centre_gauge(terms, "estimate")
 
 
 def _free_offset(named: list[Term], pool: list[Term]) -> list[Term]:
@@ -660,8 +681,9 @@ def posterior_cov(z: np.ndarray, x: np.ndarray, prior: np.ndarray, theta: np.nda
     """Covariance of the parameters of a Huber fit with Gaussian priors, from its
     weighted normal equations (z is standardised: unit noise). Where the data do not
     separate a parameter from the others its variance approaches its prior's. The
-    `gauge` parameters (a family of delays) are taken relative to their mean, as they
-    are reported: the common delay TDOA cannot see does not blur each one."""
+    `gauge` parameters (a family of delays) are taken relative to their mean (their
+    reported centre, `delay_centre`, where they lie within its spread of each other):
+    the common delay TDOA cannot see does not blur each one."""
     normal = weighted_normal(z, x, theta)[0] + np.diag(1.0 / prior ** 2)
     if gauge is not None and gauge.any():
         normal += GAUGE_WEIGHT * np.outer(gauge, gauge).astype(float)

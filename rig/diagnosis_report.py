@@ -25,7 +25,7 @@ PLAIN = {
     "clock_drift": "the UWB clock runs fast by {ppm:.0f} ppm against the IMU clock",
     "anchor_position": "anchor {anchor} is really {offset_m} m from where the survey puts it",
     "anchor_delay": "every range from anchor {anchor} reads {meters:+.3f} m long (antenna delay; relative to the "
-                    "anchors' median delay, which TDOA cannot see)",
+                    "anchors' common delay, which TDOA cannot see)",
     "antenna_pattern": "anchor {anchor}'s ranges are biased with the viewing angle (antenna pattern {coeffs_m} m)",
     "nlos": "ranges to anchor {anchor} carry an excess delay (NLOS: {fraction:.0%} of them, {mean_excess_m:.3f} m "
             "on average) while the tag is inside {region}",

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rig.diagnose import rounded_floats
+from rig.diagnose import delay_centre, rounded_floats
 
 log = logging.getLogger(__name__)
 
@@ -68,8 +68,8 @@ def fold_rectification(effects: list[dict], vibration_rms: list[float] | None) -
 
 def combine(models: list[list[dict]]) -> list[dict]:
     """The transferable effects named on at least MIN_SHARE of `models`, each with the
-    median of its parameters; delays relative to their median (TDOA sees no common
-    delay)."""
+    median of its parameters; delays relative to their centre as a diagnosis reports
+    them (`delay_centre`: TDOA sees no common delay)."""
     if not models:
         raise ValueError("no fitted models to combine")
     groups: dict[tuple[str, int | None], list[dict]] = {}
@@ -115,7 +115,7 @@ def _median_params(params: list[dict]) -> dict:
 def _centre_delays(effects: list[dict]) -> None:
     delays = [e["params"] for e in effects if e["effect"] == "anchor_delay"]
     if delays:
-        shift = float(np.median([d["meters"] for d in delays]))
+        shift = delay_centre(np.array([d["meters"] for d in delays]))
         for d in delays:
             d["meters"] -= shift
 

@@ -22,8 +22,8 @@ from scipy.spatial.transform import Rotation
 from conftest import RIG
 from rig import effects as fx
 from rig import imu_spectrum
-from rig.diagnose import (Candidate, Problem, Term, _estimate, _free_offset, _mad_scale, candidates, diagnose,
-                          vibration_spread)
+from rig.diagnose import (Candidate, Problem, Term, _estimate, _free_offset, _mad_scale, candidates, delay_centre,
+                          diagnose, vibration_spread)
 from rig.diagnosis_report import write as write_report
 from rig.fitted_model import outside_window
 from rig.importer import load_any
@@ -641,3 +641,23 @@ def test_a_scale_regressed_on_the_recording_reports_its_value_and_error_in_the_s
         assert np.allclose(candidate.value_slope(theta), numeric, rtol=1e-6)
     plain = Candidate("imu_gyro_bias", "gyro", "bias_rps", 3)
     assert np.allclose(plain.value(theta), theta) and np.allclose(plain.value_slope(theta), 1.0)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_a_delay_changed_on_one_anchor_shows_on_that_anchor(seed: int) -> None:
+    """Delays are reported against their centre (TDOA sees no delay common to all
+    anchors). A change of one anchor's delay, as a control and its injected copy
+    differ, reads on that anchor within a quarter of its size whichever anchor it is
+    (a median of eight averages the middle two: 12 cm on a middle anchor read as
+    6.7 cm), and one anchor's large delay moves the others' by well under what a
+    mean would."""
+    delays = np.random.default_rng(seed).normal(0.0, 0.15, 8)
+    for k in range(8):
+        changed = delays.copy()
+        changed[k] += 0.12
+        read = (changed[k] - delay_centre(changed)) - (delays[k] - delay_centre(delays))
+        assert abs(read - 0.12) <= 0.03, f"anchor {k}: 0.12 m read as {read:.3f} m"
+    large = delays.copy()
+    large[0] = -0.7
+    others = np.delete(delays, 0)
+    assert abs(delay_centre(large) - delay_centre(others)) < 0.6 * abs(np.mean(large) - np.mean(others))

@@ -39,9 +39,10 @@ MODELS = [_changed_in_a_window(_model(-0.05, {0: 0.1, 1: -0.1, 2: 0.0}, nlos=Tru
 def test_effects_named_on_most_flights_enter_with_their_medians() -> None:
     combined = {(e["effect"], e["params"].get("anchor")): e["params"] for e in combine(MODELS)}
     assert combined[("time_offset", None)]["seconds"] == pytest.approx(-0.06)
-    # medians 0.2, -0.1, 0.0 -> relative to their median (0.0); anchor 0 enters with 0.1, its
-    # value outside the window of the first flight, not 0.9
-    assert [combined[("anchor_delay", k)]["meters"] for k in (0, 1, 2)] == pytest.approx([0.2, -0.1, 0.0])
+    # medians 0.2, -0.1, 0.0 -> relative to their centre (all within its spread: their mean,
+    # 0.1 / 3); anchor 0 enters with 0.1, its value outside the window of the first flight, not 0.9
+    assert [combined[("anchor_delay", k)]["meters"] for k in (0, 1, 2)] == pytest.approx([0.2 - 0.1 / 3, -0.1 - 0.1 / 3,
+                                                                                          -0.1 / 3])
     assert combined[("imu_accel_bias", None)] == {"bias_mps2": pytest.approx([-0.06, 0.0, 1.0])}   # no "during"
     assert ("clock_drift", None) not in combined, "named on one flight of three: not a property of the room"
     assert ("nlos", 2) not in combined, "an NLOS region belongs to one flight's path"
