@@ -549,15 +549,12 @@ def delay_centre(delays: np.ndarray) -> float:
     unlike a median of eight, which averages the middle two, a delay that changes on
     one anchor moves it smoothly by about 1/n of the change, not by up to half of it
     (0425-traj13: 12 cm added to a middle anchor's delay read as 6.7 cm against its
-    control). A spread scaled by the delays' own MAD would jump with it."""
-    centre = float(np.median(delays))
-    for _ in range(100):
-        weights = np.minimum(1.0, GAUGE_SPREAD_M / np.maximum(np.abs(delays - centre), 1e-12))
-        moved = float(np.sum(weights * delays) / np.sum(weights))
-        if abs(moved - centre) < 1e-9:
-            break
-        centre = moved
-    return centre
+    control). A spread scaled by the delays' own MAD would jump with it. Fitted by
+    `irls` from their median (delays spread wide apart can leave a flat stretch of
+    centres), in units where its Huber threshold is the spread."""
+    median, unit = float(np.median(delays)), GAUGE_SPREAD_M / HUBER_C
+    about_median = (np.asarray(delays, float) - median) / unit
+    return median + float(irls(about_median, np.ones((len(delays), 1)), iterations=100)[0]) * unit
 
 
 def _centre_gauge(terms: list[Term], attribute: str = "theta") -> None:
