@@ -557,6 +557,16 @@ def delay_centre(delays: np.ndarray) -> float:
     return median + float(irls(about_median, np.ones((len(delays), 1)), iterations=100)[0]) * unit
 
 
+def delay_centre_slope(delays: np.ndarray) -> np.ndarray:
+    """How `delay_centre` moves with each delay: a Huber location moves with the delays
+    within its spread of it, equally, and not with those beyond (their pull on it is
+    capped). It maps the delays' covariance to that of the delays as reported."""
+    near = np.abs(np.asarray(delays, float) - delay_centre(delays)) <= GAUGE_SPREAD_M
+    if not near.any():
+        near[:] = True
+    return near / near.sum()
+
+
 def _centre_gauge(terms: list[Term], attribute: str = "theta") -> None:
     """TDOA sees delays only relative to each other: they are reported relative to
     their robust centre (delay_centre)."""
@@ -649,7 +659,7 @@ def _estimate(z: np.ndarray, terms: list[Term], z_simplest: np.ndarray | None = 
         theta = irls(z_rank, x, prior)
         family = {id(t) for t in _delay_family(nested)}
         gauge = np.concatenate([(np.arange(t.columns.shape[1]) == 0) & (id(t) in family) for t in nested])
-        cov = posterior_cov(z_rank, x, prior, theta, gauge)
+        cov = _about_centre(posterior_cov(z_rank, x, prior, theta, gauge), theta, gauge)
         for t, part in zip(reported, _slices(nested)):        # the nuisance terms come last
             if _rank(t) == rank:
                 m = t.param_map()
@@ -673,14 +683,27 @@ def _free_offset(named: list[Term], pool: list[Term]) -> list[Term]:
 GAUGE_WEIGHT = 1e6             # pins the sum of a delay family: TDOA sees delays relative to each other
 
 
+def _about_centre(cov: np.ndarray, theta: np.ndarray, gauge: np.ndarray) -> np.ndarray:
+    """The covariance of the parameters with the `gauge` ones (a family of delays) taken
+    relative to their reported centre (`delay_centre`), not to their mean, which
+    `posterior_cov` pins: the two differ once a delay lies beyond the centre's spread,
+    which then hardly moves with it."""
+    family = np.flatnonzero(gauge)
+    if not len(family):
+        return cov
+    to_reported = np.eye(len(theta))
+    to_reported[np.ix_(family, family)] -= delay_centre_slope(theta[family])[None, :]
+    return to_reported @ cov @ to_reported.T
+
+
 def posterior_cov(z: np.ndarray, x: np.ndarray, prior: np.ndarray, theta: np.ndarray,
                   gauge: np.ndarray | None = None) -> np.ndarray:
     """Covariance of the parameters of a Huber fit with Gaussian priors, from its
     weighted normal equations (z is standardised: unit noise). Where the data do not
     separate a parameter from the others its variance approaches its prior's. The
-    `gauge` parameters (a family of delays) are taken relative to their mean (their
-    reported centre, `delay_centre`, where they lie within its spread of each other):
-    the common delay TDOA cannot see does not blur each one."""
+    `gauge` parameters (a family of delays) are pinned by their sum: the common delay
+    TDOA cannot see does not blur each one (`_about_centre` then takes them relative
+    to their reported centre)."""
     normal = weighted_normal(z, x, theta)[0] + np.diag(1.0 / prior ** 2)
     if gauge is not None and gauge.any():
         normal += GAUGE_WEIGHT * np.outer(gauge, gauge).astype(float)

@@ -23,7 +23,7 @@ from conftest import RIG
 from rig import effects as fx
 from rig import imu_spectrum
 from rig.diagnose import (Candidate, Problem, Term, _estimate, _free_offset, _mad_scale, candidates, delay_centre,
-                          diagnose, vibration_spread)
+                          delay_centre_slope, diagnose, vibration_spread)
 from rig.diagnosis_report import write as write_report
 from rig.fitted_model import outside_window
 from rig.importer import load_any
@@ -661,3 +661,15 @@ def test_a_delay_changed_on_one_anchor_shows_on_that_anchor(seed: int) -> None:
     large[0] = -0.7
     others = np.delete(delays, 0)
     assert abs(delay_centre(large) - delay_centre(others)) < 0.6 * abs(np.mean(large) - np.mean(others))
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_the_delay_centres_slope_is_its_numerical_derivative(seed: int) -> None:
+    """The reported delays' standard errors are taken about their centre through its
+    slope: it must be the centre's derivative, also with one delay far beyond the
+    spread (which hardly moves it) and with the delays spread wide."""
+    rng = np.random.default_rng(seed)
+    for delays in (rng.normal(0.0, 0.1, 8), np.r_[rng.normal(0.0, 0.1, 7), -0.9], rng.normal(0.0, 0.4, 8)):
+        h = 1e-6
+        numeric = [(delay_centre(delays + h * e) - delay_centre(delays - h * e)) / (2 * h) for e in np.eye(8)]
+        assert np.allclose(delay_centre_slope(delays), numeric, atol=1e-4)
