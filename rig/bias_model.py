@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 INPUTS, HIDDEN = 14, 30
+DEFAULT_NETWORK = Path(__file__).resolve().parent / "models" / "bias_net.json"   # the shipped one
 LANES = 32  # C storage width of a layer (BN_LANES): two zero neurons of padding
 
 NET_DTYPE = np.dtype([

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from rig import paths
+from rig.bias_model import DEFAULT_NETWORK
 
 log = logging.getLogger("rig")
 
@@ -752,7 +753,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "flights with it (default), or by the validation TDOA error (no replay; always used "
                         "with --exclude-anchors)")
     p.add_argument("--max-epochs", type=int, default=TrainConfig().max_epochs)
-    p.add_argument("--out", type=Path, default=paths.PROJECT_ROOT / "rig" / "models" / "bias_net.json")
+    p.add_argument("--out", type=Path, default=DEFAULT_NETWORK)
     p.add_argument("--dataset-cache", type=Path, help="reuse (or write) the dataset here (.npz)")
     p.set_defaults(func=cmd_train)
 

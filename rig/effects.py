@@ -12,6 +12,7 @@ model from the diagnosis) is a plain JSON list of effects.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
@@ -705,11 +706,60 @@ class MultipathFloor(Effect):
             tdoa.value += rng.normal(0.0, self.std, len(tdoa.t)) * self.low(tdoa.tag_position)
 
 
+class LearnedBias(Effect):
+    """The pose-dependent TDOA bias that the bias network (paper Section III,
+    `rig train`) learned from the shared flights, times `gain`: the network's
+    prediction at the tag's true pose and the anchors' true poses. It stands for the
+    bias of the antennas' patterns, of the airframe and of the room that the catalog's
+    per-anchor effects do not carry, so a simulation has it and a diagnosis can look
+    past it. `network` is a `rig train` output (default: the shipped one)."""
+
+    name, stage = "learned_bias", SIGNAL
+
+    def __init__(self, gain: float = 1.0, network: str | None = None):
+        if not np.isfinite(gain):
+            raise ValueError(f"gain must be a finite number, got {gain!r}")
+        self.gain, self.network = float(gain), network
+        self._net = None
+
+    def params(self) -> dict:
+        return {"gain": self.gain, **({"network": self.network} if self.network else {})}
+
+    def bias(self, tdoa: TdoaBatch, world: World) -> np.ndarray:
+        """The network's prediction for each sample (0 where an anchor is unknown)."""
+        from rig import native
+        from rig.bias_model import BiasNet, DEFAULT_NETWORK
+
+        if self._net is None:
+            self._net = BiasNet.load(Path(self.network) if self.network else DEFAULT_NETWORK)
+        out = np.zeros(len(tdoa.t))
+        known = np.flatnonzero(np.isin(tdoa.id_a, list(world.anchor_positions))
+                               & np.isin(tdoa.id_b, list(world.anchor_positions)))
+        if not len(known):
+            return out
+        poses = [_anchor_poses(world, ids[known]) for ids in (tdoa.id_a, tdoa.id_b)]
+        features = native.features_batch(tdoa.tag_position[known], tdoa.tag_rotation[known].as_matrix(),
+                                          *poses[0], *poses[1])
+        out[known] = self._net.predict(features)
+        return out
+
+    def apply_tdoa(self, tdoa: TdoaBatch, world: World, rng: np.random.Generator | None) -> None:
+        tdoa.value += self.gain * self.bias(tdoa, world)
+
+
+def _anchor_poses(world: World, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Position and rotation matrix of anchor ids[k] for every k."""
+    unique, index = np.unique(ids, return_inverse=True)
+    positions = np.array([world.anchor_positions[int(k)] for k in unique]).reshape(-1, 3)
+    rotations = np.array([world.anchor_rotations[int(k)].as_matrix() for k in unique]).reshape(-1, 3, 3)
+    return positions[index.ravel()], rotations[index.ravel()]
+
+
 EFFECTS: dict[str, type[Effect]] = {
     cls.name: cls for cls in (ImuAccelBias, ImuGyroBias, ImuAccelScale, ImuGyroScale, ImuVibrationRectification,
                               ImuNoise, ImuVibration, ImuResonance, ImuLowpass, TdoaNoise, Outliers,
                               TimeOffset, ClockDrift, AnchorPosition, LeverArm, AnchorDelay, AntennaPattern, Nlos,
-                              MultipathFloor)
+                              MultipathFloor, LearnedBias)
 }
 
 

@@ -17,8 +17,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from rig import metrics, native
-from rig.bias_model import BiasNet
-from rig.paths import PROJECT_ROOT
+from rig.bias_model import DEFAULT_NETWORK, BiasNet
 from rig.recording import Recording
 
 log = logging.getLogger(__name__)
@@ -26,7 +25,7 @@ log = logging.getLogger(__name__)
 STEP_S = 0.01
 START_BEFORE_TAKEOFF = 1.0
 DIVERGED_RMSE_M = 1.0  # a flight scored worse than this has lost track
-DEFAULT_MODEL = PROJECT_ROOT / "rig" / "models" / "bias_net.json"
+DEFAULT_MODEL = DEFAULT_NETWORK
 
 
 @dataclass
