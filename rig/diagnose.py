@@ -214,7 +214,6 @@ class Problem:
         known = {a.id for a in rec.anchors}
         self.tdoa_rows = np.flatnonzero(np.isfinite(d.distance_diff) & (d.t >= t0) & (d.t <= t1)
                                         & np.isin(d.id_a, list(known)) & np.isin(d.id_b, list(known)))
-        self.background = np.zeros(len(d.t))        # the adopted learned bias (adopt_background)
         self.imu_rows, self.imu_blocks = {}, {}
         for name, series in (("accel", rec.accel), ("gyro", rec.gyro)):
             rows = np.flatnonzero((series.t >= t0) & (series.t <= t1) & np.all(np.isfinite(series.xyz), axis=1))
@@ -224,14 +223,6 @@ class Problem:
                                                                           d.id_b[self.tdoa_rows]]))
                                  if self._anchor_rows(k).sum() >= MIN_SAMPLES)
         self._tag_positions = self.predictor.tdoa([]).tag_position[self.tdoa_rows]
-
-    def adopt_background(self, background: np.ndarray) -> None:
-        """Take `background` (per TDOA sample of the recording) as part of the simulated
-        physics from here on: every TDOA prediction carries it, and the residual and its
-        noise scale are what is left beyond it. It is fixed, not recomputed under each
-        effect: what the other effects change in it is second order."""
-        self.background = background
-        self._residuals()
 
     def _set_imu_rows(self, name: str, rows: np.ndarray, block: np.ndarray) -> None:
         """An IMU channel's samples and the block each falls in (blocks too short are left out)."""
@@ -345,7 +336,7 @@ class Problem:
         """The prediction of every channel's rows under `effects`."""
         out = {}
         if len(self.tdoa_rows):
-            out["tdoa"] = self.predictor.tdoa(effects).value[self.tdoa_rows] + self.background[self.tdoa_rows]
+            out["tdoa"] = self.predictor.tdoa(effects).value[self.tdoa_rows]
         accel, gyro = self.predictor.imu(effects)
         for name, values in (("accel", accel), ("gyro", gyro)):
             if len(self.imu_rows[name]):
@@ -354,7 +345,7 @@ class Problem:
 
     def predict_channel(self, name: str, effects: list[fx.Effect]) -> np.ndarray:
         if name == "tdoa":
-            return self.predictor.tdoa(effects).value[self.tdoa_rows] + self.background[self.tdoa_rows]
+            return self.predictor.tdoa(effects).value[self.tdoa_rows]
         accel, gyro = self.predictor.imu(effects)
         return self._block_means(name, (accel if name == "accel" else gyro)[self.imu_rows[name]])
 
@@ -1264,9 +1255,8 @@ def vibration_spread(series: Vec3Series) -> np.ndarray:
 
 def diagnose(rec: Recording, progress=None) -> Diagnosis:
     problem = Problem(rec)
-    before = problem.residual_before
-    learned = _learned_bias(problem) if "tdoa" in before else None
     pool = candidates(problem)
+    before = problem.residual_before
     findings, model, names = [], [], list(before)
     for name in progress(names) if progress else names:
         as_recorded = problem.channel(name)
@@ -1295,49 +1285,8 @@ def diagnose(rec: Recording, progress=None) -> Diagnosis:
         if floor is not None:
             findings.append(floor)
             model.append(fx.make_effect("multipath_floor", floor.params))
-    if learned is not None:
-        findings.append(learned)
-        model.insert(0, fx.make_effect("learned_bias", learned.params))
     findings.sort(key=lambda f: -f.evidence)
     return Diagnosis(problem, findings, model, before, after)
-
-
-LEARNED_PRIOR = 1.0            # the learned bias's gain: about 1 where the network's training holds
-
-
-def _learned_bias(problem: Problem) -> Finding | None:
-    """Whether the recording carries the pose-dependent bias the bias network learned
-    (`learned_bias`), and how strongly: its gain, fitted robustly and kept when it
-    lowers the robust loss of held-out time blocks by MIN_EVIDENCE. A kept one becomes
-    part of the simulated physics (`Problem.adopt_background`) before the catalog is
-    searched: a real flight's own pose-dependent bias would otherwise be fitted as
-    metres of anchor displacement and antenna-pattern coefficients, lie across an
-    effect of the catalog on the same anchor and inflate the noise scale every
-    effect is judged against (0425-traj13: 0.32 m, 0.23 m beyond the learned bias). A
-    simulation without it fits a gain of about zero and keeps none."""
-    channel = problem.channel("tdoa")
-    batch, world = problem.predictor.tdoa([]), problem.predictor.world([])
-    unit = fx.LearnedBias(1.0).bias(batch, world)
-    column = (unit[problem.tdoa_rows] / channel.scale)[:, None]
-    z, folds, prior = channel.z, channel.folds(), np.array([LEARNED_PRIOR])
-    held_out = 0.0
-    for fold in range(FOLDS):
-        train, test = folds != fold, folds == fold
-        gain = irls(z[train], column[train], prior)
-        held_out += float(huber_loss(z[test]).sum() - huber_loss(z[test] - column[test] @ gain).sum())
-    gain = irls(z, column, prior)
-    if held_out < MIN_EVIDENCE + PENALTY_PER_PARAMETER or gain[0] <= 0:
-        return None
-    std_err = float(np.sqrt(posterior_cov(z, column, prior, gain)[0, 0]))
-    scale = channel.scale
-    fit_before = robust_rms(channel.residual, scale)
-    fit_after = robust_rms(channel.residual - column[:, 0] * gain[0] * scale, scale)
-    problem.adopt_background(gain[0] * unit)
-    positions = problem.tag_positions()
-    where = {"time": _span(channel.t), "region": {"min": np.round(positions.min(axis=0), 3).tolist(),
-                                                  "max": np.round(positions.max(axis=0), 3).tolist()}}
-    return Finding("learned_bias", "tdoa", [], {"gain": round(float(gain[0]), 6)}, round(held_out, 2),
-                   fit_before, fit_after, where, std_err={"gain": round(std_err, 6)}, not_identified=[])
 
 
 def _effect_of(problem: Problem, channel: Channel, term: Term, theta: np.ndarray) -> fx.Effect:

@@ -38,9 +38,6 @@ PLAIN = {
                                    "motors off)",
     "imu_gyro_scale": "the gyroscope's scale factors are {scale}",
     "lever_arm": "the UWB antenna sits at {offset_m} m from the body origin (body frame)",
-    "learned_bias": "the TDOA carries {gain:.2f} × the pose-dependent bias the bias network learned from the "
-                    "shared flights (the anchors' and the tag's antenna patterns, the airframe, the room); the "
-                    "other findings are what is left beyond it",
 }
 UNITS = {"tdoa": "m", "accel": "m/s²", "gyro": "rad/s"}
 

@@ -711,8 +711,8 @@ class LearnedBias(Effect):
     `rig train`) learned from the shared flights, times `gain`: the network's
     prediction at the tag's true pose and the anchors' true poses. It stands for the
     bias of the antennas' patterns, of the airframe and of the room that the catalog's
-    per-anchor effects do not carry, so a simulation has it and a diagnosis can look
-    past it. `network` is a `rig train` output (default: the shipped one)."""
+    per-anchor effects do not carry, in a form that transfers to any trajectory.
+    `network` is a `rig train` output (default: the shipped one)."""
 
     name, stage = "learned_bias", SIGNAL
 

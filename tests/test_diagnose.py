@@ -22,8 +22,6 @@ from scipy.spatial.transform import Rotation
 from conftest import RIG
 from rig import effects as fx
 from rig import imu_spectrum
-from rig.bias_dataset import measurement_features
-from rig.bias_model import DEFAULT_NETWORK, BiasNet
 from rig.diagnose import (Candidate, Problem, Term, _estimate, _free_offset, _mad_scale, candidates, delay_centre,
                           delay_centre_slope, diagnose, vibration_spread)
 from rig.diagnosis_report import write as write_report
@@ -675,34 +673,3 @@ def test_the_delay_centres_slope_is_its_numerical_derivative(seed: int) -> None:
         h = 1e-6
         numeric = [(delay_centre(delays + h * e) - delay_centre(delays - h * e)) / (2 * h) for e in np.eye(8)]
         assert np.allclose(delay_centre_slope(delays), numeric, atol=1e-4)
-
-
-def test_the_learned_bias_is_the_networks_prediction_at_the_true_pose(real) -> None:
-    """The simulator's `learned_bias` is the shipped network fed, through the C feature
-    function, the features of the tag's true pose: the same as the training data's
-    features taken from the ground truth (rig/bias_dataset.py, another path to them)."""
-    rec, predictor = real
-    batch = predictor.tdoa([])
-    effect = fx.make_effect("learned_bias", {"gain": 0.5})
-    unit = fx.LearnedBias(1.0).bias(batch, predictor.world([]))
-    rows = np.flatnonzero(np.isfinite(rec.tdoa.distance_diff))[::50]
-    features = measurement_features(rec, rows, 0.0, "truth")[0]
-    expected = BiasNet.load(DEFAULT_NETWORK).predict(features)
-    # within 5 %: the simulator's ground truth is smoothed (RecordedTrajectory), the training data's is not
-    assert np.sqrt(np.mean((unit[rows] - expected) ** 2)) < 0.05 * np.sqrt(np.mean(expected ** 2))
-    before = batch.value.copy()
-    effect.apply_tdoa(batch, predictor.world([]), None)
-    assert np.allclose(batch.value - before, 0.5 * unit)
-
-
-def test_the_learned_bias_is_named_with_its_gain_only_where_it_is(survey, sim_control, real_control) -> None:
-    """A simulation with the learned bias at 0.6 names it at that gain, and the flight
-    without it does not; a real flight (one the network was not trained on) carries it
-    at about the network's size, and what it explains leaves the TDOA fit better."""
-    assert not any(name == "learned_bias" for name, _ in sim_control)
-    rec = simulate(sim_config(survey, [{"effect": "learned_bias", "params": {"gain": 0.6}}]))
-    found = findings(diagnose(rec))[("learned_bias", ())]
-    assert abs(found["params"]["gain"] - 0.6) < 0.1
-    assert found["fit_after"] < found["fit_before"]
-    real = real_control[("learned_bias", ())]
-    assert 0.5 < real["params"]["gain"] < 1.2 and real["fit_after"] < real["fit_before"]

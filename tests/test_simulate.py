@@ -10,7 +10,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from conftest import FULL_PRECISION, ROOT, run_rig, simulate_exact
-from rig.effects import ImuBatch, make_effect, vibration_level
+from rig.bias_dataset import measurement_features
+from rig.bias_model import DEFAULT_NETWORK, BiasNet
+from rig.effects import ImuBatch, LearnedBias, make_effect, vibration_level
 from rig.importer import load_any
 from rig.recording import Recording, Vec3Series, read_recording, write_recording
 from rig.simulate import Predictor, SimConfig, inject, simulate
@@ -281,3 +283,21 @@ def test_a_recorded_trajectory_flies_through_lost_motion_capture_poses(data_dir:
     t = np.linspace(clean.t_start + 1.0, clean.t_end - 1.0, 500)
     assert np.abs(holed.position(t) - clean.position(t)).max() < 0.01
     assert np.linalg.norm((holed.rotation(t) * clean.rotation(t).inv()).as_rotvec(), axis=1).max() < 0.01
+
+
+def test_the_learned_bias_is_the_networks_prediction_at_the_true_pose(data_dir: Path) -> None:
+    """`learned_bias` is the shipped bias network fed, through the C feature function,
+    the features of the tag's true pose: the same as the training data's features
+    taken from the ground truth (rig/bias_dataset.py, another path to them), times
+    its gain."""
+    rec = load_any(data_dir / "flights" / "0426-traj1")
+    predictor = Predictor(rec)
+    batch, world = predictor.tdoa([]), predictor.world([])
+    unit = LearnedBias(1.0).bias(batch, world)
+    rows = np.flatnonzero(np.isfinite(rec.tdoa.distance_diff))[::50]
+    expected = BiasNet.load(DEFAULT_NETWORK).predict(measurement_features(rec, rows, 0.0, "truth")[0])
+    # within 5 %: the simulator's ground truth is smoothed (RecordedTrajectory), the training data's is not
+    assert np.sqrt(np.mean((unit[rows] - expected) ** 2)) < 0.05 * np.sqrt(np.mean(expected ** 2))
+    before = batch.value.copy()
+    make_effect("learned_bias", {"gain": 0.5}).apply_tdoa(batch, world, None)
+    assert np.allclose(batch.value - before, 0.5 * unit)
