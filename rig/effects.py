@@ -20,6 +20,9 @@ from scipy.ndimage import uniform_filter1d
 from scipy.signal import butter, iirpeak, lfilter, lfilter_zi
 from scipy.spatial.transform import Rotation
 
+from rig import native
+from rig.bias_model import DEFAULT_NETWORK, BiasNet
+
 # Stages, in order of application.
 WORLD = 0       # changes what is physically true (anchor positions, lever arm)
 SCALE = 1       # multiplicative sensor errors (scale factors), before any additive one
@@ -719,19 +722,16 @@ class LearnedBias(Effect):
     def __init__(self, gain: float = 1.0, network: str | None = None):
         if not np.isfinite(gain):
             raise ValueError(f"gain must be a finite number, got {gain!r}")
-        self.gain, self.network = float(gain), network
-        self._net = None
+        path = Path(network) if network else DEFAULT_NETWORK
+        if not path.is_file():
+            raise ValueError(f"learned_bias: no bias network at {path} (write one with `rig train --out`)")
+        self.gain, self.network, self.net = float(gain), network, BiasNet.load(path)
 
     def params(self) -> dict:
         return {"gain": self.gain, **({"network": self.network} if self.network else {})}
 
     def bias(self, tdoa: TdoaBatch, world: World) -> np.ndarray:
         """The network's prediction for each sample (0 where an anchor is unknown)."""
-        from rig import native
-        from rig.bias_model import BiasNet, DEFAULT_NETWORK
-
-        if self._net is None:
-            self._net = BiasNet.load(Path(self.network) if self.network else DEFAULT_NETWORK)
         out = np.zeros(len(tdoa.t))
         known = np.flatnonzero(np.isin(tdoa.id_a, list(world.anchor_positions))
                                & np.isin(tdoa.id_b, list(world.anchor_positions)))
@@ -740,7 +740,7 @@ class LearnedBias(Effect):
         poses = [_anchor_poses(world, ids[known]) for ids in (tdoa.id_a, tdoa.id_b)]
         features = native.features_batch(tdoa.tag_position[known], tdoa.tag_rotation[known].as_matrix(),
                                           *poses[0], *poses[1])
-        out[known] = self._net.predict(features)
+        out[known] = self.net.predict(features)
         return out
 
     def apply_tdoa(self, tdoa: TdoaBatch, world: World, rng: np.random.Generator | None) -> None:

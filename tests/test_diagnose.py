@@ -463,6 +463,11 @@ def test_bad_effects_are_refused_clearly(tmp_path: Path) -> None:
                           capture_output=True, text=True)
     assert proc.returncode == 2 and "unknown effect 'warp_drive'" in proc.stderr
     assert not (tmp_path / "x.mcap").exists()
+    proc = subprocess.run([*RIG, "inject", "recordings/default.mcap", "--effects",
+                           '[{"effect": "learned_bias", "params": {"network": "no/such/net.json"}}]',
+                           "-o", str(tmp_path / "x.mcap")], capture_output=True, text=True)
+    assert proc.returncode == 2 and "no bias network at no/such/net.json" in proc.stderr
+    assert not (tmp_path / "x.mcap").exists()
 
 
 def test_the_fitted_model_carries_the_per_sample_noise(survey) -> None:
