@@ -20,7 +20,8 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from rig import paths  # noqa: E402
-from rig.evaluate import DEFAULT_MODEL, evaluate  # noqa: E402
+from rig.bias_model import DEFAULT_NETWORK  # noqa: E402
+from rig.evaluate import evaluate  # noqa: E402
 from rig.importer import import_log  # noqa: E402
 
 GROUPS = [("0425 TDOA2", lambda n: n.startswith("0425-traj") and int(n.split("traj")[1]) <= 12),
@@ -32,7 +33,7 @@ GROUPS = [("0425 TDOA2", lambda n: n.startswith("0425-traj") and int(n.split("tr
 
 def configurations() -> dict[str, dict]:
     configs = {"plain": {"robust": False, "use_nn": False}, "robust": {"robust": True, "use_nn": False}}
-    if DEFAULT_MODEL.exists():
+    if DEFAULT_NETWORK.exists():
         configs["robust+nn"] = {"robust": True, "use_nn": True}
     return configs
 

@@ -27,6 +27,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from rig import metrics, native
+from rig.effects import World
 from rig.recording import PoseSeries, Recording
 
 log = logging.getLogger(__name__)
@@ -82,17 +83,6 @@ def _airborne_tdoa(rec: Recording) -> np.ndarray:
     return (t >= start) & (t <= end) & _known_pairs(rec) & np.isfinite(rec.tdoa.distance_diff)
 
 
-def _anchor_arrays(rec: Recording, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Position and rotation matrix of anchor ids[k] for every k (each anchor converted once)."""
-    if len(ids) == 0:
-        return np.zeros((0, 3)), np.zeros((0, 3, 3))
-    amap = rec.anchor_map()
-    unique, index = np.unique(ids, return_inverse=True)
-    pos = np.array([amap[int(i)].position for i in unique], float).reshape(-1, 3)
-    rot = Rotation.from_quat([amap[int(i)].quaternion for i in unique]).as_matrix().reshape(-1, 3, 3)
-    return pos[index.ravel()], rot[index.ravel()]
-
-
 def _errors(rec: Recording, sel: np.ndarray, latency: float, a_pos: np.ndarray, b_pos: np.ndarray) -> np.ndarray:
     position = metrics.interpolate_positions(rec.truth, rec.tdoa.t[sel] + latency)
     return rec.tdoa.distance_diff[sel] - true_tdoa(position, a_pos, b_pos)
@@ -114,8 +104,8 @@ def truth_latency(rec: Recording, grid: np.ndarray = LATENCY_GRID_S) -> float:
     sel = _airborne_tdoa(rec)
     if sel.sum() < 100:
         return 0.0
-    a_pos, _ = _anchor_arrays(rec, rec.tdoa.id_a[sel])
-    b_pos, _ = _anchor_arrays(rec, rec.tdoa.id_b[sel])
+    world = World.surveyed(rec.anchors)
+    (a_pos, _), (b_pos, _) = world.anchor_poses(rec.tdoa.id_a[sel]), world.anchor_poses(rec.tdoa.id_b[sel])
     pair = rec.tdoa.id_a[sel] * 256 + rec.tdoa.id_b[sel]
     spread = [_consistency(_errors(rec, sel, lag, a_pos, b_pos), pair) for lag in grid]
     return float(grid[int(np.argmin(spread))])
@@ -144,8 +134,8 @@ def measurement_features(rec: Recording, sel: np.ndarray, latency: float, featur
     features' tag pose is the estimator's (`features_from="estimate"`) or the truth's."""
     if features_from not in FEATURES_FROM:
         raise ValueError(f"features_from must be one of {FEATURES_FROM}, not {features_from!r}")
-    a_pos, a_rot = _anchor_arrays(rec, rec.tdoa.id_a[sel])
-    b_pos, b_rot = _anchor_arrays(rec, rec.tdoa.id_b[sel])
+    world = World.surveyed(rec.anchors)
+    (a_pos, a_rot), (b_pos, b_rot) = world.anchor_poses(rec.tdoa.id_a[sel]), world.anchor_poses(rec.tdoa.id_b[sel])
     t = rec.tdoa.t[sel]
     tag_pos = metrics.interpolate_positions(rec.truth, t + latency)
     if features_from == "truth":

@@ -45,6 +45,23 @@ class World:
     anchor_rotations: dict[int, Rotation]
     lever_arm: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
+    @classmethod
+    def surveyed(cls, anchors) -> "World":
+        """The world as the survey has it (`survey.Anchor`s), before any effect."""
+        return cls(anchor_positions={a.id: np.array(a.position, float) for a in anchors},
+                   anchor_rotations={a.id: a.rotation for a in anchors})
+
+    def known_pairs(self, id_a: np.ndarray, id_b: np.ndarray) -> np.ndarray:
+        """Which measurements are between two anchors of this world."""
+        return np.isin(id_a, list(self.anchor_positions)) & np.isin(id_b, list(self.anchor_positions))
+
+    def anchor_poses(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Position and rotation matrix of anchor ids[k] for every k (each anchor converted once)."""
+        unique, index = np.unique(np.asarray(ids), return_inverse=True)
+        positions = np.array([self.anchor_positions[int(k)] for k in unique], float).reshape(-1, 3)
+        rotations = np.array([self.anchor_rotations[int(k)].as_matrix() for k in unique]).reshape(-1, 3, 3)
+        return positions[index.ravel()], rotations[index.ravel()]
+
 
 @dataclass
 class ImuBatch:
@@ -733,11 +750,10 @@ class LearnedBias(Effect):
     def bias(self, tdoa: TdoaBatch, world: World) -> np.ndarray:
         """The network's prediction for each sample (0 where an anchor is unknown)."""
         out = np.zeros(len(tdoa.t))
-        known = np.flatnonzero(np.isin(tdoa.id_a, list(world.anchor_positions))
-                               & np.isin(tdoa.id_b, list(world.anchor_positions)))
+        known = np.flatnonzero(world.known_pairs(tdoa.id_a, tdoa.id_b))
         if not len(known):
             return out
-        poses = [_anchor_poses(world, ids[known]) for ids in (tdoa.id_a, tdoa.id_b)]
+        poses = [world.anchor_poses(ids[known]) for ids in (tdoa.id_a, tdoa.id_b)]
         features = native.features_batch(tdoa.tag_position[known], tdoa.tag_rotation[known].as_matrix(),
                                           *poses[0], *poses[1])
         out[known] = self.net.predict(features)
@@ -745,14 +761,6 @@ class LearnedBias(Effect):
 
     def apply_tdoa(self, tdoa: TdoaBatch, world: World, rng: np.random.Generator | None) -> None:
         tdoa.value += self.gain * self.bias(tdoa, world)
-
-
-def _anchor_poses(world: World, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Position and rotation matrix of anchor ids[k] for every k."""
-    unique, index = np.unique(ids, return_inverse=True)
-    positions = np.array([world.anchor_positions[int(k)] for k in unique]).reshape(-1, 3)
-    rotations = np.array([world.anchor_rotations[int(k)].as_matrix() for k in unique]).reshape(-1, 3, 3)
-    return positions[index.ravel()], rotations[index.ravel()]
 
 
 EFFECTS: dict[str, type[Effect]] = {

@@ -25,7 +25,6 @@ log = logging.getLogger(__name__)
 STEP_S = 0.01
 START_BEFORE_TAKEOFF = 1.0
 DIVERGED_RMSE_M = 1.0  # a flight scored worse than this has lost track
-DEFAULT_MODEL = DEFAULT_NETWORK
 
 
 @dataclass
@@ -85,7 +84,7 @@ def build_events(rec: Recording, t0: float, t_end: float | None = None) -> np.nd
 
 
 def load_model(path: Path | None = None) -> BiasNet | None:
-    path = DEFAULT_MODEL if path is None else Path(path)
+    path = DEFAULT_NETWORK if path is None else Path(path)
     if not path.exists():
         return None
     return BiasNet.load(path)
@@ -141,7 +140,7 @@ def estimator_config(robust: bool = True, use_nn: bool = True, model_path: Path 
         if model is None:
             if model_path is not None:
                 raise FileNotFoundError(f"no bias network at {model_path}")
-            log.warning("no bias network shipped yet (%s): running without bias correction", DEFAULT_MODEL)
+            log.warning("no bias network shipped yet (%s): running without bias correction", DEFAULT_NETWORK)
     params = native.params_with(robust=int(robust), use_bias_net=int(model is not None), **param_overrides)
     return params, model
 

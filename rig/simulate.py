@@ -118,10 +118,7 @@ def simulate(cfg: SimConfig) -> Recording:
     res = {**{k: 0.0 for k in DEFAULT_RESOLUTION}, **cfg.resolution}
     t0, t1 = trajectory.t_start, trajectory.t_end
 
-    world = fx.World(
-        anchor_positions={a.id: np.array(a.position) for a in anchors},
-        anchor_rotations={a.id: a.rotation for a in anchors},
-    )
+    world = fx.World.surveyed(anchors)
     for effect in effects:
         effect.apply_world(world)
 
@@ -181,8 +178,7 @@ class Predictor:
         self._kinematics: dict[bytes, tuple[np.ndarray, object]] = {}
 
     def world(self, effects: list[fx.Effect]) -> fx.World:
-        world = fx.World(anchor_positions={a.id: np.array(a.position) for a in self.rec.anchors},
-                         anchor_rotations={a.id: a.rotation for a in self.rec.anchors})
+        world = fx.World.surveyed(self.rec.anchors)
         for effect in fx.staged(effects):
             effect.apply_world(world)
         return world
@@ -206,7 +202,7 @@ class Predictor:
         d = self.rec.tdoa
         batch = fx.TdoaBatch(t_true, d.id_a, d.id_b, position + rotation.apply(world.lever_arm), rotation,
                              np.zeros(len(d.t)))
-        known = np.isin(d.id_a, list(world.anchor_positions)) & np.isin(d.id_b, list(world.anchor_positions))
+        known = world.known_pairs(d.id_a, d.id_b)
         batch.value = np.full(len(d.t), np.nan)
         batch.value[known] = (fx.ranges(batch.tag_position[known], world, d.id_b[known])
                               - fx.ranges(batch.tag_position[known], world, d.id_a[known]))

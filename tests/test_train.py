@@ -13,7 +13,7 @@ import pytest
 from conftest import run_rig
 from rig import native
 from rig.bias_dataset import Samples
-from rig.evaluate import DEFAULT_MODEL
+from rig.bias_model import DEFAULT_NETWORK
 from rig.train import TrainConfig, provenance_path, run_training, split_flights, train
 
 
@@ -121,7 +121,7 @@ def test_restarts_are_chosen_by_the_estimator_replaying_the_validation_flights(t
 
 
 def test_fresh_training_reproduces_the_shipped_model(tmp_path: Path, data_dir: Path) -> None:
-    shipped = json.loads(provenance_path(DEFAULT_MODEL).read_text())
+    shipped = json.loads(provenance_path(DEFAULT_NETWORK).read_text())
     flights = sorted((data_dir / "flights").iterdir())
     assert [f.name for f in flights] == shipped["flights"]
     kept = shipped["training"]
