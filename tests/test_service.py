@@ -40,6 +40,27 @@ def _topics(path: Path) -> dict[str, int]:
     return {topic: len(rows) for topic, rows in read_run(path).items()}
 
 
+ROUTER_START_S = 30.0          # bound on a router's start-up (a Python process importing zenoh: 1-2 s idle)
+
+
+def _router(endpoint: str, duration_s: int) -> subprocess.Popen:
+    """`rig router` listening on `endpoint`, once it accepts connections: a client (a
+    bridge, a watcher) that connects before then finds no router and exits, which a
+    fixed sleep of a second left to chance on a loaded machine."""
+    router = _start(*RIG, "router", "--listen", endpoint, "--duration", str(duration_s))
+    host, port = endpoint.removeprefix("tcp/").rsplit(":", 1)
+    deadline = time.monotonic() + ROUTER_START_S
+    while True:
+        try:
+            socket.create_connection((host, int(port)), timeout=1.0).close()
+            return router
+        except OSError:
+            if router.poll() is not None or time.monotonic() > deadline:
+                router.kill()
+                raise AssertionError(f"rig router did not listen on {endpoint}: {router.stderr.read()}")
+            time.sleep(0.1)
+
+
 def _finished(path: Path) -> bool:
     with open(path, "rb") as f:
         return make_reader(f).get_summary() is not None
@@ -47,9 +68,8 @@ def _finished(path: Path) -> bool:
 
 def test_held_out_flight_into_qemu_is_recorded_and_published_to_another_process(tmp_path: Path, data_dir) -> None:
     endpoint = _free_endpoint()
-    router = _start(*RIG, "router", "--listen", endpoint, "--duration", "300")
+    router = _router(endpoint, 300)
     try:
-        time.sleep(1.0)
         watcher = _start(*RIG, "watch", "--connect", endpoint, "--board", "qemu0", "--count", "1000",
                          "--timeout", "240", "--json", str(tmp_path / "watch.json"))
         vanishing = _start(*RIG, "watch", "--connect", endpoint, "--timeout", "240")
@@ -90,8 +110,7 @@ def test_four_boards_in_parallel_through_one_router(tmp_path: Path) -> None:
 
 def test_a_board_lost_mid_run_keeps_the_record_and_says_so(tmp_path: Path) -> None:
     endpoint = _free_endpoint()
-    router = _start(*RIG, "router", "--listen", endpoint, "--duration", "120")
-    time.sleep(1.0)
+    router = _router(endpoint, 120)
     bridge = _start(sys.executable, "-m", "bridge", "--target", "native", "--name", "b0", "--connect", endpoint)
     try:
         out = tmp_path / "run"
