@@ -689,7 +689,8 @@ def build_parser() -> argparse.ArgumentParser:
                                    "hardware and the room (delays, clocks, IMU errors, TDOA noise) named on at "
                                    "least half of the flights, each with its median parameters; path-bound ones "
                                    "(NLOS regions, displacements, patterns, lever arms) are left out; a vibration "
-                                   "rectification enters as the accelerometer bias it made on its flight. Replaces "
+                                   "rectification enters as the accelerometer bias it made on its flight, an "
+                                   "accelerometer scale as the bias it made there in hover. Replaces "
                                    "the config's effects, keeping its own outliers, IMU noise, rotor vibration and "
                                    "IMU low-pass (a flight's noise is its own). See docs/diagnosis.md.")
     p.add_argument("models", type=Path, nargs="+", help="DIR/model.json files of `rig diagnose`")

@@ -101,3 +101,25 @@ def test_a_file_that_is_not_a_model_is_refused_clearly(tmp_path: Path) -> None:
     proc = run_rig("combine-models", str(bad), "--config", str(config))
     assert proc.returncode == 2 and "not a model.json written by rig diagnose" in proc.stderr
     assert config.read_text() == '{"effects": []}', "the config is untouched"
+
+
+def test_an_accelerometer_scale_enters_as_the_offset_it_made_in_hover(tmp_path: Path) -> None:
+    """In hover a z scale and a z bias are one column, named one or the other flight by
+    flight: each flight's scale enters as the offset it makes there ((scale − 1) × g
+    on z, none on x and y, which see no force in hover), added to its bias, so the
+    median over flights keeps the pair together."""
+    scaled = {"effect": "imu_accel_scale", "params": {"scale": [1.3, 0.9, 0.88]}}
+    flights = [[{"effect": "imu_accel_bias", "params": {"bias_mps2": [0.1, 0.2, 1.08]}}, scaled],
+               [{"effect": "imu_accel_bias", "params": {"bias_mps2": [0.0, 0.0, -0.1]}}],
+               [{"effect": "imu_accel_scale", "params": {"scale": [1.0, 1.0, 0.99]}}]]
+    files = []
+    for k, effects in enumerate(flights):
+        files.append(tmp_path / f"model{k}.json")
+        files[-1].write_text(json.dumps({"effects": effects}))
+    both, bias_only, scale_only = read_models(files)
+    assert both == [{"effect": "imu_accel_bias", "params": {"bias_mps2": pytest.approx([0.1, 0.2, 1.08 - 0.12 * 9.81])}}]
+    assert bias_only == flights[1]
+    assert scale_only == [{"effect": "imu_accel_bias", "params": {"bias_mps2": pytest.approx([0.0, 0.0, -0.0981])}}]
+    combined = {e["effect"]: e["params"] for e in combine([both, bias_only, scale_only])}
+    assert "imu_accel_scale" not in combined
+    assert combined["imu_accel_bias"]["bias_mps2"] == pytest.approx([0.0, 0.0, -0.0981])
