@@ -49,6 +49,7 @@ from dataclasses import dataclass, field, replace
 from functools import cached_property
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from rig import effects as fx
 from rig import imu_spectrum, nlos_mixture
@@ -809,7 +810,8 @@ def select(problem: Problem, channel: Channel, pool: list[Candidate]
             z = channel.z
             named = _name(z, terms, terms)
             _refit(z, named)
-    if _confine_in_time(channel, named):
+    positions = problem.tag_positions() if channel.name == "tdoa" else None
+    if _confine_in_time(channel, named, positions):
         named = _name(z, named, terms)      # leaves them fitted jointly
     _estimate(z, named, z_before_shapes, _free_offset(named, terms))
     _note_look_alikes(z, named, terms)
@@ -968,9 +970,13 @@ def _in_place(z: np.ndarray, term: Term, alike: Term, axes: list[int], named: li
     return Alternative(fitted, term, axes, z_with)
 
 
-def _confine_in_time(channel: Channel, kept: list[Term]) -> bool:
+def _confine_in_time(channel: Channel, kept: list[Term], positions: np.ndarray | None = None) -> bool:
     """An effect present in part of the flight only: try every run of whole time
-    blocks; keep the best window when it explains clearly more than the whole flight.
+    blocks; keep the best window when it explains clearly more than the whole flight
+    and, given the tag's `positions` (TDOA), more than the same effect confined to the
+    places the window visited, at all times (_visited): a bias of the tag's pose
+    (an antenna's pattern, a reflection) shows in the window the tag flew through its
+    region, and again whenever the path passes there.
     A delay of the family changes in the window on top of its whole-flight value
     (TDOA sees delays relative to each other: a delay cannot be zero outside the
     window, and taking it out of the family would hand its whole-flight part to
@@ -1000,11 +1006,28 @@ def _confine_in_time(channel: Channel, kept: list[Term]) -> bool:
                 loss = huber_loss(z - cols @ irls(z, cols, np.full(cols.shape[1], term.candidate.prior))).sum()
                 if loss < best[0]:
                     best = (loss, (float(edges[i]), float(edges[j])), cols)
+        if best[1] is not None and positions is not None:
+            visited = _visited(positions, (channel.t >= best[1][0]) & (channel.t < best[1][1]))
+            cols = np.hstack([base, term.columns * visited[:, None]])
+            place = huber_loss(z - cols @ irls(z, cols, np.full(cols.shape[1], term.candidate.prior))).sum()
+            if place <= best[0]:
+                log.debug("%s: window %s is a place (%.1f against %.1f)", term.key, best[1], place, best[0])
+                continue
         if best[1] is not None:
             windows.append((term, best[2], list(best[1])))
     for term, columns, during in windows:     # each was judged given the others as fitted
         term.columns, term.extra["during"], term.window_cost = columns, during, True
     return bool(windows)
+
+
+SAME_PLACE_M = 0.3             # within this of where a window took the tag: the same place
+
+
+def _visited(positions: np.ndarray, inside: np.ndarray) -> np.ndarray:
+    """The rows whose tag position lies within SAME_PLACE_M of one the `inside` rows
+    took it to."""
+    distance = cKDTree(positions[inside]).query(positions, distance_upper_bound=SAME_PLACE_M)[0]
+    return np.isfinite(distance)
 
 
 # ----------------------------------------------------------------------------- NLOS

@@ -22,8 +22,8 @@ from scipy.spatial.transform import Rotation
 from conftest import RIG
 from rig import effects as fx
 from rig import imu_spectrum
-from rig.diagnose import (Candidate, Problem, Term, _estimate, _free_offset, _mad_scale, candidates, delay_centre,
-                          delay_centre_slope, diagnose, vibration_spread)
+from rig.diagnose import (Candidate, Channel, Problem, Term, _confine_in_time, _estimate, _free_offset, _mad_scale,
+                          candidates, delay_centre, delay_centre_slope, diagnose, vibration_spread)
 from rig.diagnosis_report import write as write_report
 from rig.fitted_model import outside_window
 from rig.importer import load_any
@@ -314,6 +314,32 @@ def test_an_effect_in_part_of_the_flight_is_confined_in_time(survey) -> None:
     assert abs(start - 15.0) < 3.0 and abs(end - 30.0) < 3.0
     assert abs(got["params"]["meters"] - 0.15) < 0.04
     assert abs(got["params"]["outside_m"]) < 0.03, "its own (zero) delay elsewhere, relative to the others"
+
+
+def test_a_bias_of_a_place_the_tag_returns_to_is_not_confined_in_time() -> None:
+    """An anchor's ranges that read long while the tag hovers in one place (15–30 s)
+    and again whenever its circle passes there read so because of the place (an
+    antenna's pattern, a reflection), not the time: no window is kept. By time alone
+    the hover is a window; the same excess only while hovering, and not on the passes,
+    is one of the time and keeps it."""
+    t = np.arange(0.0, 60.0, 0.02)
+    angle = 2 * np.pi * t / 20.0
+    positions = np.stack([np.sqrt(2) * np.cos(angle), np.sqrt(2) * np.sin(angle), np.ones_like(t)], axis=1)
+    hover = (t >= 12.0) & (t < 30.0)            # three tenths of the flight
+    positions[hover] = [1.0, 1.0, 1.0]          # on the circle, which passes there at 2.5 s and 42.5 s
+    at_place = np.linalg.norm(positions - [1.0, 1.0, 1.0], axis=1) < 0.2
+    noise = np.random.default_rng(0).normal(size=len(t))
+
+    def window(excess: np.ndarray, tag_positions: np.ndarray | None) -> list | None:
+        channel = Channel("tdoa", t, noise + 2.0 * excess, np.ones(len(t)))
+        term = Term(Candidate("anchor_delay", "tdoa", "meters", 1, {"anchor": 0}), np.ones((len(t), 1)))
+        _confine_in_time(channel, [term], tag_positions)
+        return term.extra.get("during")
+
+    assert window(at_place, None) is not None
+    assert window(at_place, positions) is None
+    start, end = window(hover, positions)
+    assert abs(start - 12.0) < 1.0 and abs(end - 30.0) < 1.0
 
 
 def test_time_offset_and_clock_drift_are_told_apart(survey) -> None:
