@@ -21,7 +21,9 @@ Method, per channel (TDOA, accelerometer, gyroscope):
    the joint fit of the named terms of its rank or a simpler one (ORDER: a delay
    before a displacement before a pattern before NLOS), so the simplest explanation
    takes the signal it can, and a richer effect named or not does not move the
-   simpler ones (a comparison with a control recording needs that). Each estimate
+   simpler ones (a comparison with a control recording needs that); a richer TDOA
+   effect is fitted given every simplest candidate too, named or not, so neither
+   does a simplest one named on one recording and not on another. Each estimate
    carries its standard error (the posterior's, in that fit); a parameter whose
    standard error is more than half its prior's is reported as not identified by
    this trajectory: the data hardly told it apart from the simpler explanations.
@@ -647,14 +649,20 @@ def _rank(term: Term) -> int:
 
 
 def _estimate(z: np.ndarray, terms: list[Term], z_simplest: np.ndarray | None = None,
-              nuisance: list[Term] = ()) -> None:
+              nuisance: list[Term] = (), simplest_unnamed: list[Term] = ()) -> None:
     """Each named term's estimate given the simpler explanations: its value in the
     joint fit of the named terms of its rank or a simpler one (see select), and its
     standard error in that fit; the simplest (rank 0) on `z_simplest` if given. The
-    `nuisance` terms (rank 0, not named) are fitted along and not reported."""
+    `nuisance` terms (rank 0, not named) are fitted along and not reported; so are
+    the `simplest_unnamed` ones (rank 0) for the richer terms, whose estimates then do
+    not depend on which of the simplest effects a recording names (0425-traj5: a
+    time offset and a clock drift named with a displaced anchor injected, and not on
+    the untouched flight, moved the displacement's z by 9 cm)."""
     for rank in sorted({_rank(t) for t in terms}):
         reported = [t for t in terms if _rank(t) <= rank]
         nested = reported + list(nuisance)
+        if rank:
+            nested += [t for t in simplest_unnamed if all(t.key != n.key for n in nested)]
         x, prior = _stack(nested)
         z_rank = z if rank or z_simplest is None else z_simplest
         theta = irls(z_rank, x, prior)
@@ -777,8 +785,11 @@ def select(problem: Problem, channel: Channel, pool: list[Candidate]
     simpler one (ORDER): the simplest explanation takes the signal it can, a richer
     one only what is left (by Frisch-Waugh-Lovell, its fit on the part the simpler
     ones cannot explain), and whether a richer effect is named or not does not move
-    the simpler ones' estimates; so what an effect added to a recording changes in
-    them is mostly that effect (a comparison with a control recording needs that).
+    the simpler ones' estimates; a richer TDOA term is fitted given every simplest
+    (rank-0) candidate too, named or not, so neither does a simplest one named on
+    one recording and not on another; so what an effect added to a recording
+    changes in them is mostly that effect (a comparison with a control recording
+    needs that).
     NLOS regions are searched on what all parametric candidates leave, first as a
     mean shift, then by the shape of the residuals (nlos_mixture); the mean excess
     of an NLOS found by its shape is taken out of the channel and every candidate
@@ -813,7 +824,10 @@ def select(problem: Problem, channel: Channel, pool: list[Candidate]
     positions = problem.tag_positions() if channel.name == "tdoa" else None
     if _confine_in_time(channel, named, positions):
         named = _name(z, named, terms)      # leaves them fitted jointly
-    _estimate(z, named, z_before_shapes, _free_offset(named, terms))
+    named_keys = {t.key for t in named}
+    unnamed = [Term(t.candidate, t.candidate.columns) for t in terms
+               if _rank(t) == 0 and t.key not in named_keys and channel.name == "tdoa"]
+    _estimate(z, named, z_before_shapes, _free_offset(named, terms), unnamed)
     _note_look_alikes(z, named, terms)
     return named, channel, shapes
 

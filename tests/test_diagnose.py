@@ -394,6 +394,28 @@ def test_a_drift_is_measured_about_a_free_time_offset_named_or_not(survey) -> No
     assert drift[0].estimate[0] > 3000.0, "without the free offset the drift takes it (the test can fail)"
 
 
+def test_a_richer_effect_is_measured_given_every_simplest_one_named_or_not(survey) -> None:
+    """A displaced anchor on a flight with a time offset: whether the offset is named
+    (a rank-0 effect can be named on one run and not on another, as on a flight and
+    its control) must not move the displacement, which is measured given every
+    simplest candidate, named or not."""
+    effects = [{"effect": "time_offset", "params": {"seconds": 0.05}},
+               {"effect": "anchor_position", "params": {"anchor": 3, "offset_m": [0.2, 0.2, 0.0]}}]
+    problem = Problem(simulate(sim_config(survey, effects)))
+    pool = [Term(c, c.columns) for c in candidates(problem) if c.channel == "tdoa"]
+    offset, = (t for t in pool if t.key == "time_offset")
+    displaced, = (t for t in pool if t.key == "anchor_position:3")
+    simplest = [t for t in pool if t.key in ("time_offset", "clock_drift", "lever_arm")]
+    z = problem.channel("tdoa").z
+    _estimate(z, [displaced, offset], simplest_unnamed=simplest)
+    with_offset = displaced.estimate.copy()
+    _estimate(z, [displaced], simplest_unnamed=simplest)
+    np.testing.assert_allclose(displaced.estimate, with_offset, atol=1e-9)
+    assert np.allclose(displaced.estimate, [0.2, 0.2, 0.0], atol=0.06)
+    _estimate(z, [displaced])
+    assert np.abs(displaced.estimate - with_offset).max() > 0.01, "without the offset it moves (the test can fail)"
+
+
 def test_a_displacement_along_the_line_of_sight_reads_as_a_delay(survey) -> None:
     """Not identifiable from a small flight area: documented, and the tool says delay."""
     rec = simulate(sim_config(survey, []))
