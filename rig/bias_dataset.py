@@ -73,8 +73,9 @@ def true_tdoa(position: np.ndarray, a_pos: np.ndarray, b_pos: np.ndarray) -> np.
 
 
 def _known_pairs(rec: Recording) -> np.ndarray:
-    ids = set(rec.anchor_map())
-    return np.array([a in ids and b in ids and a != b for a, b in zip(rec.tdoa.id_a, rec.tdoa.id_b)], bool)
+    """Measurements between two different surveyed anchors."""
+    d = rec.tdoa
+    return World.surveyed(rec.anchors).known_pairs(d.id_a, d.id_b) & (d.id_a != d.id_b)
 
 
 def _airborne_tdoa(rec: Recording) -> np.ndarray:

@@ -1010,28 +1010,34 @@ def _confine_in_time(channel: Channel, kept: list[Term], positions: np.ndarray |
         # a window must add half again what the whole flight explains: slowly varying
         # real errors always make some window fit a little better
         margin = max(MIN_EVIDENCE + 2 * PENALTY_PER_PARAMETER, 0.5 * (huber_loss(z).sum() - full))
-        best = (full - margin, None)
+        best = (full - margin, None, None, None)
         for i in range(TIME_BLOCKS):
             for j in range(i + 1, TIME_BLOCKS + 1):
                 if j - i == TIME_BLOCKS:
                     continue
                 inside = (channel.t >= edges[i]) & (channel.t < edges[j] if j < TIME_BLOCKS else True)
-                cols = np.hstack([base, term.columns * inside[:, None]])
-                loss = huber_loss(z - cols @ irls(z, cols, np.full(cols.shape[1], term.candidate.prior))).sum()
+                loss, cols = _confined_fit(z, base, term, inside)
                 if loss < best[0]:
-                    best = (loss, (float(edges[i]), float(edges[j])), cols)
-        if best[1] is not None and positions is not None:
-            visited = _visited(positions, (channel.t >= best[1][0]) & (channel.t < best[1][1]))
-            cols = np.hstack([base, term.columns * visited[:, None]])
-            place = huber_loss(z - cols @ irls(z, cols, np.full(cols.shape[1], term.candidate.prior))).sum()
-            if place <= best[0]:
-                log.debug("%s: window %s is a place (%.1f against %.1f)", term.key, best[1], place, best[0])
+                    best = (loss, [float(edges[i]), float(edges[j])], cols, inside)
+        loss, during, cols, inside = best
+        if during is None:
+            continue
+        if positions is not None:
+            place, _ = _confined_fit(z, base, term, _visited(positions, inside))
+            if place <= loss:
+                log.debug("%s: window %s is a place (%.1f against %.1f)", term.key, during, place, loss)
                 continue
-        if best[1] is not None:
-            windows.append((term, best[2], list(best[1])))
+        windows.append((term, cols, during))
     for term, columns, during in windows:     # each was judged given the others as fitted
         term.columns, term.extra["during"], term.window_cost = columns, during, True
     return bool(windows)
+
+
+def _confined_fit(z: np.ndarray, base: np.ndarray, term: Term, rows: np.ndarray) -> tuple[float, np.ndarray]:
+    """The robust loss left by `term` acting on `rows` only (on top of `base`, its
+    whole-flight columns for a delay of the family), and the columns that do it."""
+    cols = np.hstack([base, term.columns * rows[:, None]])
+    return float(huber_loss(z - cols @ irls(z, cols, np.full(cols.shape[1], term.candidate.prior))).sum()), cols
 
 
 SAME_PLACE_M = 0.3             # within this of where a window took the tag: the same place
