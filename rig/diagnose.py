@@ -75,12 +75,25 @@ ON_GROUND_M = 0.2              # a tag this low sits on the floor or is taking o
 # IMU channels compare block means. The ground truth's rates are those of its attitude
 # averaged over ATTITUDE_WINDOW_S (its noise, differentiated, would drown the small
 # rates of these flights and dilute a fitted scale factor): the gyroscope is averaged
-# over as long, and its blocks span a few such windows, so neighbours hardly share noise.
-IMU_BLOCK_S = {"accel": 0.2, "gyro": 0.5}
+# over as long. Which block length measures a gyroscope scale best depends on the
+# flight (Problem._choose_gyro_blocks): blocks as long as that window keep the yaw
+# wobble above 1 Hz (19-68 % of the yaw rate's power on the real flights), the signal
+# a scale is measured on where a flight hardly turns (standard error on z 0.009-0.026 on four real
+# flights, against 0.014-0.031 in 0.5 s blocks), and neighbours share no noise there
+# (the differentiated motion-capture noise is blue: residual rows of real flights
+# correlate at -0.4 to 0.15 with their neighbour); a slow swing under noisy motion
+# capture is measured better in longer blocks, which average more of that noise.
+GYRO_BLOCKS_S = (0.2, 0.5)     # the gyroscope's block lengths tried
+IMU_BLOCK_S = {"accel": 0.2, "gyro": GYRO_BLOCKS_S[0]}
 IMU_SMOOTHING_S = {"accel": 0.0, "gyro": ATTITUDE_WINDOW_S}
 IMU_MIN_BLOCK = 5              # samples a block needs
 AXES = "xyz"
 GROSS_Z = 50.0                 # a row this many noise deviations out is a corrupt one (see Problem)
+
+
+def _block_index(t: np.ndarray, length: float) -> np.ndarray:
+    """Which block of `length` seconds each sample time (from the start) falls in."""
+    return np.floor(t / length).astype(int)
 
 
 def _row_width(name: str) -> int:
@@ -220,12 +233,32 @@ class Problem:
         self.imu_rows, self.imu_blocks = {}, {}
         for name, series in (("accel", rec.accel), ("gyro", rec.gyro)):
             rows = np.flatnonzero((series.t >= t0) & (series.t <= t1) & np.all(np.isfinite(series.xyz), axis=1))
-            self._set_imu_rows(name, rows, np.floor((series.t[rows] - t0) / IMU_BLOCK_S[name]).astype(int))
+            self._set_imu_rows(name, rows, _block_index(series.t[rows] - t0, IMU_BLOCK_S[name]))
+        self.gyro_block_s = IMU_BLOCK_S["gyro"]
+        if len(self.imu_rows["gyro"]):
+            self._choose_gyro_blocks(t0)
         self.left_out = self._leave_out_gross_errors()
         self.anchor_ids = sorted(int(k) for k in np.unique(np.concatenate([d.id_a[self.tdoa_rows],
                                                                           d.id_b[self.tdoa_rows]]))
                                  if self._anchor_rows(k).sum() >= MIN_SAMPLES)
         self._tag_positions = self.predictor.tdoa([]).tag_position[self.tdoa_rows]
+
+    def _choose_gyro_blocks(self, t0: float) -> None:
+        """The gyroscope's blocks (GYRO_BLOCKS_S) under which its scale is best
+        determined: the largest log-determinant of the scale's information, a property
+        of the rates and of the noise, not of any effect's fitted size."""
+        rows = self.imu_rows["gyro"]
+        t = self.rec.gyro.t[rows] - t0
+        best = None
+        for length in GYRO_BLOCKS_S:
+            self._set_imu_rows("gyro", rows, _block_index(t, length))
+            self._residuals()
+            scale = gyro_scale_candidate(self)
+            x = design_columns(self, scale)
+            information = np.linalg.slogdet(x.T @ x + np.eye(scale.size) / scale.prior ** 2)[1]
+            if best is None or information > best[0]:
+                best = information, length, self.imu_rows["gyro"], self.imu_blocks["gyro"]
+        _, self.gyro_block_s, self.imu_rows["gyro"], self.imu_blocks["gyro"] = best
 
     def _set_imu_rows(self, name: str, rows: np.ndarray, block: np.ndarray) -> None:
         """An IMU channel's samples and the block each falls in (blocks too short are left out)."""
@@ -398,11 +431,15 @@ def candidates(problem: Problem) -> list[Candidate]:
                 Candidate("imu_vibration_rectification", "accel", "gain", 3, step=1.0, prior=5.0, bound=20.0)]
     if len(problem.imu_rows["gyro"]):
         out += [Candidate("imu_gyro_bias", "gyro", "bias_rps", 3, step=1e-3, prior=0.2, bound=0.5),
-                Candidate("imu_gyro_scale", "gyro", "scale", 3, neutral=1.0, step=1e-3, prior=0.2, bound=0.5,
-                          recorded_weight=problem.truth_noise_share("gyro"))]
+                gyro_scale_candidate(problem)]
     for c in out:
         c.columns = design_columns(problem, c)
     return out
+
+
+def gyro_scale_candidate(problem: Problem) -> Candidate:
+    return Candidate("imu_gyro_scale", "gyro", "scale", 3, neutral=1.0, step=1e-3, prior=0.2, bound=0.5,
+                     recorded_weight=problem.truth_noise_share("gyro"))
 
 
 def design_columns(problem: Problem, c: Candidate, model: list[fx.Effect] = ()) -> np.ndarray:

@@ -273,8 +273,25 @@ def test_a_gyro_scale_is_not_shrunk_by_the_ground_truths_attitude_noise(survey) 
     rec = simulate(sim_config(survey, [{"effect": "imu_gyro_scale", "params": {"scale": [1.0, 1.0, 1.3]}}], flight))
     wobble = Rotation.from_rotvec(np.random.default_rng(0).normal(0.0, 0.02, (len(rec.truth.t), 3)))
     noisy_truth = replace(rec.truth, quaternion=(wobble * Rotation.from_quat(rec.truth.quaternion)).as_quat())
-    found = findings(diagnose(replace(rec, truth=noisy_truth)))
+    noisy = replace(rec, truth=noisy_truth)
+    assert Problem(noisy).gyro_block_s == 0.5        # the slow swing, averaged over the most of that noise
+    found = findings(diagnose(noisy))
     assert abs(found[("imu_gyro_scale", ())]["params"]["scale"][2] - 1.3) < 0.04
+
+
+def test_a_yaw_wobble_is_kept_in_short_gyroscope_blocks(survey, monkeypatch) -> None:
+    """A flight that holds its heading still wobbles about it at the attitude
+    controller's pace (here 1 Hz): 0.5 s blocks average that out, and with it the
+    signal a gyroscope scale is measured on. The diagnosis compares this flight in
+    0.2 s blocks, where its 10 % z scale is measured to under half the standard error."""
+    flight = {"yaw_amplitude": 0.05, "yaw_omega": 6.0}
+    rec = simulate(sim_config(survey, [{"effect": "imu_gyro_scale", "params": {"scale": [1.0, 1.0, 1.1]}}], flight))
+    assert Problem(rec).gyro_block_s == 0.2
+    short = findings(diagnose(rec))[("imu_gyro_scale", ())]
+    assert abs(short["params"]["scale"][2] - 1.1) < 0.03
+    monkeypatch.setattr("rig.diagnose.GYRO_BLOCKS_S", (0.5,))
+    long = findings(diagnose(rec))[("imu_gyro_scale", ())]
+    assert short["std_err"]["scale"][2] < 0.5 * long["std_err"]["scale"][2]
 
 
 def test_a_gyroscope_axis_that_does_not_rotate_carries_no_scale(survey) -> None:
