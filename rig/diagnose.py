@@ -249,16 +249,15 @@ class Problem:
         of the rates and of the noise, not of any effect's fitted size."""
         rows = self.imu_rows["gyro"]
         t = self.rec.gyro.t[rows] - t0
-        best = None
+        information = {}
         for length in GYRO_BLOCKS_S:
             self._set_imu_rows("gyro", rows, _block_index(t, length))
             self._residuals()
             scale = gyro_scale_candidate(self)
             x = design_columns(self, scale)
-            information = np.linalg.slogdet(x.T @ x + np.eye(scale.size) / scale.prior ** 2)[1]
-            if best is None or information > best[0]:
-                best = information, length, self.imu_rows["gyro"], self.imu_blocks["gyro"]
-        _, self.gyro_block_s, self.imu_rows["gyro"], self.imu_blocks["gyro"] = best
+            information[length] = np.linalg.slogdet(x.T @ x + np.eye(scale.size) / scale.prior ** 2)[1]
+        self.gyro_block_s = max(information, key=information.get)      # the first of equals
+        self._set_imu_rows("gyro", rows, _block_index(t, self.gyro_block_s))
 
     def _set_imu_rows(self, name: str, rows: np.ndarray, block: np.ndarray) -> None:
         """An IMU channel's samples and the block each falls in (blocks too short are left out)."""
