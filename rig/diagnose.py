@@ -755,7 +755,7 @@ def posterior_cov(z: np.ndarray, x: np.ndarray, prior: np.ndarray, theta: np.nda
     return np.linalg.inv(normal)
 
 
-def _name(z: np.ndarray, terms: list[Term], pool: list[Term]) -> list[Term]:
+def _name(z: np.ndarray, terms: list[Term], pool: list[Term], fixed: list[Term] = ()) -> list[Term]:
     """Backward elimination: every term's evidence is the robust loss it removes given
     all the others but its richer look-alikes, and the weakest goes while it does not
     pay for its parameters. Look-alikes of equal rank are judged given each other, so
@@ -765,14 +765,15 @@ def _name(z: np.ndarray, terms: list[Term], pool: list[Term]) -> list[Term]:
     (named or not), and of the two, when neither is supported given the other, the
     drift goes first: a drift is an offset that grows, and only the growth tells it
     from one. A supported delay keeps every anchor's delay: they are measured
-    against each other."""
+    against each other. The `fixed` terms stay, whatever their evidence."""
     terms = list(terms)
     while terms:
         design = _Design(z, terms)
         _take_fit(terms, design.theta)
         _judge(z, terms, design, _free_offset(terms, pool))
         supported = {t.candidate.effect for t in terms if t.supported}
-        removable = [t for t in terms if t.candidate.effect not in FAMILIES & supported]
+        removable = [t for t in terms if t.candidate.effect not in FAMILIES & supported
+                     and all(t is not f for f in fixed)]
         weakest = _weakest(removable)
         if weakest is None or weakest.supported:
             return terms
@@ -828,20 +829,22 @@ def select(problem: Problem, channel: Channel, pool: list[Candidate]
     needs that).
     NLOS regions are searched on what all parametric candidates leave, first as a
     mean shift, then by the shape of the residuals (nlos_mixture); the mean excess
-    of an NLOS found by its shape is taken out of the channel and every candidate
-    named again on what is left (over half the flight a displacement would take it;
-    one dropped against the excess may now be supported),
-    but the simplest effects (timing, delays, lever arm) are estimated on the channel
-    as it was: NLOS is the richest explanation, and which regions its shape finds
-    must not move them (a lever arm moved by 9 cm); named effects are tried confined
-    in time; the named effects, fitted jointly, are
-    the model that re-simulates the recording. Returns the terms, the channel they
-    were fitted on and the NLOS found by shape."""
+    of an NLOS found by its shape is taken out of the channel and the richer
+    candidates named again on what is left (over half the flight a displacement
+    would take it; one dropped against the excess may now be supported), but the
+    simplest effects (timing, delays, lever arm) are named, judged and estimated on
+    the channel as it was: NLOS is the richest explanation, and which regions its
+    shape finds must not move them (a lever arm moved by 9 cm) nor drop them
+    (0422-log03's own lever arm and time offset, supported on the channel as
+    recorded, went once shapes on four anchors took part of their signal); named
+    effects are tried confined in time; the named effects, fitted jointly, are the
+    model that re-simulates the recording. Returns the terms, the channel they were
+    fitted on and the NLOS found by shape."""
     z = z_before_shapes = channel.z
     folds = channel.folds()
     terms = _fresh_terms(pool, channel.name)
     named = _name(z, terms, terms)
-    shapes = []
+    shapes, simplest, judged = [], [], {}
     if channel.name == "tdoa":
         nlos = _nlos_terms(problem, channel, folds, terms)
         if nlos:
@@ -855,11 +858,15 @@ def select(problem: Problem, channel: Channel, pool: list[Candidate]
             residual = problem.recorded("tdoa") - problem.predict_channel("tdoa", [f.effect() for f in shapes])
             channel = replace(channel, residual=residual)
             z = channel.z
-            named = _name(z, terms, terms)
+            simplest = [t for t in named if _rank(t) == 0]
+            judged = {id(t): t.evidence for t in simplest}
+            named = _name(z, simplest + [t for t in terms if _rank(t) > 0], terms, simplest)
             _refit(z, named)
     positions = problem.tag_positions() if channel.name == "tdoa" else None
     if _confine_in_time(channel, named, positions):
-        named = _name(z, named, terms)      # leaves them fitted jointly
+        named = _name(z, named, terms, simplest)      # leaves them fitted jointly
+    for t in simplest:              # the evidence they were named on
+        t.evidence = judged[id(t)]
     named_keys = {t.key for t in named}
     unnamed = [Term(t.candidate, t.candidate.columns) for t in terms
                if _rank(t) == 0 and t.key not in named_keys and channel.name == "tdoa"]
@@ -952,9 +959,11 @@ def axis_alternatives(z: np.ndarray, named: list[Term], pool: list[Term],
     given the look-alike's (_cannot_tell). The look-alike is fitted on those axes in
     their place and reported when it pays for its parameters, so a flight that cannot
     tell a z scale from a z bias, or a drift from an offset, says both, and either
-    compares with a control recording of the same flight. A simplest (rank 0)
-    look-alike is estimated on `z_simplest` if given, as the named ones are
-    (_estimate)."""
+    compares with a control recording of the same flight. The look-alikes are all
+    simplest (rank 0) effects: they are judged and estimated on `z_simplest` if given
+    (the channel before NLOS found by its shape was taken out), as the simplest named
+    ones are (select)."""
+    judged_on = z if z_simplest is None else z_simplest
     out = []
     keys = {t.key for t in named}
     for term in named:
@@ -964,7 +973,7 @@ def axis_alternatives(z: np.ndarray, named: list[Term], pool: list[Term],
             continue
         richer = {id(t) for t in _richer(term, named)}
         rivals = [t for t in named if t is not term and id(t) not in richer]
-        axes = [j for j in range(term.columns.shape[1]) if _cannot_tell(z, term, alike, j, rivals)]
+        axes = [j for j in range(term.columns.shape[1]) if _cannot_tell(judged_on, term, alike, j, rivals)]
         if axes:
             alternative = _in_place(z, term, alike, axes, named, pool, z_simplest)
             if alternative.supported:
@@ -996,7 +1005,8 @@ def _cannot_tell(z: np.ndarray, term: Term, alike: Term, j: int, rivals: list[Te
 def _in_place(z: np.ndarray, term: Term, alike: Term, axes: list[int], named: list[Term], pool: list[Term],
               z_simplest: np.ndarray | None = None) -> Alternative:
     """`alike` on `axes` only, fitted with the named terms, `term` without those axes:
-    its evidence given the others but its richer look-alikes, its estimate given the
+    its evidence given the others but its richer look-alikes (on `z_simplest` if
+    given, as its estimate), its estimate given the
     simpler ones as a named term's (_estimate: a drift about a free offset, so it
     compares with a drift named on a control) and what the whole model leaves with
     it. Its other axes are neutral and not identified (their standard error is the
@@ -1005,7 +1015,8 @@ def _in_place(z: np.ndarray, term: Term, alike: Term, axes: list[int], named: li
               for kept in (_without_axes(term, axes) if t is term else [Term(t.candidate, t.columns, t.extra)])]
     stand_in = Term(alike.candidate, alike.columns[:, axes])
     richer = {id(t) for t in _richer(stand_in, others)}
-    evidence = _Design(z, [t for t in others if id(t) not in richer] + [stand_in]).gain(stand_in)
+    judged_on = z if z_simplest is None else z_simplest
+    evidence = _Design(judged_on, [t for t in others if id(t) not in richer] + [stand_in]).gain(stand_in)
     reported = [t for t in others if _rank(t) <= _rank(stand_in)] + [stand_in]
     _estimate(z, reported, z_simplest, _free_offset(reported, pool))
     z_with = _refit(z, [*others, stand_in])

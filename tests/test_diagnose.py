@@ -22,8 +22,8 @@ from scipy.spatial.transform import Rotation
 from conftest import RIG
 from rig import effects as fx
 from rig import imu_spectrum
-from rig.diagnose import (Candidate, Channel, Problem, Term, _confine_in_time, _estimate, _free_offset, _mad_scale,
-                          candidates, delay_centre, delay_centre_slope, diagnose, vibration_spread)
+from rig.diagnose import (ORDER, Candidate, Channel, Problem, Term, _confine_in_time, _estimate, _free_offset,
+                          _mad_scale, candidates, delay_centre, delay_centre_slope, diagnose, vibration_spread)
 from rig.diagnosis_report import write as write_report
 from rig.fitted_model import outside_window
 from rig.importer import load_any
@@ -443,6 +443,23 @@ def test_a_displacement_along_the_line_of_sight_reads_as_a_delay(survey) -> None
         {"effect": "anchor_position", "params": {"anchor": 3, "offset_m": offset}}]))))
     assert ("anchor_delay", (3,)) in found and ("anchor_position", (3,)) not in found
     assert 0.08 < found[("anchor_delay", (3,))]["params"]["meters"] < 0.2
+
+
+def _simplest_tdoa(result) -> dict[tuple, tuple]:
+    """The simplest (rank 0) TDOA findings: their parameters and evidence."""
+    return {key: (f["params"], f["evidence"]) for key, f in findings(result).items()
+            if ORDER.get(f["effect"]) == ("tdoa", 0)}
+
+
+def test_nlos_found_by_its_shape_leaves_the_simplest_effects_as_they_were(real, real_diagnosis, monkeypatch) -> None:
+    """NLOS is the richest explanation: the excess its shape takes out of the TDOA
+    channel re-judges the displacements and patterns, not the timing, the delays and
+    the lever arm, which are named and measured on the channel as recorded (on
+    0422-log03 the shapes of four anchors used to drop the flight's own lever arm
+    and time offset)."""
+    assert any(f["where"].get("found_by", "").startswith("shape") for f in real_diagnosis.to_json()["findings"])
+    monkeypatch.setattr("rig.diagnose._nlos_shapes", lambda *args: [])
+    assert _simplest_tdoa(diagnose(real[0])) == _simplest_tdoa(real_diagnosis)
 
 
 def test_a_pattern_seen_in_a_narrow_cone_reads_as_a_displaced_anchor(survey) -> None:
