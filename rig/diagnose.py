@@ -765,20 +765,23 @@ def _name(z: np.ndarray, terms: list[Term], pool: list[Term], fixed: list[Term] 
     (named or not), and of the two, when neither is supported given the other, the
     drift goes first: a drift is an offset that grows, and only the growth tells it
     from one. A supported delay keeps every anchor's delay: they are measured
-    against each other. The `fixed` terms stay, whatever their evidence."""
+    against each other. The `fixed` terms stay, with the evidence they came with
+    (what they were named on)."""
+    named_on = {id(t): t.evidence for t in fixed}
     terms = list(terms)
     while terms:
         design = _Design(z, terms)
         _take_fit(terms, design.theta)
         _judge(z, terms, design, _free_offset(terms, pool))
         supported = {t.candidate.effect for t in terms if t.supported}
-        removable = [t for t in terms if t.candidate.effect not in FAMILIES & supported
-                     and all(t is not f for f in fixed)]
+        removable = [t for t in terms if t.candidate.effect not in FAMILIES & supported and id(t) not in named_on]
         weakest = _weakest(removable)
         if weakest is None or weakest.supported:
-            return terms
+            break
         log.debug("- %s (evidence %.1f given the others)", weakest.key, weakest.evidence)
         terms.remove(weakest)
+    for t in fixed:
+        t.evidence = named_on[id(t)]
     return terms
 
 
@@ -844,7 +847,7 @@ def select(problem: Problem, channel: Channel, pool: list[Candidate]
     folds = channel.folds()
     terms = _fresh_terms(pool, channel.name)
     named = _name(z, terms, terms)
-    shapes, simplest, judged = [], [], {}
+    shapes, simplest = [], []
     if channel.name == "tdoa":
         nlos = _nlos_terms(problem, channel, folds, terms)
         if nlos:
@@ -859,14 +862,11 @@ def select(problem: Problem, channel: Channel, pool: list[Candidate]
             channel = replace(channel, residual=residual)
             z = channel.z
             simplest = [t for t in named if _rank(t) == 0]
-            judged = {id(t): t.evidence for t in simplest}
             named = _name(z, simplest + [t for t in terms if _rank(t) > 0], terms, simplest)
             _refit(z, named)
     positions = problem.tag_positions() if channel.name == "tdoa" else None
     if _confine_in_time(channel, named, positions):
         named = _name(z, named, terms, simplest)      # leaves them fitted jointly
-    for t in simplest:              # the evidence they were named on
-        t.evidence = judged[id(t)]
     named_keys = {t.key for t in named}
     unnamed = [Term(t.candidate, t.candidate.columns) for t in terms
                if _rank(t) == 0 and t.key not in named_keys and channel.name == "tdoa"]
@@ -975,7 +975,7 @@ def axis_alternatives(z: np.ndarray, named: list[Term], pool: list[Term],
         rivals = [t for t in named if t is not term and id(t) not in richer]
         axes = [j for j in range(term.columns.shape[1]) if _cannot_tell(judged_on, term, alike, j, rivals)]
         if axes:
-            alternative = _in_place(z, term, alike, axes, named, pool, z_simplest)
+            alternative = _in_place(z, judged_on, term, alike, axes, named, pool)
             if alternative.supported:
                 out.append(alternative)
     return out
@@ -1002,21 +1002,19 @@ def _cannot_tell(z: np.ndarray, term: Term, alike: Term, j: int, rivals: list[Te
     return _Design(z, [*rest, other]).gain(other) >= alone - LOOK_ALIKE_MARGIN
 
 
-def _in_place(z: np.ndarray, term: Term, alike: Term, axes: list[int], named: list[Term], pool: list[Term],
-              z_simplest: np.ndarray | None = None) -> Alternative:
+def _in_place(z: np.ndarray, z_simplest: np.ndarray, term: Term, alike: Term, axes: list[int], named: list[Term],
+              pool: list[Term]) -> Alternative:
     """`alike` on `axes` only, fitted with the named terms, `term` without those axes:
-    its evidence given the others but its richer look-alikes (on `z_simplest` if
-    given, as its estimate), its estimate given the
-    simpler ones as a named term's (_estimate: a drift about a free offset, so it
-    compares with a drift named on a control) and what the whole model leaves with
-    it. Its other axes are neutral and not identified (their standard error is the
+    its evidence given the others but its richer look-alikes and its estimate given
+    the simpler ones as a named term's (_estimate: a drift about a free offset, so it
+    compares with a drift named on a control), both on `z_simplest`, and what the
+    whole model leaves with it on `z`. Its other axes are neutral and not identified (their standard error is the
     prior's): the flight supported the look-alike on none of them."""
     others = [kept for t in named
               for kept in (_without_axes(term, axes) if t is term else [Term(t.candidate, t.columns, t.extra)])]
     stand_in = Term(alike.candidate, alike.columns[:, axes])
     richer = {id(t) for t in _richer(stand_in, others)}
-    judged_on = z if z_simplest is None else z_simplest
-    evidence = _Design(judged_on, [t for t in others if id(t) not in richer] + [stand_in]).gain(stand_in)
+    evidence = _Design(z_simplest, [t for t in others if id(t) not in richer] + [stand_in]).gain(stand_in)
     reported = [t for t in others if _rank(t) <= _rank(stand_in)] + [stand_in]
     _estimate(z, reported, z_simplest, _free_offset(reported, pool))
     z_with = _refit(z, [*others, stand_in])
