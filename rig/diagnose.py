@@ -832,17 +832,19 @@ def select(problem: Problem, channel: Channel, pool: list[Candidate]
     needs that).
     NLOS regions are searched on what all parametric candidates leave, first as a
     mean shift, then by the shape of the residuals (nlos_mixture); the mean excess
-    of an NLOS found by its shape is taken out of the channel and the richer
-    candidates named again on what is left (over half the flight a displacement
-    would take it; one dropped against the excess may now be supported), but the
-    simplest effects (timing, delays, lever arm) are named, judged and estimated on
-    the channel as it was: NLOS is the richest explanation, and which regions its
-    shape finds must not move them (a lever arm moved by 9 cm) nor drop them
-    (0422-log03's own lever arm and time offset, supported on the channel as
-    recorded, went once shapes on four anchors took part of their signal); named
-    effects are tried confined in time; the named effects, fitted jointly, are the
-    model that re-simulates the recording. Returns the terms, the channel they were
-    fitted on and the NLOS found by shape."""
+    of an NLOS found by its shape is taken out of the channel and every candidate
+    named again on what is left (over half the flight a displacement would take it;
+    one dropped against the excess may now be supported), but the simplest effects
+    (timing, delays, lever arm) named on the channel as it was stay, with the
+    evidence they were named on, and every simplest effect is estimated there: NLOS
+    is the richest explanation, and which regions its shape finds must not move
+    them (a lever arm moved by 9 cm) nor drop them (0422-log03's own lever arm and
+    time offset, supported on the channel as recorded, went once shapes on four
+    anchors took part of their signal); it may add one (0425-traj17's own offset
+    less an injected one pays only once its shapes are out); named effects are
+    tried confined in time; the named effects, fitted jointly, are the model that
+    re-simulates the recording. Returns the terms, the channel they were fitted on
+    and the NLOS found by shape."""
     z = z_before_shapes = channel.z
     folds = channel.folds()
     terms = _fresh_terms(pool, channel.name)
@@ -862,7 +864,7 @@ def select(problem: Problem, channel: Channel, pool: list[Candidate]
             channel = replace(channel, residual=residual)
             z = channel.z
             simplest = [t for t in named if _rank(t) == 0]
-            named = _name(z, simplest + [t for t in terms if _rank(t) > 0], terms, simplest)
+            named = _name(z, terms, terms, simplest)
             _refit(z, named)
     positions = problem.tag_positions() if channel.name == "tdoa" else None
     if _confine_in_time(channel, named, positions):

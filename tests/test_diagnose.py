@@ -453,10 +453,11 @@ def _simplest_tdoa(result) -> dict[tuple, tuple]:
 
 def test_nlos_found_by_its_shape_leaves_the_simplest_effects_as_they_were(real, real_diagnosis, monkeypatch) -> None:
     """NLOS is the richest explanation: the excess its shape takes out of the TDOA
-    channel re-judges the displacements and patterns, not the timing, the delays and
-    the lever arm, which are named and measured on the channel as recorded (on
-    0422-log03 the shapes of four anchors used to drop the flight's own lever arm
-    and time offset)."""
+    channel re-judges the displacements and patterns; the timing, the delays and the
+    lever arm named on the channel as recorded stay, with the evidence they were
+    named on, and are measured there (on 0422-log03 the shapes of four anchors used
+    to drop the flight's own lever arm and time offset). The shapes may add one; on
+    this flight they add none, so these are the same with and without the shapes."""
     assert any(f["where"].get("found_by", "").startswith("shape") for f in real_diagnosis.to_json()["findings"])
     monkeypatch.setattr("rig.diagnose._nlos_shapes", lambda *args: [])
     assert _simplest_tdoa(diagnose(real[0])) == _simplest_tdoa(real_diagnosis)
