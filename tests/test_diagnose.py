@@ -463,6 +463,20 @@ def test_nlos_found_by_its_shape_leaves_the_simplest_effects_as_they_were(real, 
     assert _simplest_tdoa(diagnose(real[0])) == _simplest_tdoa(real_diagnosis)
 
 
+def test_a_timing_effect_that_pays_only_once_the_nlos_shapes_are_out_is_named(data_dir: Path) -> None:
+    """The shapes may add a simplest effect: on 0425-traj17 the flight's own time
+    offset (−180 ms) less an injected +60 ms pays only once the NLOS found by its
+    shape is out of the TDOA channel, and the injected offset is then found against
+    the untouched flight (missed while only the richer effects were named again
+    after the shapes)."""
+    rec = load_any(data_dir / "flights" / "0425-traj17")
+    params, check = CASES["time_offset"]
+    injected = inject(rec, [{"effect": "time_offset", "params": params}], seed=1, predictor=Predictor(rec))
+    diagnosis = findings(diagnose(injected))
+    assert any(f["where"].get("found_by", "").startswith("shape") for f in diagnosis.values())
+    _check(diagnosis, findings(diagnose(rec)), "time_offset", params, check, real=True)
+
+
 def test_a_pattern_seen_in_a_narrow_cone_reads_as_a_displaced_anchor(survey) -> None:
     """Not identifiable from the suite's circle, whose viewing angles of anchor 2 span a
     few tens of degrees: documented, and the tool names the displaced anchor."""
