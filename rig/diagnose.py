@@ -1010,8 +1010,9 @@ def _in_place(z: np.ndarray, z_simplest: np.ndarray, term: Term, alike: Term, ax
     its evidence given the others but its richer look-alikes and its estimate given
     the simpler ones as a named term's (_estimate: a drift about a free offset, so it
     compares with a drift named on a control), both on `z_simplest`, and what the
-    whole model leaves with it on `z`. Its other axes are neutral and not identified (their standard error is the
-    prior's): the flight supported the look-alike on none of them."""
+    whole model leaves with it on `z`. Its other axes are neutral and not identified
+    (their standard error is the prior's): the flight supported the look-alike on
+    none of them."""
     others = [kept for t in named
               for kept in (_without_axes(term, axes) if t is term else [Term(t.candidate, t.columns, t.extra)])]
     stand_in = Term(alike.candidate, alike.columns[:, axes])
