@@ -91,6 +91,8 @@ def tables(reports: dict) -> str:
     print("")
     print("Samples left out as corrupt (step 2; IMU samples are block means of an axis): " + ("; ".join(gross) or "none") + ".")
     print("")
+    print(on_ground(reports))
+    print("")
     print("| effect | flights where it was named (of %d) | reported in a look-alike's place (`alternative_to`) |"
           % len(reports))
     print("|---|---|---|")
@@ -99,6 +101,20 @@ def tables(reports: dict) -> str:
         named, alternative = sum(False in w for w in ways), sum(True in w for w in ways)
         print(f"| {effect} | {named} | {alternative or '—'} |")
     return "\n".join(lines)
+
+
+def on_ground(reports: dict) -> str:
+    """How each anchor's ranges read with the tag on the floor against in flight
+    (`mismatch.tdoa_on_ground_m`), over the flights: median (min–max) per anchor."""
+    per_anchor: dict[str, list[float]] = {}
+    for r in reports.values():
+        for k, v in r["mismatch"].get("tdoa_on_ground_m", {}).items():
+            per_anchor.setdefault(k, []).append(v)
+    flights = sum(bool(r["mismatch"].get("tdoa_on_ground_m")) for r in reports.values())
+    spans = "; ".join(f"{k}: {_span(v, 2)} m" for k, v in sorted(per_anchor.items(), key=lambda kv: int(kv[0])))
+    return (f"With the tag on the floor (below 0.2 m; {flights} of {len(reports)} flights), each anchor's ranges "
+            f"read, against its own in flight (relative to the other anchors'), median (min–max) over the flights: "
+            f"{spans or '—'}.")
 
 
 def imu_spectra(reports: dict, flights: dict[str, Path]) -> str:

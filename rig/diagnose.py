@@ -71,7 +71,9 @@ IDENTIFIED_SD_SHARE = 0.5      # a parameter is identified when its standard err
 TIME_BLOCKS = 10               # resolution of "only in part of the flight"
 MIN_SAMPLES = 50
 EDGE_S = 0.5                   # ignore samples this close to the ends of the ground truth
-ON_GROUND_M = 0.2              # a tag this low sits on the floor or is taking off or landing (transients): left out
+ON_GROUND_M = 0.2              # a tag this low sits on the floor or is taking off or landing: left out of the
+#                                NLOS search and the floor multipath (transients); located on its own (locate)
+MIN_ON_GROUND = 20             # samples of an anchor with the tag on the floor to say how it reads there
 # IMU channels compare block means. The ground truth's rates are those of its attitude
 # averaged over ATTITUDE_WINDOW_S (its noise, differentiated, would drown the small
 # rates of these flights and dilute a fitted scale factor): the gyroscope is averaged
@@ -1563,14 +1565,16 @@ def _significant_axes(term: Term, theta: np.ndarray, z_after: np.ndarray, peers:
 
 def locate(problem: Problem, residual: dict[str, np.ndarray]) -> dict:
     """Where the untouched simulation and the recording differ: robust mean mismatch per
-    anchor (signed: positive = that anchor's ranges read long), per IMU axis and per
-    time block."""
+    anchor (signed: positive = that anchor's ranges read long), the same with the tag
+    on the floor against in flight (tdoa_on_ground_m), per IMU axis and per time
+    block."""
     out: dict = {}
     if "tdoa" in residual:
         r, scale = residual["tdoa"], problem.scales["tdoa"][0]
         out["tdoa_per_anchor_m"] = {str(k): _huber_mean(problem.anchor_sign(k)[problem.anchor_sign(k) != 0]
                                                         * r[problem.anchor_sign(k) != 0], scale)
                                     for k in problem.anchor_ids}
+        out["tdoa_on_ground_m"] = {k: float(v * scale) for k, v in on_ground_delays(problem, r / scale).items()}
     for name in ("accel", "gyro"):
         if name in residual:
             r = residual[name]
@@ -1584,6 +1588,25 @@ def locate(problem: Problem, residual: dict[str, np.ndarray]) -> dict:
              "robust_rms": robust_rms(r[block == b], problem.scales[name][block == b])}
             for b in range(TIME_BLOCKS) if (block == b).any()]
     return out
+
+
+ON_GROUND_PRIOR = 100.0        # in noise deviations: as good as none, it only fixes the delays' common part
+
+
+def on_ground_delays(problem: Problem, z: np.ndarray) -> dict[str, float]:
+    """How much longer each anchor's ranges read with the tag on the floor than in
+    flight, in noise deviations of `z` (the standardised residual): every anchor's delay
+    and its change on the floor fitted jointly (Huber), the changes against their
+    centre as delays are (TDOA sees them only relative to each other). Anchors with
+    fewer than MIN_ON_GROUND samples on the floor are left out."""
+    on_floor = problem.tag_positions()[:, 2] < ON_GROUND_M
+    anchors = [k for k in problem.anchor_ids if np.sum((problem.anchor_sign(k) != 0) & on_floor) >= MIN_ON_GROUND]
+    if len(anchors) < 2:
+        return {}
+    signs = np.stack([problem.anchor_sign(k) for k in problem.anchor_ids], axis=1)
+    x = np.concatenate([signs, np.stack([problem.anchor_sign(k) * on_floor for k in anchors], axis=1)], axis=1)
+    change = irls(z, x, np.full(x.shape[1], ON_GROUND_PRIOR))[signs.shape[1]:]
+    return {str(k): float(c) for k, c in zip(anchors, change - delay_centre(change))}
 
 
 def _huber_mean(values: np.ndarray, scale: float) -> float:

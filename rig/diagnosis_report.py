@@ -15,7 +15,7 @@ import numpy as np  # noqa: E402
 
 from rig import effects as fx  # noqa: E402
 from rig import imu_spectrum  # noqa: E402
-from rig.diagnose import AXES, GROSS_Z, Diagnosis, Finding, left_out_text, vibration_spread  # noqa: E402
+from rig.diagnose import AXES, GROSS_Z, ON_GROUND_M, Diagnosis, Finding, left_out_text, vibration_spread  # noqa: E402
 
 REPORT_JSON, REPORT_MD, MODEL_JSON = "report.json", "report.md", "model.json"
 SENSORS = {"accel": ("accelerometer", "m/s²"), "gyro": ("gyroscope", "rad/s")}     # the IMU's, in words
@@ -98,6 +98,7 @@ def _markdown(diagnosis: Diagnosis, report: dict, images: list[tuple[str, str]])
     if left_out:
         lines += [f"Left out as corrupt (over {GROSS_Z:g} noise deviations from the channel's median: a garbled "
                   f"range, or a glitch of the ground truth): {left_out}.", ""]
+    lines += _on_ground_lines(report["mismatch"].get("tdoa_on_ground_m", {}))
     lines += ["## What physics the simulation left out", ""]
     if not diagnosis.findings:
         lines.append("Nothing: no catalog effect removes enough of the mismatch to pay for its parameters.")
@@ -124,6 +125,16 @@ def _markdown(diagnosis: Diagnosis, report: dict, images: list[tuple[str, str]])
     for title, name in images:
         lines += [f"## {title}", "", f"![{title}]({name})", ""]
     return "\n".join(lines)
+
+
+def _on_ground_lines(on_ground: dict[str, float]) -> list[str]:
+    """Where the tag sat on the floor: how each anchor's ranges read there."""
+    if not on_ground:
+        return []
+    per_anchor = ", ".join(f"{k}: {v:+.2f} m" for k, v in on_ground.items())
+    return [f"With the tag on the floor (below {ON_GROUND_M:g} m), each anchor's ranges read, against the same "
+            f"anchor's in flight and relative to the other anchors': {per_anchor} (`mismatch.tdoa_on_ground_m` "
+            "in report.json; the simulation has no floor in the way of the direct paths).", ""]
 
 
 def _noise_lines(model: list[dict]) -> list[str]:

@@ -22,8 +22,9 @@ from scipy.spatial.transform import Rotation
 from conftest import RIG
 from rig import effects as fx
 from rig import imu_spectrum
-from rig.diagnose import (ORDER, Candidate, Channel, Problem, Term, _confine_in_time, _estimate, _free_offset,
-                          _mad_scale, candidates, delay_centre, delay_centre_slope, diagnose, vibration_spread)
+from rig.diagnose import (ON_GROUND_M, ORDER, Candidate, Channel, Problem, Term, _confine_in_time, _estimate,
+                          _free_offset, _mad_scale, candidates, delay_centre, delay_centre_slope, diagnose, locate,
+                          vibration_spread)
 from rig.diagnosis_report import write as write_report
 from rig.fitted_model import outside_window
 from rig.importer import load_any
@@ -481,6 +482,25 @@ def test_a_timing_effect_that_pays_only_once_the_nlos_shapes_are_out_is_named(da
     diagnosis = findings(diagnose(injected))
     assert _found_by_shape(diagnosis)
     _check(diagnosis, findings(diagnose(rec)), "time_offset", params, check, real=True)
+
+
+def test_ranges_that_read_long_with_the_tag_on_the_floor_are_located_on_their_anchor(real) -> None:
+    """An excess of 0.3 m on anchor 3's ranges while the tag sits on the floor (below
+    0.2 m) shows on anchor 3 alone in the mismatch's on-ground location, against the
+    untouched flight (whose floor anchors read metres longer there than its ceiling
+    ones)."""
+    rec, predictor = real
+    on_floor = {"min": [-10.0, -10.0, -10.0], "max": [10.0, 10.0, ON_GROUND_M]}
+    excess = {"effect": "nlos", "params": {"anchor": 3, "fraction": 1.0, "mean_excess_m": 0.3, "region": on_floor}}
+    injected = inject(rec, [excess], seed=1, predictor=predictor)
+    before, after = (_on_ground(Problem(r, predictor)) for r in (rec, injected))
+    moved = {k: after[k] - before[k] for k in before}
+    assert 0.2 <= moved.pop("3") <= 0.35, moved
+    assert all(abs(v) < 0.05 for v in moved.values()), moved
+
+
+def _on_ground(problem: Problem) -> dict[str, float]:
+    return locate(problem, {"tdoa": problem.channel("tdoa").residual})["tdoa_on_ground_m"]
 
 
 def test_a_pattern_seen_in_a_narrow_cone_reads_as_a_displaced_anchor(survey) -> None:
