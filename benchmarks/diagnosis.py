@@ -24,7 +24,7 @@ import numpy as np  # noqa: E402
 
 from rig import effects as fx  # noqa: E402
 from rig import imu_spectrum, paths  # noqa: E402
-from rig.diagnose import left_out_text, vibration_spread  # noqa: E402
+from rig.diagnose import ON_GROUND_M, left_out_text, vibration_spread  # noqa: E402
 from rig.importer import load_any  # noqa: E402
 from rig.recording import Vec3Series  # noqa: E402
 
@@ -106,15 +106,16 @@ def tables(reports: dict) -> str:
 def on_ground(reports: dict) -> str:
     """How each anchor's ranges read with the tag on the floor against in flight
     (`mismatch.tdoa_on_ground_m`), over the flights: median (min–max) per anchor."""
+    readings = [r["mismatch"].get("tdoa_on_ground_m", {}) for r in reports.values()]
     per_anchor: dict[str, list[float]] = {}
-    for r in reports.values():
-        for k, v in r["mismatch"].get("tdoa_on_ground_m", {}).items():
+    for flight in readings:
+        for k, v in flight.items():
             per_anchor.setdefault(k, []).append(v)
-    flights = sum(bool(r["mismatch"].get("tdoa_on_ground_m")) for r in reports.values())
+    flights = sum(bool(flight) for flight in readings)
     spans = "; ".join(f"{k}: {_span(v, 2)} m" for k, v in sorted(per_anchor.items(), key=lambda kv: int(kv[0])))
-    return (f"With the tag on the floor (below 0.2 m; {flights} of {len(reports)} flights), each anchor's ranges "
-            f"read, against its own in flight (relative to the other anchors'), median (min–max) over the flights: "
-            f"{spans or '—'}.")
+    return (f"With the tag on the floor (below {ON_GROUND_M:g} m; {flights} of {len(reports)} flights), each "
+            f"anchor's ranges read, against its own in flight (relative to the other anchors'), median (min–max) "
+            f"over the flights: {spans or '—'}.")
 
 
 def imu_spectra(reports: dict, flights: dict[str, Path]) -> str:

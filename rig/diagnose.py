@@ -1599,13 +1599,14 @@ def on_ground_delays(problem: Problem, z: np.ndarray) -> dict[str, float]:
     and its change on the floor fitted jointly (Huber), the changes against their
     centre as delays are (TDOA sees them only relative to each other). Anchors with
     fewer than MIN_ON_GROUND samples on the floor are left out."""
-    on_floor = problem.tag_positions()[:, 2] < ON_GROUND_M
-    anchors = [k for k in problem.anchor_ids if np.sum((problem.anchor_sign(k) != 0) & on_floor) >= MIN_ON_GROUND]
-    if len(anchors) < 2:
-        return {}
+    on_floor = (problem.tag_positions()[:, 2] < ON_GROUND_M)[:, None]
     signs = np.stack([problem.anchor_sign(k) for k in problem.anchor_ids], axis=1)
-    x = np.concatenate([signs, np.stack([problem.anchor_sign(k) * on_floor for k in anchors], axis=1)], axis=1)
+    seen = np.sum((signs != 0) & on_floor, axis=0) >= MIN_ON_GROUND
+    if seen.sum() < 2:
+        return {}
+    x = np.concatenate([signs, signs[:, seen] * on_floor], axis=1)
     change = irls(z, x, np.full(x.shape[1], ON_GROUND_PRIOR))[signs.shape[1]:]
+    anchors = np.asarray(problem.anchor_ids)[seen]
     return {str(k): float(c) for k, c in zip(anchors, change - delay_centre(change))}
 
 
