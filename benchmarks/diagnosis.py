@@ -104,18 +104,27 @@ def tables(reports: dict) -> str:
 
 
 def on_ground(reports: dict) -> str:
-    """How each anchor's ranges read with the tag on the floor against in flight
-    (`mismatch.tdoa_on_ground_m`), over the flights: median (min–max) per anchor."""
-    readings = [r["mismatch"].get("tdoa_on_ground_m", {}) for r in reports.values()]
+    """How each anchor's ranges read with the tag on the floor against in flight, over
+    the flights, median (min–max) per anchor: located against the untouched simulation
+    (`mismatch.tdoa_on_ground_m`), and as the models carry it (`on_ground_delay`,
+    with the heights it was named below)."""
+    located = [r["mismatch"].get("tdoa_on_ground_m", {}) for r in reports.values()]
+    modelled = [f for r in reports.values() for f in r["findings"] if f["effect"] == "on_ground_delay"]
+    heights = Counter(f["params"]["height_m"] for f in modelled)
+    return (f"With the tag on the floor (below {ON_GROUND_M:g} m; {sum(map(bool, located))} of {len(reports)} "
+            f"flights), each anchor's ranges read, against its own in flight (relative to the other anchors'), "
+            f"median (min–max) over the flights: {_per_anchor_spans(located)}. Modelled (`on_ground_delay`) on "
+            f"{len(modelled)} of {len(reports)} flights, below "
+            + ", ".join(f"{h:g} m on {n}" for h, n in sorted(heights.items()))
+            + f": {_per_anchor_spans([f['params']['meters'] for f in modelled])}.")
+
+
+def _per_anchor_spans(readings: list[dict[str, float]]) -> str:
     per_anchor: dict[str, list[float]] = {}
     for flight in readings:
         for k, v in flight.items():
             per_anchor.setdefault(k, []).append(v)
-    flights = sum(bool(flight) for flight in readings)
-    spans = "; ".join(f"{k}: {_span(v, 2)} m" for k, v in sorted(per_anchor.items(), key=lambda kv: int(kv[0])))
-    return (f"With the tag on the floor (below {ON_GROUND_M:g} m; {flights} of {len(reports)} flights), each "
-            f"anchor's ranges read, against its own in flight (relative to the other anchors'), median (min–max) "
-            f"over the flights: {spans or '—'}.")
+    return "; ".join(f"{k}: {_span(v, 2)} m" for k, v in sorted(per_anchor.items(), key=lambda kv: int(kv[0]))) or "—"
 
 
 def imu_spectra(reports: dict, flights: dict[str, Path]) -> str:

@@ -1359,8 +1359,14 @@ def diagnose(rec: Recording, progress=None) -> Diagnosis:
             model.append(fit.effect())
         z_named = _left(channel.z, terms)
         named_theta = {id(t): t.theta for t in terms}
-        simulated = {id(t) for t in _model_terms(channel.z, terms)}
-        z_model = _left(channel.z, [t for t in terms if id(t) in simulated])
+        in_model = _model_terms(channel.z, terms)
+        floor = _on_ground_term(problem, _left(channel.z, in_model)) if name == "tdoa" else None
+        if floor is not None:        # the model's effects fitted with it: the floor's error is not theirs
+            in_model = _model_terms(channel.z, terms, floor)
+            findings.append(_on_ground_finding(problem, channel, floor, _left(channel.z, in_model + [floor])))
+            model.append(_on_ground_effect(problem, floor))
+        simulated = {id(t) for t in in_model}
+        z_model = _left(channel.z, in_model + ([floor] if floor else []))
         for term in terms:
             if id(term) in simulated:
                 model.append(_effect_of(problem, channel, term, term.theta))
@@ -1397,14 +1403,17 @@ def _effect_of(problem: Problem, channel: Channel, term: Term, theta: np.ndarray
                                    "region": term.extra["region"]})
 
 
-def _model_terms(z: np.ndarray, named: list[Term]) -> list[Term]:
-    """The named terms that re-simulate the recording, refitted jointly. One fitted
-    beyond its physical bounds stands for something the catalog does not model, and
-    its linearised fit does not re-simulate (an anchor moved by metres), so it is
-    left out, the furthest out first."""
+def _model_terms(z: np.ndarray, named: list[Term], floor: Term | None = None) -> list[Term]:
+    """The named terms that re-simulate the recording, refitted jointly (with `floor`,
+    the ranges' change with the tag on the floor, if any). One fitted beyond its
+    physical bounds stands for something the catalog does not model, and its
+    linearised fit does not re-simulate (an anchor moved by metres), so it is left
+    out, the furthest out first."""
     kept = list(named)
-    while kept:
-        _refit(z, kept)
+    while True:
+        _refit(z, kept + ([floor] if floor else []))
+        if not kept:
+            break
         excess = [np.abs(t.theta).max() / t.candidate.bound for t in kept]
         if max(excess) <= 1.0:
             break
@@ -1489,6 +1498,46 @@ def _floor_finding(problem: Problem, residual: np.ndarray) -> Finding | None:
                    round(floor["evidence"], 2), before, after,
                    {"below_height_m": floor["height_m"], "time": _span(channel.t[low]),
                     "fit_unit": "mean negative log-likelihood per sample (a noise-level effect)"})
+
+
+def _on_ground_term(problem: Problem, z: np.ndarray) -> Term | None:
+    """The ranges' change with the tag on the floor, as a term of the TDOA model, where
+    what the model leaves (`z`) supports it (on_ground_fit, at the height of
+    ON_GROUND_HEIGHTS_M that removes most): its evidence must pay for its parameters,
+    one fewer than the anchors (only their differences show) and the height. Not a
+    candidate of the selection: the samples on the floor are what tells an injected
+    displacement or pattern of a floor anchor apart (docs/diagnosis.md, session 32)."""
+    fits = [f for f in (on_ground_fit(problem, z, h) for h in ON_GROUND_HEIGHTS_M) if f is not None]
+    if not fits:
+        return None
+    fit = max(fits, key=lambda f: f.gain)
+    candidate = Candidate("on_ground_delay", "tdoa", "meters", len(fit.anchors), prior=ON_GROUND_PRIOR, bound=np.inf)
+    columns = on_ground_columns(problem, fit.height, fit.anchors)
+    term = Term(candidate, columns, {"height_m": fit.height, "anchors": fit.anchors}, evidence=fit.gain)
+    return term if term.supported else None
+
+
+def _on_ground_meters(problem: Problem, term: Term) -> dict[str, float]:
+    change = term.theta * problem.scales["tdoa"][0]
+    return {str(k): float(m) for k, m in zip(term.extra["anchors"], change - delay_centre(change))}
+
+
+def _on_ground_effect(problem: Problem, term: Term) -> fx.Effect:
+    return fx.make_effect("on_ground_delay", {"height_m": term.extra["height_m"],
+                                              "meters": _on_ground_meters(problem, term)})
+
+
+def _on_ground_finding(problem: Problem, channel: Channel, term: Term, z_model: np.ndarray) -> Finding:
+    """The floor's term as fitted in the model; fit_before/fit_after: the rows on the
+    floor under the model without and with it."""
+    rows = np.any(term.columns != 0, axis=1)
+    scale = channel.scale[rows]
+    without = z_model + term.columns @ term.theta
+    anchors = term.extra["anchors"]
+    return Finding("on_ground_delay", "tdoa", anchors, rounded_floats(_on_ground_effect(problem, term).params()),
+                   round(float(term.net_evidence), 2), robust_rms(without[rows] * scale, scale),
+                   robust_rms(z_model[rows] * scale, scale),
+                   {"below_height_m": term.extra["height_m"], "time": _span(channel.t[rows]), "anchors": anchors})
 
 
 LOCAL_SAMPLES = 4              # neighbours on each side, in measurements of one anchor pair
@@ -1591,23 +1640,53 @@ def locate(problem: Problem, residual: dict[str, np.ndarray]) -> dict:
 
 
 ON_GROUND_PRIOR = 100.0        # in noise deviations: as good as none, it only fixes the delays' common part
+# where the ranges start to read as on the floor: on the real flights the error is
+# whole below 0.1 m (sitting), a fraction of it at 0.1-0.15 m and gone above 0.2 m
+ON_GROUND_HEIGHTS_M = (0.05, 0.1, 0.15, 0.2)
+
+
+@dataclass
+class OnGroundFit:
+    """How much longer each anchor's ranges read with the tag on the floor than in
+    flight (on_ground_fit)."""
+
+    height: float               # the tag below this, m
+    anchors: list[int]          # those seen on the floor often enough
+    change: np.ndarray          # per anchor, in noise deviations, against their centre
+    gain: float                 # robust loss the changes take off, in half chi-square units
+
+
+def on_ground_columns(problem: Problem, height: float, anchors: list[int]) -> np.ndarray:
+    """Each of `anchors`' sign in the rows with the tag below `height`, 0 elsewhere."""
+    on_floor = problem.tag_positions()[:, 2] < height
+    return np.stack([problem.anchor_sign(k) * on_floor for k in anchors], axis=1)
+
+
+def on_ground_fit(problem: Problem, z: np.ndarray, height: float = ON_GROUND_M) -> OnGroundFit | None:
+    """Every anchor's delay and its change with the tag below `height` (on the floor)
+    fitted jointly (Huber) on `z` (the standardised residual), against the delays alone; the changes
+    against their centre as delays are (TDOA sees them only relative to each other).
+    Anchors with fewer than MIN_ON_GROUND samples on the floor are left out; None when
+    fewer than two are left."""
+    signs = np.stack([problem.anchor_sign(k) for k in problem.anchor_ids], axis=1)
+    floor_columns = on_ground_columns(problem, height, problem.anchor_ids)
+    seen = np.sum(floor_columns != 0, axis=0) >= MIN_ON_GROUND
+    if seen.sum() < 2:
+        return None
+    floor_columns = floor_columns[:, seen]
+    x = np.concatenate([signs, floor_columns], axis=1)
+    theta = irls(z, x, np.full(x.shape[1], ON_GROUND_PRIOR))
+    delays_only = irls(z, signs, np.full(signs.shape[1], ON_GROUND_PRIOR))
+    gain = float(huber_loss(z - signs @ delays_only).sum() - huber_loss(z - x @ theta).sum())
+    change = theta[signs.shape[1]:]
+    return OnGroundFit(height, [int(k) for k in np.asarray(problem.anchor_ids)[seen]], change - delay_centre(change),
+                       gain)
 
 
 def on_ground_delays(problem: Problem, z: np.ndarray) -> dict[str, float]:
-    """How much longer each anchor's ranges read with the tag on the floor than in
-    flight, in noise deviations of `z` (the standardised residual): every anchor's delay
-    and its change on the floor fitted jointly (Huber), the changes against their
-    centre as delays are (TDOA sees them only relative to each other). Anchors with
-    fewer than MIN_ON_GROUND samples on the floor are left out."""
-    on_floor = (problem.tag_positions()[:, 2] < ON_GROUND_M)[:, None]
-    signs = np.stack([problem.anchor_sign(k) for k in problem.anchor_ids], axis=1)
-    seen = np.sum((signs != 0) & on_floor, axis=0) >= MIN_ON_GROUND
-    if seen.sum() < 2:
-        return {}
-    x = np.concatenate([signs, signs[:, seen] * on_floor], axis=1)
-    change = irls(z, x, np.full(x.shape[1], ON_GROUND_PRIOR))[signs.shape[1]:]
-    anchors = np.asarray(problem.anchor_ids)[seen]
-    return {str(k): float(c) for k, c in zip(anchors, change - delay_centre(change))}
+    """on_ground_fit's changes by anchor id, in noise deviations of `z`."""
+    fit = on_ground_fit(problem, z)
+    return {} if fit is None else {str(k): float(c) for k, c in zip(fit.anchors, fit.change)}
 
 
 def _huber_mean(values: np.ndarray, scale: float) -> float:

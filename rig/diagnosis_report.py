@@ -30,6 +30,8 @@ PLAIN = {
     "nlos": "ranges to anchor {anchor} carry an excess delay (NLOS: {fraction:.0%} of them, {mean_excess_m:.3f} m "
             "on average) while the tag is inside {region}",
     "multipath_floor": "below {height_m} m the TDOA noise grows by {std_m:.3f} m (floor multipath)",
+    "on_ground_delay": "with the tag on the floor (below {height_m} m) the ranges read longer than in flight, per "
+                       "anchor: {meters} m (the floor in the direct paths; relative to each other)",
     "imu_accel_bias": "the accelerometer reads {bias_mps2} m/s² too high",
     "imu_gyro_bias": "the gyroscope reads {bias_rps} rad/s too high",
     "imu_accel_scale": "the accelerometer's scale factors are {scale}",
@@ -44,6 +46,8 @@ UNITS = {"tdoa": "m", "accel": "m/s²", "gyro": "rad/s"}
 
 def describe(finding: Finding) -> str:
     params = {k: (np.round(v, 3).tolist() if isinstance(v, list) else v) for k, v in finding.params.items()}
+    if isinstance(params.get("meters"), dict):
+        params["meters"] = ", ".join(f"{k}: {v:+.2f}" for k, v in params["meters"].items())
     if isinstance(params.get("region"), dict):
         box = params["region"]
         params["region"] = ", ".join(f"{axis} {low:.2f}…{high:.2f}" for axis, low, high
@@ -134,7 +138,8 @@ def _on_ground_lines(on_ground: dict[str, float]) -> list[str]:
     per_anchor = ", ".join(f"{k}: {v:+.2f} m" for k, v in on_ground.items())
     return [f"With the tag on the floor (below {ON_GROUND_M:g} m), each anchor's ranges read, against the same "
             f"anchor's in flight and relative to the other anchors': {per_anchor} (`mismatch.tdoa_on_ground_m` "
-            "in report.json; the simulation has no floor in the way of the direct paths).", ""]
+            "in report.json, against the untouched simulation, which has no floor in the way of the direct paths; "
+            "`on_ground_delay` below models what the named effects leave of it).", ""]
 
 
 def _noise_lines(model: list[dict]) -> list[str]:

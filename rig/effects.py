@@ -726,6 +726,32 @@ class MultipathFloor(Effect):
             tdoa.value += rng.normal(0.0, self.std, len(tdoa.t)) * self.low(tdoa.tag_position)
 
 
+class OnGroundDelay(Effect):
+    """With the tag on the floor (below `height_m`), every range from anchor k reads
+    `meters[k]` longer than in flight: the floor lies in the direct paths, most to
+    the anchors at its own height, and what arrives first has gone round (real
+    flights: metres, docs/diagnosis.md). Keys are anchor ids; TDOA sees the values
+    only relative to each other."""
+
+    name, stage = "on_ground_delay", SIGNAL
+
+    def __init__(self, meters: dict | None = None, height_m: float = 0.2):
+        if not height_m > 0:
+            raise ValueError("height_m must be positive")
+        self.height = float(height_m)
+        self.meters = {_anchor_id(int(k)): float(m) for k, m in (meters or {}).items()}
+        if not all(np.isfinite(m) for m in self.meters.values()):
+            raise ValueError(f"on_ground_delay: meters must be finite, got {meters!r}")
+
+    def params(self) -> dict:
+        return {"height_m": self.height, "meters": {str(k): m for k, m in sorted(self.meters.items())}}
+
+    def apply_tdoa(self, tdoa: TdoaBatch, world: World, rng: np.random.Generator | None) -> None:
+        low = tdoa.tag_position[:, 2] < self.height
+        for anchor, meters in self.meters.items():
+            tdoa.value += meters * low * _anchor_sign(tdoa, anchor)
+
+
 class LearnedBias(Effect):
     """The pose-dependent TDOA bias that the bias network (paper Section III,
     `rig train`) learned from the shared flights, times `gain`: the network's
@@ -767,7 +793,7 @@ EFFECTS: dict[str, type[Effect]] = {
     cls.name: cls for cls in (ImuAccelBias, ImuGyroBias, ImuAccelScale, ImuGyroScale, ImuVibrationRectification,
                               ImuNoise, ImuVibration, ImuResonance, ImuLowpass, TdoaNoise, Outliers,
                               TimeOffset, ClockDrift, AnchorPosition, LeverArm, AnchorDelay, AntennaPattern, Nlos,
-                              MultipathFloor, LearnedBias)
+                              MultipathFloor, OnGroundDelay, LearnedBias)
 }
 
 

@@ -2,7 +2,8 @@
 of one room, to fly another trajectory there (the shipped default recording).
 
 An effect transfers to another trajectory if it belongs to the hardware or the room
-(a delay, a clock, an IMU error, the TDOA noise), not to one flight's path: NLOS regions,
+(a delay, how the ranges read with the tag on the floor, a clock, an IMU error, the TDOA
+noise), not to one flight's path: NLOS regions,
 anchor displacements, antenna patterns and lever arms, as the diagnosis fits them on
 real flights, are mostly the pose-dependent bias seen along that path
 (docs/diagnosis.md) and are left out. An effect enters when the diagnosis named it on
@@ -27,8 +28,8 @@ log = logging.getLogger(__name__)
 # in the order they are listed in a config (a vibration rectification and an
 # accelerometer scale enter as the accelerometer bias they made on their flight, see
 # fold_rectification and fold_accel_scale)
-TRANSFERABLE = ("time_offset", "clock_drift", "anchor_delay", "multipath_floor", "imu_accel_bias", "imu_gyro_bias",
-                "imu_gyro_scale", "tdoa_noise")
+TRANSFERABLE = ("time_offset", "clock_drift", "anchor_delay", "on_ground_delay", "multipath_floor", "imu_accel_bias",
+                "imu_gyro_bias", "imu_gyro_scale", "tdoa_noise")
 MIN_SHARE = 0.5
 CONFIG_DIGITS = 4            # a config a person reads: the fit is not more precise
 
@@ -130,6 +131,11 @@ def _median_params(params: list[dict]) -> dict:
     for field, value in params[0].items():
         if field == "during":
             continue
+        if isinstance(value, dict):         # per anchor: each anchor's median over the flights that have it
+            keys = sorted({key for p in params for key in p.get(field, {})}, key=int)
+            merged[field] = {key: float(np.median([p[field][key] for p in params if key in p.get(field, {})]))
+                             for key in keys}
+            continue
         if field == "anchor" or not isinstance(value, (int, float, list)):
             merged[field] = value
             continue
@@ -144,6 +150,9 @@ def _centre_delays(effects: list[dict]) -> None:
         shift = delay_centre(np.array([d["meters"] for d in delays]))
         for d in delays:
             d["meters"] -= shift
+    for on_ground in (e["params"] for e in effects if e["effect"] == "on_ground_delay"):
+        shift = delay_centre(np.array(list(on_ground["meters"].values())))
+        on_ground["meters"] = {k: m - shift for k, m in on_ground["meters"].items()}
 
 
 # kept from the config when its fitted effects are replaced: the heavy tails beyond the

@@ -6,9 +6,11 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from conftest import run_rig
+from rig.diagnose import delay_centre
 from rig.fitted_model import combine, read_models, replace_fitted
 from rig.recording import read_recording
 
@@ -123,3 +125,17 @@ def test_an_accelerometer_scale_enters_as_the_offset_it_made_in_hover(tmp_path: 
     combined = {e["effect"]: e["params"] for e in combine([both, bias_only, scale_only])}
     assert "imu_accel_scale" not in combined
     assert combined["imu_accel_bias"]["bias_mps2"] == pytest.approx([0.0, 0.0, -0.0981])
+
+
+def test_the_ranges_on_the_floor_enter_with_each_anchors_median_against_their_centre() -> None:
+    """Per anchor, over the flights that saw it on the floor; as TDOA sees them,
+    relative to each other."""
+    readings = [(0.1, {"0": 1.0, "1": -1.0}), (0.05, {"0": 2.0, "1": -1.0, "2": 0.5}),
+                (0.1, {"0": 1.5, "1": -2.0, "2": 0.3})]
+    models = [[{"effect": "on_ground_delay", "params": {"height_m": h, "meters": m}}] for h, m in readings]
+    (combined,) = combine(models)
+    meters = combined["params"]["meters"]
+    assert combined["params"]["height_m"] == pytest.approx(0.1)
+    assert list(meters) == ["0", "1", "2"]
+    medians = np.array([1.5, -1.0, 0.4])
+    assert [meters[k] for k in "012"] == pytest.approx(medians - delay_centre(medians))

@@ -201,6 +201,23 @@ def test_a_delay_changed_in_a_window_keeps_its_own_value_outside(survey_0425: Pa
         make_effect("anchor_delay", {"anchor": 3, "meters": 0.25, "outside_m": -0.1})
 
 
+def test_ranges_read_longer_per_anchor_only_while_the_tag_sits_on_the_floor(survey_0425: Path) -> None:
+    on_ground = {"effect": "on_ground_delay", "params": {"height_m": 0.1, "meters": {"0": 1.5, "3": -1.2}}}
+    cfg = SimConfig(trajectory="circle", duration=10.0, survey=str(survey_0425), resolution=dict(FULL_PRECISION),
+                    effects=[on_ground])
+    floored, clean = simulate(cfg), simulate(replace(cfg, effects=[]))
+    tdoa = floored.tdoa
+    height = np.interp(tdoa.t, floored.truth.t, floored.truth.position[:, 2])
+    low = height < 0.1
+    expected = sum(m * ((tdoa.id_b == k).astype(float) - (tdoa.id_a == k)) for k, m in ((0, 1.5), (3, -1.2)))
+    added = tdoa.distance_diff - clean.tdoa.distance_diff
+    np.testing.assert_allclose(added[low], expected[low], atol=1e-4)
+    np.testing.assert_allclose(added[~low], 0.0, atol=1e-4)
+    assert (np.abs(expected[low]) > 1.0).sum() > 100 and (~low).sum() > low.sum()
+    with pytest.raises(ValueError, match="anchor must be a non-negative integer"):
+        make_effect("on_ground_delay", {"meters": {"-1": 0.5}})
+
+
 def test_same_seed_same_bytes_other_seed_other_data(tmp_path: Path, survey_0425: Path) -> None:
     cfg = SimConfig(duration=5.0, survey=str(survey_0425), seed=7)
     write_recording(simulate(cfg), tmp_path / "a.mcap")
