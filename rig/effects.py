@@ -727,11 +727,13 @@ class MultipathFloor(Effect):
 
 
 class OnGroundDelay(Effect):
-    """With the tag on the floor (below `height_m`), every range from anchor k reads
-    `meters[k]` longer than in flight: the floor lies in the direct paths, most to
-    the anchors at its own height, and what arrives first has gone round (real
-    flights: metres, docs/diagnosis.md). Keys are anchor ids; TDOA sees the values
-    only relative to each other."""
+    """With the drone on the floor (its body origin, the ground truth's position,
+    below `height_m`), every range from anchor k reads `meters[k]` longer than in
+    flight: the floor lies in the direct paths, most to the anchors at its own
+    height, and what arrives first has gone round (real flights: metres,
+    docs/diagnosis.md). Keys are anchor ids; TDOA sees the values only relative to
+    each other. The body, not the antenna: a lever arm fitted to a flight (decimetres
+    on z, docs/diagnosis.md) would otherwise move where the floor begins."""
 
     name, stage = "on_ground_delay", SIGNAL
 
@@ -747,7 +749,8 @@ class OnGroundDelay(Effect):
         return {"height_m": self.height, "meters": {str(k): m for k, m in sorted(self.meters.items())}}
 
     def apply_tdoa(self, tdoa: TdoaBatch, world: World, rng: np.random.Generator | None) -> None:
-        low = tdoa.tag_position[:, 2] < self.height
+        body = tdoa.tag_position - tdoa.tag_rotation.apply(world.lever_arm)
+        low = body[:, 2] < self.height
         for anchor, meters in self.meters.items():
             tdoa.value += meters * low * _anchor_sign(tdoa, anchor)
 

@@ -201,11 +201,14 @@ def test_a_delay_changed_in_a_window_keeps_its_own_value_outside(survey_0425: Pa
         make_effect("anchor_delay", {"anchor": 3, "meters": 0.25, "outside_m": -0.1})
 
 
-def test_ranges_read_longer_per_anchor_only_while_the_tag_sits_on_the_floor(survey_0425: Path) -> None:
+def test_ranges_read_longer_per_anchor_only_while_the_drone_sits_on_the_floor(survey_0425: Path) -> None:
+    """The drone's body, not its antenna: with the antenna 0.3 m below the body, the
+    ranges read as on the floor only while the body is below the height."""
     on_ground = {"effect": "on_ground_delay", "params": {"height_m": 0.1, "meters": {"0": 1.5, "3": -1.2}}}
+    hanging = {"effect": "lever_arm", "params": {"offset_m": [0.0, 0.0, -0.3]}}
     cfg = SimConfig(trajectory="circle", duration=10.0, survey=str(survey_0425), resolution=dict(FULL_PRECISION),
-                    effects=[on_ground])
-    floored, clean = simulate(cfg), simulate(replace(cfg, effects=[]))
+                    effects=[hanging, on_ground])
+    floored, clean = simulate(cfg), simulate(replace(cfg, effects=[hanging]))
     tdoa = floored.tdoa
     height = np.interp(tdoa.t, floored.truth.t, floored.truth.position[:, 2])
     low = height < 0.1
