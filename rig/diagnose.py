@@ -1664,10 +1664,10 @@ def on_ground_columns(problem: Problem, height: float, anchors: list[int]) -> np
 
 def on_ground_fit(problem: Problem, z: np.ndarray, height: float = ON_GROUND_M) -> OnGroundFit | None:
     """Every anchor's delay and its change with the tag below `height` (on the floor)
-    fitted jointly (Huber) on `z` (the standardised residual), against the delays alone; the changes
-    against their centre as delays are (TDOA sees them only relative to each other).
-    Anchors with fewer than MIN_ON_GROUND samples on the floor are left out; None when
-    fewer than two are left."""
+    fitted jointly (Huber) on `z` (the standardised residual), against the delays
+    alone; the changes against their centre as delays are (TDOA sees them only
+    relative to each other). Anchors with fewer than MIN_ON_GROUND samples on the
+    floor are left out; None when fewer than two are left."""
     signs = np.stack([problem.anchor_sign(k) for k in problem.anchor_ids], axis=1)
     floor_columns = on_ground_columns(problem, height, problem.anchor_ids)
     seen = np.sum(floor_columns != 0, axis=0) >= MIN_ON_GROUND

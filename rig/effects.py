@@ -741,7 +741,10 @@ class OnGroundDelay(Effect):
         if not height_m > 0:
             raise ValueError("height_m must be positive")
         self.height = float(height_m)
-        self.meters = {_anchor_id(int(k)): float(m) for k, m in (meters or {}).items()}
+        try:
+            self.meters = {_anchor_id(int(k)): float(m) for k, m in (meters or {}).items()}
+        except (TypeError, ValueError, AttributeError) as exc:
+            raise ValueError(f"on_ground_delay: meters must map anchor ids to metres, got {meters!r}") from exc
         if not all(np.isfinite(m) for m in self.meters.values()):
             raise ValueError(f"on_ground_delay: meters must be finite, got {meters!r}")
 

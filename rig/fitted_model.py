@@ -2,15 +2,15 @@
 of one room, to fly another trajectory there (the shipped default recording).
 
 An effect transfers to another trajectory if it belongs to the hardware or the room
-(a delay, how the ranges read with the tag on the floor, a clock, an IMU error, the TDOA
-noise), not to one flight's path: NLOS regions,
-anchor displacements, antenna patterns and lever arms, as the diagnosis fits them on
-real flights, are mostly the pose-dependent bias seen along that path
-(docs/diagnosis.md) and are left out. An effect enters when the diagnosis named it on
-at least half of the flights (a property of the room, not of one flight); its
-parameters are the medians over those flights. Confinement in time (`during`) is
-dropped: it belongs to one flight's clock (a delay that changed in a window enters
-with its value outside it)."""
+(a delay, how the ranges read with the drone on the floor, a clock, an IMU error, the
+TDOA noise), not to one flight's path: NLOS regions, anchor displacements, antenna
+patterns and lever arms, as the diagnosis fits them on real flights, are mostly the
+pose-dependent bias seen along that path (docs/diagnosis.md) and are left out. An
+effect enters when the diagnosis named it on at least half of the flights (a
+property of the room, not of one flight); its parameters are the medians over those
+flights (per anchor, for how the ranges read on the floor). Confinement in time
+(`during`) is dropped: it belongs to one flight's clock (a delay that changed in a
+window enters with its value outside it)."""
 
 from __future__ import annotations
 

@@ -217,8 +217,9 @@ def test_ranges_read_longer_per_anchor_only_while_the_drone_sits_on_the_floor(su
     np.testing.assert_allclose(added[low], expected[low], atol=1e-4)
     np.testing.assert_allclose(added[~low], 0.0, atol=1e-4)
     assert (np.abs(expected[low]) > 1.0).sum() > 100 and (~low).sum() > low.sum()
-    with pytest.raises(ValueError, match="anchor must be a non-negative integer"):
-        make_effect("on_ground_delay", {"meters": {"-1": 0.5}})
+    for bad in ({"-1": 0.5}, {"a": 0.5}, [0.5]):
+        with pytest.raises(ValueError, match="meters must map anchor ids to metres"):
+            make_effect("on_ground_delay", {"meters": bad})
 
 
 def test_same_seed_same_bytes_other_seed_other_data(tmp_path: Path, survey_0425: Path) -> None:
