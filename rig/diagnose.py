@@ -1363,8 +1363,9 @@ def diagnose(rec: Recording, progress=None) -> Diagnosis:
         floor = _on_ground_term(problem, _left(channel.z, in_model)) if name == "tdoa" else None
         if floor is not None:        # the model's effects fitted with it: the floor's error is not theirs
             in_model = _model_terms(channel.z, terms, floor)
-            findings.append(_on_ground_finding(problem, channel, floor, _left(channel.z, in_model + [floor])))
-            model.append(_on_ground_effect(problem, floor))
+            on_ground = _on_ground_effect(problem, floor)
+            findings.append(_on_ground_finding(channel, floor, on_ground, _left(channel.z, in_model + [floor])))
+            model.append(on_ground)
         simulated = {id(t) for t in in_model}
         z_model = _left(channel.z, in_model + ([floor] if floor else []))
         for term in terms:
@@ -1512,29 +1513,25 @@ def _on_ground_term(problem: Problem, z: np.ndarray) -> Term | None:
         return None
     fit = max(fits, key=lambda f: f.gain)
     candidate = Candidate("on_ground_delay", "tdoa", "meters", len(fit.anchors), prior=ON_GROUND_PRIOR, bound=np.inf)
-    columns = on_ground_columns(problem, fit.height, fit.anchors)
-    term = Term(candidate, columns, {"height_m": fit.height, "anchors": fit.anchors}, evidence=fit.gain)
+    term = Term(candidate, fit.columns, {"height_m": fit.height, "anchors": fit.anchors}, evidence=fit.gain)
     return term if term.supported else None
 
 
-def _on_ground_meters(problem: Problem, term: Term) -> dict[str, float]:
-    change = term.theta * problem.scales["tdoa"][0]
-    return {str(k): float(m) for k, m in zip(term.extra["anchors"], change - delay_centre(change))}
-
-
 def _on_ground_effect(problem: Problem, term: Term) -> fx.Effect:
-    return fx.make_effect("on_ground_delay", {"height_m": term.extra["height_m"],
-                                              "meters": _on_ground_meters(problem, term)})
+    """The floor's term as fitted in the model, in metres against the anchors' centre."""
+    change = term.theta * problem.scales["tdoa"][0]
+    meters = {str(k): float(m) for k, m in zip(term.extra["anchors"], change - delay_centre(change))}
+    return fx.make_effect("on_ground_delay", {"height_m": term.extra["height_m"], "meters": meters})
 
 
-def _on_ground_finding(problem: Problem, channel: Channel, term: Term, z_model: np.ndarray) -> Finding:
-    """The floor's term as fitted in the model; fit_before/fit_after: the rows on the
-    floor under the model without and with it."""
+def _on_ground_finding(channel: Channel, term: Term, effect: fx.Effect, z_model: np.ndarray) -> Finding:
+    """The floor's term as fitted in the model (`effect`); fit_before/fit_after: the
+    rows on the floor under the model without and with it."""
     rows = np.any(term.columns != 0, axis=1)
     scale = channel.scale[rows]
     without = z_model + term.columns @ term.theta
     anchors = term.extra["anchors"]
-    return Finding("on_ground_delay", "tdoa", anchors, rounded_floats(_on_ground_effect(problem, term).params()),
+    return Finding("on_ground_delay", "tdoa", anchors, rounded_floats(effect.params()),
                    round(float(term.net_evidence), 2), robust_rms(without[rows] * scale, scale),
                    robust_rms(z_model[rows] * scale, scale),
                    {"below_height_m": term.extra["height_m"], "time": _span(channel.t[rows]), "anchors": anchors})
@@ -1653,13 +1650,8 @@ class OnGroundFit:
     height: float               # the tag below this, m
     anchors: list[int]          # those seen on the floor often enough
     change: np.ndarray          # per anchor, in noise deviations, against their centre
+    columns: np.ndarray         # per anchor, its sign in the rows on the floor, 0 elsewhere
     gain: float                 # robust loss the changes take off, in half chi-square units
-
-
-def on_ground_columns(problem: Problem, height: float, anchors: list[int]) -> np.ndarray:
-    """Each of `anchors`' sign in the rows with the tag below `height`, 0 elsewhere."""
-    on_floor = problem.tag_positions()[:, 2] < height
-    return np.stack([problem.anchor_sign(k) * on_floor for k in anchors], axis=1)
 
 
 def on_ground_fit(problem: Problem, z: np.ndarray, height: float = ON_GROUND_M) -> OnGroundFit | None:
@@ -1669,18 +1661,18 @@ def on_ground_fit(problem: Problem, z: np.ndarray, height: float = ON_GROUND_M) 
     relative to each other). Anchors with fewer than MIN_ON_GROUND samples on the
     floor are left out; None when fewer than two are left."""
     signs = np.stack([problem.anchor_sign(k) for k in problem.anchor_ids], axis=1)
-    floor_columns = on_ground_columns(problem, height, problem.anchor_ids)
-    seen = np.sum(floor_columns != 0, axis=0) >= MIN_ON_GROUND
+    on_floor = (problem.tag_positions()[:, 2] < height)[:, None]
+    seen = np.sum((signs != 0) & on_floor, axis=0) >= MIN_ON_GROUND
     if seen.sum() < 2:
         return None
-    floor_columns = floor_columns[:, seen]
+    floor_columns = signs[:, seen] * on_floor
     x = np.concatenate([signs, floor_columns], axis=1)
     theta = irls(z, x, np.full(x.shape[1], ON_GROUND_PRIOR))
     delays_only = irls(z, signs, np.full(signs.shape[1], ON_GROUND_PRIOR))
     gain = float(huber_loss(z - signs @ delays_only).sum() - huber_loss(z - x @ theta).sum())
     change = theta[signs.shape[1]:]
     return OnGroundFit(height, [int(k) for k in np.asarray(problem.anchor_ids)[seen]], change - delay_centre(change),
-                       gain)
+                       floor_columns, gain)
 
 
 def on_ground_delays(problem: Problem, z: np.ndarray) -> dict[str, float]:

@@ -47,7 +47,7 @@ UNITS = {"tdoa": "m", "accel": "m/s²", "gyro": "rad/s"}
 def describe(finding: Finding) -> str:
     params = {k: (np.round(v, 3).tolist() if isinstance(v, list) else v) for k, v in finding.params.items()}
     if isinstance(params.get("meters"), dict):
-        params["meters"] = ", ".join(f"{k}: {v:+.2f}" for k, v in params["meters"].items())
+        params["meters"] = _per_anchor(params["meters"])
     if isinstance(params.get("region"), dict):
         box = params["region"]
         params["region"] = ", ".join(f"{axis} {low:.2f}…{high:.2f}" for axis, low, high
@@ -135,11 +135,16 @@ def _on_ground_lines(on_ground: dict[str, float]) -> list[str]:
     """Where the tag sat on the floor: how each anchor's ranges read there."""
     if not on_ground:
         return []
-    per_anchor = ", ".join(f"{k}: {v:+.2f} m" for k, v in on_ground.items())
+    per_anchor = _per_anchor(on_ground, " m")
     return [f"With the tag on the floor (below {ON_GROUND_M:g} m), each anchor's ranges read, against the same "
             f"anchor's in flight and relative to the other anchors': {per_anchor} (`mismatch.tdoa_on_ground_m` "
             "in report.json, against the untouched simulation, which has no floor in the way of the direct paths; "
             "`on_ground_delay` below models what the named effects leave of it).", ""]
+
+
+def _per_anchor(values: dict[str, float], unit: str = "") -> str:
+    """'0: +1.84, 1: -1.22' (metres by anchor id), each with `unit` after it."""
+    return ", ".join(f"{k}: {v:+.2f}{unit}" for k, v in values.items())
 
 
 def _noise_lines(model: list[dict]) -> list[str]:
