@@ -618,7 +618,11 @@ class AnchorDelay(_Windowed, Effect):
 def viewing_angles(tdoa: TdoaBatch, world: World, anchor: int) -> tuple[np.ndarray, np.ndarray]:
     """Azimuth and elevation (rad) of the tag seen in `anchor`'s own frame."""
     rel = tdoa.tag_position - world.anchor_positions[anchor]
-    local = world.anchor_rotations[anchor].inv().apply(rel)
+    return _azimuth_elevation(world.anchor_rotations[anchor].inv().apply(rel))
+
+
+def _azimuth_elevation(local: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Azimuth and elevation (rad) of direction vectors given in some frame."""
     return np.arctan2(local[:, 1], local[:, 0]), np.arcsin(np.clip(local[:, 2] / np.linalg.norm(local, axis=1),
                                                                    -1.0, 1.0))
 
@@ -650,6 +654,33 @@ class AntennaPattern(_Windowed, Effect):
             return
         bias = pattern_basis(*viewing_angles(tdoa, world, self.anchor)) @ self.coeffs
         tdoa.value += bias * _anchor_sign(tdoa, self.anchor) * self.active(tdoa.t)
+
+
+class TagAntennaPattern(Effect):
+    """Range bias depending on where each anchor is seen from the tag's own antenna, in
+    the body frame (paper Section II.B: the tag's pose shapes the bias as much as the
+    anchors'; the doughnut of its antenna and the airframe around it): `coeffs_m`
+    weigh `pattern_basis` of the anchor's azimuth and elevation in the body frame, the
+    same for every anchor. Its first order is a lever arm (catalog's `lever_arm`)."""
+
+    name, stage = "tag_antenna_pattern", SIGNAL
+
+    def __init__(self, coeffs_m=(0.0, 0.0, 0.0)):
+        self.coeffs = _vec3(coeffs_m, "coeffs_m")
+
+    def params(self) -> dict:
+        return {"coeffs_m": self.coeffs.tolist()}
+
+    def range_bias(self, position: np.ndarray, attitude: Rotation, world: World, ids: np.ndarray) -> np.ndarray:
+        """Each range's bias from anchor ids[k], seen in the tag's body frame."""
+        anchors, _ = world.anchor_poses(ids)
+        return pattern_basis(*_azimuth_elevation(attitude.inv().apply(anchors - position))) @ self.coeffs
+
+    def apply_tdoa(self, tdoa: TdoaBatch, world: World, rng: np.random.Generator | None) -> None:
+        known = np.flatnonzero(world.known_pairs(tdoa.id_a, tdoa.id_b))
+        if len(known):
+            pose = tdoa.tag_position[known], tdoa.tag_rotation[known], world
+            tdoa.value[known] += self.range_bias(*pose, tdoa.id_b[known]) - self.range_bias(*pose, tdoa.id_a[known])
 
 
 @dataclass
@@ -798,8 +829,8 @@ class LearnedBias(Effect):
 EFFECTS: dict[str, type[Effect]] = {
     cls.name: cls for cls in (ImuAccelBias, ImuGyroBias, ImuAccelScale, ImuGyroScale, ImuVibrationRectification,
                               ImuNoise, ImuVibration, ImuResonance, ImuLowpass, TdoaNoise, Outliers,
-                              TimeOffset, ClockDrift, AnchorPosition, LeverArm, AnchorDelay, AntennaPattern, Nlos,
-                              MultipathFloor, OnGroundDelay, LearnedBias)
+                              TimeOffset, ClockDrift, AnchorPosition, LeverArm, AnchorDelay, AntennaPattern,
+                              TagAntennaPattern, Nlos, MultipathFloor, OnGroundDelay, LearnedBias)
 }
 
 

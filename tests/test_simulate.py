@@ -7,12 +7,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
+from scipy.spatial.transform import Rotation, Slerp
 
 from conftest import FULL_PRECISION, ROOT, run_rig, simulate_exact
 from rig.bias_dataset import measurement_features
 from rig.bias_model import DEFAULT_NETWORK, BiasNet
-from rig.effects import ImuBatch, LearnedBias, make_effect, vibration_level
+from rig.effects import ImuBatch, LearnedBias, TdoaBatch, World, make_effect, vibration_level
 from rig.importer import load_any
 from rig.recording import Recording, Vec3Series, read_recording, write_recording
 from rig.simulate import Predictor, SimConfig, inject, simulate
@@ -220,6 +220,40 @@ def test_ranges_read_longer_per_anchor_only_while_the_drone_sits_on_the_floor(su
     for bad in ({"-1": 0.5}, {"a": 0.5}, [0.5]):
         with pytest.raises(ValueError, match="meters must map anchor ids to metres"):
             make_effect("on_ground_delay", {"meters": bad})
+
+
+def test_the_tags_antenna_pattern_biases_each_range_by_its_anchors_direction_in_the_body_frame(
+        survey_0425: Path) -> None:
+    """Each range reads c · [u_z² − 1/3, u_x² − u_y², 2 u_x u_y], u the unit vector
+    from the tag to its anchor in the body frame (the basis in Cartesian form, another
+    path to it than the angles): TDOA sees range B's minus range A's. The level
+    circle's yaw turns with it, so the directions sweep the body frame."""
+    coeffs = np.array([0.3, -0.2, 0.25])
+    cfg = SimConfig(trajectory="circle", duration=10.0, survey=str(survey_0425), resolution=dict(FULL_PRECISION),
+                    effects=[{"effect": "tag_antenna_pattern", "params": {"coeffs_m": coeffs.tolist()}}])
+    patterned, clean = simulate(cfg), simulate(replace(cfg, effects=[]))
+    tdoa, truth = patterned.tdoa, patterned.truth
+    inside = (tdoa.t > truth.t[0]) & (tdoa.t < truth.t[-1])
+    t = tdoa.t[inside]
+    body = Slerp(truth.t, Rotation.from_quat(truth.quaternion))(t)
+    position = np.stack([np.interp(t, truth.t, truth.position[:, i]) for i in range(3)], axis=1)
+    anchors = {a.id: np.array(a.position) for a in patterned.anchors}
+
+    def range_bias(ids: np.ndarray) -> np.ndarray:
+        u = body.inv().apply(np.array([anchors[int(k)] for k in ids]) - position)
+        u /= np.linalg.norm(u, axis=1, keepdims=True)
+        return np.stack([u[:, 2] ** 2 - 1 / 3, u[:, 0] ** 2 - u[:, 1] ** 2, 2 * u[:, 0] * u[:, 1]], axis=1) @ coeffs
+
+    expected = range_bias(tdoa.id_b[inside]) - range_bias(tdoa.id_a[inside])
+    added = (tdoa.distance_diff - clean.tdoa.distance_diff)[inside]
+    np.testing.assert_allclose(added, expected, atol=2e-3)
+    assert np.std(expected) > 0.1
+    unknown = TdoaBatch(t[:2], np.array([0, 99]), np.array([1, 0]), position[:2], body[:2], np.zeros(2))
+    make_effect("tag_antenna_pattern", {"coeffs_m": coeffs.tolist()}).apply_tdoa(
+        unknown, World.surveyed(patterned.anchors), None)
+    assert unknown.value[0] != 0.0 and unknown.value[1] == 0.0     # an anchor the survey lacks: left alone
+    with pytest.raises(ValueError, match="coeffs_m must be three finite numbers"):
+        make_effect("tag_antenna_pattern", {"coeffs_m": [0.1, float("nan"), 0.0]})
 
 
 def test_same_seed_same_bytes_other_seed_other_data(tmp_path: Path, survey_0425: Path) -> None:
