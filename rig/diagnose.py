@@ -1363,11 +1363,12 @@ def diagnose(rec: Recording, progress=None) -> Diagnosis:
         floor = _on_ground_term(problem, _left(channel.z, in_model)) if name == "tdoa" else None
         if floor is not None:        # the model's effects fitted with it: the floor's error is not theirs
             in_model = _model_terms(channel.z, terms, floor)
+        z_model = _left(channel.z, in_model + ([floor] if floor else []))
+        if floor is not None:
             on_ground = _on_ground_effect(problem, floor)
-            findings.append(_on_ground_finding(channel, floor, on_ground, _left(channel.z, in_model + [floor])))
+            findings.append(_on_ground_finding(channel, floor, on_ground, z_model))
             model.append(on_ground)
         simulated = {id(t) for t in in_model}
-        z_model = _left(channel.z, in_model + ([floor] if floor else []))
         for term in terms:
             if id(term) in simulated:
                 model.append(_effect_of(problem, channel, term, term.theta))
@@ -1503,12 +1504,12 @@ def _floor_finding(problem: Problem, residual: np.ndarray) -> Finding | None:
 
 def _on_ground_term(problem: Problem, z: np.ndarray) -> Term | None:
     """The ranges' change with the tag on the floor, as a term of the TDOA model, where
-    what the model leaves (`z`) supports it (on_ground_fit, at the height of
+    what the model leaves (`z`) supports it (on_ground_fits, at the height of
     ON_GROUND_HEIGHTS_M that removes most): its evidence must pay for its parameters,
     one fewer than the anchors (only their differences show) and the height. Not a
     candidate of the selection: the samples on the floor are what tells an injected
     displacement or pattern of a floor anchor apart (docs/diagnosis.md, session 32)."""
-    fits = [f for f in (on_ground_fit(problem, z, h) for h in ON_GROUND_HEIGHTS_M) if f is not None]
+    fits = on_ground_fits(problem, z, ON_GROUND_HEIGHTS_M)
     if not fits:
         return None
     fit = max(fits, key=lambda f: f.gain)
@@ -1645,7 +1646,7 @@ ON_GROUND_HEIGHTS_M = (0.05, 0.1, 0.15, 0.2)
 @dataclass
 class OnGroundFit:
     """How much longer each anchor's ranges read with the tag on the floor than in
-    flight (on_ground_fit)."""
+    flight (on_ground_fits)."""
 
     height: float               # the tag below this, m
     anchors: list[int]          # those seen on the floor often enough
@@ -1654,31 +1655,36 @@ class OnGroundFit:
     gain: float                 # robust loss the changes take off, in half chi-square units
 
 
-def on_ground_fit(problem: Problem, z: np.ndarray, height: float = ON_GROUND_M) -> OnGroundFit | None:
-    """Every anchor's delay and its change with the tag below `height` (on the floor)
-    fitted jointly (Huber) on `z` (the standardised residual), against the delays
-    alone; the changes against their centre as delays are (TDOA sees them only
-    relative to each other). Anchors with fewer than MIN_ON_GROUND samples on the
-    floor are left out; None when fewer than two are left."""
+def on_ground_fits(problem: Problem, z: np.ndarray, heights: tuple[float, ...] = (ON_GROUND_M,)) -> list[OnGroundFit]:
+    """At each of `heights`, every anchor's delay and its change with the tag below the
+    height (on the floor) fitted jointly (Huber) on `z` (the standardised residual),
+    against the delays alone (fitted once for all heights); the changes against their
+    centre as delays are (TDOA sees them only relative to each other). Anchors with
+    fewer than MIN_ON_GROUND samples on the floor are left out, and a height where
+    fewer than two are left."""
     signs = np.stack([problem.anchor_sign(k) for k in problem.anchor_ids], axis=1)
-    on_floor = (problem.tag_positions()[:, 2] < height)[:, None]
-    seen = np.sum((signs != 0) & on_floor, axis=0) >= MIN_ON_GROUND
-    if seen.sum() < 2:
-        return None
-    floor_columns = signs[:, seen] * on_floor
-    x = np.concatenate([signs, floor_columns], axis=1)
-    theta = irls(z, x, np.full(x.shape[1], ON_GROUND_PRIOR))
     delays_only = irls(z, signs, np.full(signs.shape[1], ON_GROUND_PRIOR))
-    gain = float(huber_loss(z - signs @ delays_only).sum() - huber_loss(z - x @ theta).sum())
-    change = theta[signs.shape[1]:]
-    return OnGroundFit(height, [int(k) for k in np.asarray(problem.anchor_ids)[seen]], change - delay_centre(change),
-                       floor_columns, gain)
+    loss_delays_only = float(huber_loss(z - signs @ delays_only).sum())
+    fits = []
+    for height in heights:
+        on_floor = (problem.tag_positions()[:, 2] < height)[:, None]
+        seen = np.sum((signs != 0) & on_floor, axis=0) >= MIN_ON_GROUND
+        if seen.sum() < 2:
+            continue
+        floor_columns = signs[:, seen] * on_floor
+        x = np.concatenate([signs, floor_columns], axis=1)
+        theta = irls(z, x, np.full(x.shape[1], ON_GROUND_PRIOR))
+        change = theta[signs.shape[1]:]
+        fits.append(OnGroundFit(height, [int(k) for k in np.asarray(problem.anchor_ids)[seen]],
+                                change - delay_centre(change), floor_columns,
+                                loss_delays_only - float(huber_loss(z - x @ theta).sum())))
+    return fits
 
 
 def on_ground_delays(problem: Problem, z: np.ndarray) -> dict[str, float]:
-    """on_ground_fit's changes by anchor id, in noise deviations of `z`."""
-    fit = on_ground_fit(problem, z)
-    return {} if fit is None else {str(k): float(c) for k, c in zip(fit.anchors, fit.change)}
+    """The changes below ON_GROUND_M (on_ground_fits) by anchor id, in noise deviations of `z`."""
+    fits = on_ground_fits(problem, z)
+    return {str(k): float(c) for k, c in zip(fits[0].anchors, fits[0].change)} if fits else {}
 
 
 def _huber_mean(values: np.ndarray, scale: float) -> float:
