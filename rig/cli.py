@@ -7,8 +7,10 @@ module named after the job (importer, simulate, metrics, ...).
 from __future__ import annotations
 
 import argparse
+import faulthandler
 import json
 import logging
+import signal
 import sys
 from pathlib import Path
 
@@ -896,6 +898,8 @@ def _add_segment_options(p: argparse.ArgumentParser) -> None:
 def main(argv: list[str] | None = None) -> int:
     from rig.errors import USER_ERRORS
 
+    # a rig that seems stuck says where: `kill -USR1 PID` prints every thread's stack
+    faulthandler.register(signal.SIGUSR1, all_threads=True)
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
