@@ -11,6 +11,7 @@ model from the diagnosis) is a plain JSON list of effects.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import ClassVar
@@ -124,6 +125,33 @@ class Effect:
     def stamp(self, t: np.ndarray) -> np.ndarray:
         """Timing effects: the UWB timestamp of a measurement made at true time `t`."""
         return t
+
+
+def _finite(value, name: str, what: str = "a finite number", valid=None) -> float:
+    """A parameter that must be one finite number, `valid` if given (NaN would pass
+    every range check: each comparison is false)."""
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        x = np.nan
+    if not np.isfinite(x) or (valid is not None and not valid(x)):
+        raise ValueError(f"{name} must be {what}, got {value!r}")
+    return x
+
+
+FRACTION, HEIGHT = "a fraction within [0, 1]", "a height > 0"
+
+
+def _fraction(x: float) -> bool:
+    return 0.0 <= x <= 1.0
+
+
+def _positive(x: float) -> bool:
+    return x > 0.0
+
+
+def _non_negative(x: float) -> bool:
+    return x >= 0.0
 
 
 def _vec3(value, name: str) -> np.ndarray:
@@ -312,10 +340,13 @@ class ImuNoise(Effect):
 
 def _std(value, name: str) -> float | list[float]:
     """A standard deviation for all three axes (a number) or one per axis (a list)."""
-    std = float(value) if np.ndim(value) == 0 else _vec3(value, name).tolist()
-    if not np.all(np.isfinite(std)) or np.any(np.asarray(std) < 0):
-        raise ValueError(f"{name} must be a standard deviation >= 0, or three, got {value!r}")
-    return std
+    what = "a standard deviation >= 0, or three"
+    if np.ndim(value) == 0:
+        return _finite(value, name, what, _non_negative)
+    std = _vec3(value, name)
+    if np.any(std < 0):
+        raise ValueError(f"{name} must be {what}, got {value!r}")
+    return std.tolist()
 
 
 class ImuVibration(Effect):
@@ -369,10 +400,7 @@ class ImuResonance(Effect):
 
 
 def _quality(value, name: str) -> float:
-    q = float(value)
-    if not np.isfinite(q) or q <= 0:
-        raise ValueError(f"{name} must be a quality factor > 0, got {value!r}")
-    return q
+    return _finite(value, name, "a quality factor > 0", _positive)
 
 
 def resonance_design(hz: float, q: float, rate: float) -> tuple[np.ndarray, np.ndarray] | None:
@@ -433,10 +461,7 @@ LOWPASS_MAX_SHARE = 0.45       # of the sample rate: a corner closer to Nyquist 
 
 
 def _corner(value, name: str) -> float:
-    hz = float(value)
-    if not np.isfinite(hz) or hz < 0:
-        raise ValueError(f"{name} must be a corner frequency >= 0 Hz (0: no filter), got {value!r}")
-    return hz
+    return _finite(value, name, "a corner frequency >= 0 Hz (0: no filter)", _non_negative)
 
 
 def lowpass_design(corner_hz: float, rate: float) -> tuple[np.ndarray, np.ndarray] | None:
@@ -475,7 +500,7 @@ class TdoaNoise(Effect):
     name, stage = "tdoa_noise", NOISE
 
     def __init__(self, std_m: float = 0.1):
-        self.std = float(std_m)
+        self.std = _finite(std_m, "std_m", "a standard deviation >= 0", _non_negative)
 
     def params(self) -> dict:
         return {"std_m": self.std}
@@ -493,9 +518,8 @@ class Outliers(Effect):
     name, stage = "outliers", CORRUPTION
 
     def __init__(self, fraction: float = 0.05, mean_excess_m: float = 2.0):
-        if not 0.0 <= fraction <= 1.0:
-            raise ValueError("fraction must be within [0, 1]")
-        self.fraction, self.mean_excess = float(fraction), float(mean_excess_m)
+        self.fraction = _finite(fraction, "fraction", FRACTION, _fraction)
+        self.mean_excess = _finite(mean_excess_m, "mean_excess_m")
 
     def params(self) -> dict:
         return {"fraction": self.fraction, "mean_excess_m": self.mean_excess}
@@ -536,7 +560,7 @@ class TimeOffset(_UwbClock):
     name = "time_offset"
 
     def __init__(self, seconds: float = 0.0):
-        self.seconds = float(seconds)
+        self.seconds = _finite(seconds, "seconds")
 
     def params(self) -> dict:
         return {"seconds": self.seconds}
@@ -552,7 +576,7 @@ class ClockDrift(_UwbClock):
     name = "clock_drift"
 
     def __init__(self, ppm: float = 0.0):
-        self.ppm = float(ppm)
+        self.ppm = _finite(ppm, "ppm")
 
     def params(self) -> dict:
         return {"ppm": self.ppm}
@@ -601,10 +625,11 @@ class AnchorDelay(_Windowed, Effect):
     name, stage = "anchor_delay", SIGNAL
 
     def __init__(self, anchor: int = 0, meters: float = 0.0, during=None, outside_m: float = 0.0):
-        self.anchor, self.meters, self.outside_m = _anchor_id(anchor), float(meters), float(outside_m)
+        self.anchor, self.meters = _anchor_id(anchor), _finite(meters, "meters")
+        self.outside_m = _finite(outside_m, "outside_m")
         self._set_during(during)
         if self.outside_m and self.during is None:
-            raise ValueError("anchor_delay: outside_m needs a window (during)")
+            raise ValueError("outside_m needs a window (during)")
 
     def params(self) -> dict:
         window = {**self._window_params(), "outside_m": self.outside_m} if self.during else {}
@@ -715,9 +740,8 @@ class Nlos(_Windowed, Effect):
 
     def __init__(self, anchor: int = 0, fraction: float = 1.0, mean_excess_m: float = 0.0, region=None,
                  during=None):
-        if not 0.0 <= fraction <= 1.0 or mean_excess_m < 0:
-            raise ValueError("fraction must be within [0, 1] and mean_excess_m non-negative")
-        self.anchor, self.fraction, self.mean_excess = _anchor_id(anchor), float(fraction), float(mean_excess_m)
+        self.anchor, self.fraction = _anchor_id(anchor), _finite(fraction, "fraction", FRACTION, _fraction)
+        self.mean_excess = _finite(mean_excess_m, "mean_excess_m", "an excess delay >= 0", _non_negative)
         self.region = Region.from_json(region)
         self._set_during(during)
 
@@ -742,9 +766,8 @@ class MultipathFloor(Effect):
     name, stage = "multipath_floor", NOISE
 
     def __init__(self, height_m: float = 0.3, std_m: float = 0.0):
-        if height_m <= 0 or std_m < 0:
-            raise ValueError("height_m must be positive and std_m non-negative")
-        self.height, self.std = float(height_m), float(std_m)
+        self.height = _finite(height_m, "height_m", HEIGHT, _positive)
+        self.std = _finite(std_m, "std_m", "a standard deviation >= 0", _non_negative)
 
     def params(self) -> dict:
         return {"height_m": self.height, "std_m": self.std}
@@ -769,15 +792,13 @@ class OnGroundDelay(Effect):
     name, stage = "on_ground_delay", SIGNAL
 
     def __init__(self, meters: dict | None = None, height_m: float = 0.2):
-        if not height_m > 0:
-            raise ValueError("height_m must be positive")
-        self.height = float(height_m)
+        self.height = _finite(height_m, "height_m", HEIGHT, _positive)
         try:
             self.meters = {_anchor_id(int(k)): float(m) for k, m in (meters or {}).items()}
         except (TypeError, ValueError, AttributeError) as exc:
-            raise ValueError(f"on_ground_delay: meters must map anchor ids to metres, got {meters!r}") from exc
+            raise ValueError(f"meters must map anchor ids to metres, got {meters!r}") from exc
         if not all(np.isfinite(m) for m in self.meters.values()):
-            raise ValueError(f"on_ground_delay: meters must be finite, got {meters!r}")
+            raise ValueError(f"meters must be finite, got {meters!r}")
 
     def params(self) -> dict:
         return {"height_m": self.height, "meters": {str(k): m for k, m in sorted(self.meters.items())}}
@@ -800,12 +821,10 @@ class LearnedBias(Effect):
     name, stage = "learned_bias", SIGNAL
 
     def __init__(self, gain: float = 1.0, network: str | None = None):
-        if not np.isfinite(gain):
-            raise ValueError(f"gain must be a finite number, got {gain!r}")
         path = Path(network) if network else DEFAULT_NETWORK
         if not path.is_file():
-            raise ValueError(f"learned_bias: no bias network at {path} (write one with `rig train --out`)")
-        self.gain, self.network, self.net = float(gain), network, BiasNet.load(path)
+            raise ValueError(f"no bias network at {path} (write one with `rig train --out`)")
+        self.gain, self.network, self.net = _finite(gain, "gain"), network, BiasNet.load(path)
 
     def params(self) -> dict:
         return {"gain": self.gain, **({"network": self.network} if self.network else {})}
@@ -839,12 +858,20 @@ def make_effect(name: str, params: dict | None = None) -> Effect:
         raise ValueError(f"unknown effect {name!r}; known: {', '.join(sorted(EFFECTS))}")
     try:
         return EFFECTS[name](**(params or {}))
-    except TypeError as exc:
+    except (TypeError, ValueError) as exc:
         raise ValueError(f"bad parameters for effect {name!r}: {exc}") from exc
 
 
-def effects_from_json(items: list[dict]) -> list[Effect]:
-    return [make_effect(item["effect"], item.get("params", {})) for item in items]
+def effects_from_json(items: list[dict], anchors: Iterable[int] | None = None) -> list[Effect]:
+    """The effects listed as JSON; with the flight's `anchors` (ids), an effect on any
+    other anchor is refused: it would change nothing, silently."""
+    effects = [make_effect(item["effect"], item.get("params", {})) for item in items]
+    if anchors is not None:
+        known = sorted(set(anchors))
+        for effect in effects:
+            if getattr(effect, "anchor", None) is not None and effect.anchor not in known:
+                raise ValueError(f"{effect.name}: anchor {effect.anchor} is not one of the flight's anchors {known}")
+    return effects
 
 
 def params_by_name(items: list[dict]) -> dict[str, dict]:

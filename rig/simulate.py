@@ -114,7 +114,7 @@ def simulate(cfg: SimConfig) -> Recording:
     """Fly `cfg.trajectory` past `cfg`'s anchors and return the simulated recording."""
     rng = np.random.default_rng(cfg.seed)
     trajectory, anchors, meta = _trajectory_and_anchors(cfg)
-    effects = fx.staged(fx.effects_from_json(cfg.effects))
+    effects = fx.staged(fx.effects_from_json(cfg.effects, [a.id for a in anchors]))
     res = {**{k: 0.0 for k in DEFAULT_RESOLUTION}, **cfg.resolution}
     t0, t1 = trajectory.t_start, trajectory.t_end
 
@@ -245,7 +245,7 @@ def inject(rec: Recording, effects: list[dict], seed: int = 0, predictor: Predic
     Used to prove the diagnosis on concealed effects; the result keeps the recording's
     real noise and real effects."""
     rng = np.random.default_rng(seed)
-    chosen = fx.effects_from_json(effects)
+    chosen = fx.effects_from_json(effects, [a.id for a in rec.anchors])
     predictor = predictor or Predictor(rec)
     base = predictor.tdoa([])
     changed = predictor.tdoa([e for e in chosen if e.stage != fx.TIMING], rng)

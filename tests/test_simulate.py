@@ -256,6 +256,36 @@ def test_the_tags_antenna_pattern_biases_each_range_by_its_anchors_direction_in_
         make_effect("tag_antenna_pattern", {"coeffs_m": [0.1, float("nan"), 0.0]})
 
 
+# every number a catalog or noise effect takes alone (the vectors refuse NaN in _vec3)
+SCALAR_PARAMS = [("time_offset", "seconds"), ("clock_drift", "ppm"), ("anchor_delay", "meters"),
+                 ("anchor_delay", "outside_m"), ("nlos", "fraction"), ("nlos", "mean_excess_m"),
+                 ("multipath_floor", "height_m"), ("multipath_floor", "std_m"), ("tdoa_noise", "std_m"),
+                 ("outliers", "fraction"), ("outliers", "mean_excess_m"), ("on_ground_delay", "height_m"),
+                 ("learned_bias", "gain"), ("imu_noise", "accel_std"), ("imu_lowpass", "gyro_hz"),
+                 ("imu_resonance", "accel_q")]
+
+
+@pytest.mark.parametrize("effect,param", SCALAR_PARAMS)
+@pytest.mark.parametrize("bad", [float("nan"), float("inf"), "fast"])
+def test_a_parameter_that_is_not_a_finite_number_is_refused_by_name(effect: str, param: str, bad) -> None:
+    """NaN passes every range check (each comparison is false), and would reach the
+    data as NaN or fail far from its cause."""
+    with pytest.raises(ValueError, match=f"bad parameters for effect '{effect}': {param} must be"):
+        make_effect(effect, {param: bad})
+
+
+def test_an_effect_on_an_anchor_the_flight_lacks_is_refused(survey_0425: Path) -> None:
+    """It would change nothing: a concealed-effect check would then judge a flight that
+    carries nothing injected."""
+    delay = {"effect": "anchor_delay", "params": {"anchor": 9, "meters": 0.1}}
+    cfg = SimConfig(duration=3.0, survey=str(survey_0425))
+    with pytest.raises(ValueError, match=r"anchor_delay: anchor 9 is not one of the flight's anchors \[0, 1, 2"):
+        simulate(replace(cfg, effects=[delay]))
+    with pytest.raises(ValueError, match="anchor 9 is not one of the flight's anchors"):
+        inject(simulate(cfg), [delay])
+    inject(simulate(cfg), [{"effect": "anchor_delay", "params": {"anchor": 7, "meters": 0.1}}])
+
+
 def test_same_seed_same_bytes_other_seed_other_data(tmp_path: Path, survey_0425: Path) -> None:
     cfg = SimConfig(duration=5.0, survey=str(survey_0425), seed=7)
     write_recording(simulate(cfg), tmp_path / "a.mcap")
