@@ -9,7 +9,9 @@ the rig replays into it with `rig replay --target zenoh:NAME --zenoh-connect ...
 from __future__ import annotations
 
 import argparse
+import faulthandler
 import logging
+import signal
 import sys
 
 from bridge.zenoh_link import Bridge, open_session
@@ -25,6 +27,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--listen", action="append", default=[], metavar="ENDPOINT", help="endpoint to listen on")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    faulthandler.register(signal.SIGUSR1, all_threads=True)      # `kill -USR1 PID`: where a stuck bridge is
     try:
         link = open_target(args.target)
     except LinkError as exc:

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -71,9 +73,33 @@ def crafted_log(n: int = 50) -> bytes:
     return encode(TYPES, events)
 
 
-def run_rig(*args: str, cwd: Path = ROOT, check: bool = False) -> subprocess.CompletedProcess:
+def fail_with_stacks(proc: subprocess.Popen, timeout: float) -> None:
+    """Fail the test on a `rig` process still running after `timeout`, with every thread's
+    stack (the rig prints them on SIGUSR1), so that a hang says where it is."""
+    proc.send_signal(signal.SIGUSR1)
+    time.sleep(2.0)
+    proc.kill()
+    _, stderr = proc.communicate()
+    pytest.fail(f"{' '.join(map(str, proc.args))} still running after {timeout:g} s; its threads:\n{stderr[-8000:]}")
+
+
+def exit_status(proc: subprocess.Popen, timeout: float) -> int:
+    """proc's exit status, waiting at most `timeout` (fail_with_stacks after that)."""
+    try:
+        return proc.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        fail_with_stacks(proc, timeout)
+
+
+def run_rig(*args: str, cwd: Path = ROOT, check: bool = False, timeout: float = 600) -> subprocess.CompletedProcess:
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    proc = subprocess.run([*RIG, *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=600)
+    with subprocess.Popen([*RIG, *args], cwd=cwd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                          text=True) as proc:
+        try:
+            stdout, stderr = proc.communicate(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            fail_with_stacks(proc, timeout)
+    result = subprocess.CompletedProcess(proc.args, proc.returncode, stdout, stderr)
     if check:
-        assert proc.returncode == 0, proc.stderr
-    return proc
+        assert result.returncode == 0, result.stderr
+    return result

@@ -14,12 +14,11 @@ import sys
 import time
 from pathlib import Path
 
-import pytest
 from mcap.reader import make_reader
 
 from rig.runrecord import read_run
 
-from conftest import ROOT, RIG, run_rig
+from conftest import ROOT, RIG, exit_status, run_rig
 
 
 def _free_endpoint() -> str:
@@ -35,19 +34,6 @@ def _start(*args: str) -> subprocess.Popen:
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     return subprocess.Popen(list(args), cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
-
-
-def _exit_status(proc: subprocess.Popen, timeout: float) -> int:
-    """proc's exit status; if it is still running after `timeout`, the test fails with
-    every thread's stack (the rig prints them on SIGUSR1), so a hang says where it is."""
-    try:
-        return proc.wait(timeout=timeout)
-    except subprocess.TimeoutExpired:
-        proc.send_signal(signal.SIGUSR1)
-        time.sleep(2.0)
-        proc.kill()
-        _, stderr = proc.communicate()
-        pytest.fail(f"{' '.join(proc.args)} still running after {timeout:g} s; its threads:\n{stderr[-8000:]}")
 
 
 def _topics(path: Path) -> dict[str, int]:
@@ -93,7 +79,7 @@ def test_held_out_flight_into_qemu_is_recorded_and_published_to_another_process(
         proc = run_rig("replay", str(data_dir / "flights" / "0426-traj2"), "--target", "qemu", "--board", "qemu0",
                        "--zenoh-connect", endpoint, "--start", "20", "--duration", "12", "--out", str(out))
         assert proc.returncode == 0, proc.stderr
-        assert _exit_status(watcher, 60) == 0, watcher.stderr.read()
+        assert exit_status(watcher, 60) == 0, watcher.stderr.read()
     finally:
         router.terminate()
         router.wait(timeout=10)
@@ -133,7 +119,7 @@ def test_a_board_lost_mid_run_keeps_the_record_and_says_so(tmp_path: Path) -> No
                         endpoint, "--out", str(out), "--mode", "realtime")
         time.sleep(14.0)                                      # well into the scored segment
         bridge.kill()                                         # the board and its bridge vanish
-        assert _exit_status(replay, 60) == 2                   # a clear error, not a crash
+        assert exit_status(replay, 60) == 2                   # a clear error, not a crash
         stderr = replay.stderr.read()
         assert "went away" in stderr or "stopped answering" in stderr
     finally:
@@ -156,7 +142,7 @@ def test_ctrl_c_finishes_the_run_record(tmp_path: Path) -> None:
         time.sleep(0.2)                                       # anchors and ground truth are on disk
     time.sleep(3.0)                                           # windows are flowing
     replay.send_signal(signal.SIGINT)
-    assert _exit_status(replay, 60) == 130
+    assert exit_status(replay, 60) == 130
     assert _finished(out / "run.mcap")
     assert len(read_run(out / "run.mcap").get("/run/estimate", [])) > 0
 
