@@ -38,6 +38,10 @@ QEMU = "qemu-system-arm"
 # -icount shift=0: one instruction per virtual nanosecond, so TIM2 counts instructions
 # deterministically; sleep=off: never wait for the host clock.
 QEMU_ARGS = ["-M", "netduinoplus2", "-nographic", "-icount", "shift=0,sleep=off"]
+# A board that stops reading fails the write after this long: without it the rig
+# would block in the write for ever, deaf even to Ctrl-C when the signal lands on
+# another of its threads.
+WRITE_TIMEOUT_S = 10.0
 
 
 class SocketPort(protocol_socket.Serial):
@@ -138,6 +142,9 @@ class Link(BoardLink):
         data = b"".join(protocol.frame(p) for p in payloads)
         try:
             self.port.write(data)
+        except serial.SerialTimeoutException as exc:
+            raise LinkError(f"{self.name}: the board stopped reading (a write waited "
+                            f"{self.port.write_timeout:g} s)") from exc
         except (serial.SerialException, OSError) as exc:
             raise LinkError(f"{self.name}: write failed: {exc}") from exc
         self.bytes_sent += len(data)
@@ -245,7 +252,7 @@ def open_native(program: Path | None = None, read_timeout: float = 0.05) -> Link
     if not line.startswith("PTY "):
         proc.kill()
         raise LinkError(f"native target did not open a pty (said {line!r})")
-    port = serial.serial_for_url(line[4:], baudrate=1_000_000, timeout=read_timeout)
+    port = serial.serial_for_url(line[4:], baudrate=1_000_000, timeout=read_timeout, write_timeout=WRITE_TIMEOUT_S)
     return Link(port, f"native {line[4:]}", proc)
 
 
@@ -262,7 +269,7 @@ def open_qemu(firmware: Path | None = None, read_timeout: float = 0.05, connect_
     deadline = time.monotonic() + connect_timeout
     while True:
         try:
-            port = SocketPort(f"socket://127.0.0.1:{port_number}", timeout=read_timeout)
+            port = SocketPort(f"socket://127.0.0.1:{port_number}", timeout=read_timeout, write_timeout=WRITE_TIMEOUT_S)
             break
         except (serial.SerialException, OSError) as exc:
             if proc.poll() is not None or time.monotonic() > deadline:
@@ -303,9 +310,10 @@ def open_native_udp(program: Path | None = None) -> CrtpLink:
         raise
 
 
-def open_url(url: str, read_timeout: float = 0.05, baudrate: int = 921_600) -> Link:
+def open_url(url: str, read_timeout: float = 0.05, baudrate: int = 921_600,
+             write_timeout: float = WRITE_TIMEOUT_S) -> Link:
     try:
-        port = _serial_for_url(url, baudrate=baudrate, timeout=read_timeout)
+        port = _serial_for_url(url, baudrate=baudrate, timeout=read_timeout, write_timeout=write_timeout)
     except (serial.SerialException, OSError, ValueError) as exc:
         raise LinkError(f"cannot open {url}: {exc}") from exc
     return Link(port, url)

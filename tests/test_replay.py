@@ -155,6 +155,23 @@ def test_a_target_that_stops_answering_fails_clearly_within_seconds(default_rec)
         link.close()
 
 
+def test_a_board_that_stops_reading_fails_the_write_instead_of_blocking_for_ever() -> None:
+    """A real pty whose other end nobody reads (a board stuck with its receive
+    interrupt off): once its buffer is full the write gives up with a clear error."""
+    board_side, rig_side = os.openpty()
+    link = transport.open_url(os.ttyname(rig_side), write_timeout=0.5)
+    try:
+        began = time.monotonic()
+        with pytest.raises(transport.LinkError, match="the board stopped reading"):
+            for _ in range(10_000):                  # 1 MB of hellos: far beyond a pty's buffer
+                link.send([protocol.hello()] * 20)
+        assert time.monotonic() - began < 5.0 and link.bytes_sent > 0
+    finally:
+        link.close()
+        os.close(board_side)
+        os.close(rig_side)
+
+
 def test_a_board_that_resets_mid_replay_fails_clearly_and_keeps_the_record(default_rec, tmp_path: Path) -> None:
     """A real reset: QEMU's system_reset reboots the firmware mid-replay; the board
     announces its boot, the replay stops with a clear error and the run record keeps
