@@ -317,23 +317,24 @@ def _replay(recording: Path, target: str, out: Path, *, use_nn: bool = True, rob
     recorder = RunRecorder(out / RUN_FILE)
     info = {"recording": str(recording), "target": target, "bias_net": model is not None, "robust": robust,
             "lookahead": lookahead, "mode": "lockstep" if speed is None else "realtime"}
-    began, run, error, own = time.monotonic(), None, None, session is None
+    began, run, error, own, link = time.monotonic(), None, None, session is None, None
     try:
         session = session or open_session()
         link = _board_link(target, session, board)
-        try:
-            run = replay.run(link, rec, params, model, start=start, duration=duration, lookahead=lookahead,
-                             speed=speed, progress=_progress(desc=f"replay {target}", total=None), recorder=recorder)
-        finally:
-            link.close()
-            info["bytes_sent"] = link.bytes_sent
+        run = replay.run(link, rec, params, model, start=start, duration=duration, lookahead=lookahead,
+                         speed=speed, progress=_progress(desc=f"replay {target}", total=None), recorder=recorder)
     except transport.LinkError as exc:
         error, run = str(exc), getattr(exc, "session", None)
         recorder.status(run.t0 if run else 0.0, "rig", -1, error)
     finally:
-        recorder.close()
-        if own and session is not None:
-            session.close()
+        recorder.close()         # first: the record is whole whatever the link's teardown does
+        try:
+            if link is not None:
+                info["bytes_sent"] = link.bytes_sent
+                link.close()
+        finally:
+            if own and session is not None:
+                session.close()
     wall = time.monotonic() - began
     result = _score_run(run, rec)
     info.setdefault("bytes_sent", 0)       # the link never opened
