@@ -243,9 +243,13 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     print(f"{args.recording}: C estimator ({config}), {result['flight_seconds']:.1f} s replayed in "
           f"{result['estimator_seconds'] * 1e3:.1f} ms of estimator time")
     _print_accuracy(result)
-    reasons = ", ".join(f"{k} {v}" for k, v in result["rejected_by_reason"].items() if v)
+    # the update rejects by its gate or by a robust weight near zero; the rest of the
+    # reasons refuse a measurement before it reaches the update (counted apart)
+    by_reason = result["rejected_by_reason"]
+    refused = ", ".join(f"{k} {v}" for k, v in by_reason.items() if v and k != "gate") or "none"
     print(f"TDOA: {result['tdoa_accepted']} accepted, {result['tdoa_downweighted']} down-weighted, "
-          f"{result['tdoa_rejected']} rejected{' (' + reasons + ')' if reasons else ''}; "
+          f"{result['tdoa_rejected']} rejected (gate {by_reason['gate']}, robust weight "
+          f"{result['tdoa_rejected'] - by_reason['gate']}); refused before the update: {refused}; "
           f"resets {result['resets']}; diverged: {'yes' if result['diverged'] else 'no'}")
     _write_json(args.json, result)
     return EXIT_FAILED if result["diverged"] else EXIT_OK
