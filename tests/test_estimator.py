@@ -4,18 +4,20 @@
 
 from __future__ import annotations
 
+import json
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
 
-from conftest import ROOT, simulate_exact
+from conftest import ROOT, run_rig, simulate_exact
 from rig import native
 from rig.evaluate import build_events, evaluate, make_estimator, start_time, truth_pose_at
 from rig.importer import import_log
-from rig.recording import Recording
+from rig.recording import Recording, read_recording, write_recording
 
 def _sim(survey: Path, effects: list[dict], duration: float = 20.0, **kw) -> Recording:
     return simulate_exact(survey, effects=effects, duration=duration, **kw)
@@ -51,6 +53,22 @@ def test_outlier_bursts_do_not_break_tracking(survey_0425: Path) -> None:
     assert result["max_3d"] < 0.5, "an outlier burst pulled the estimate away"
     assert result["rmse_3d"] < 0.15
     assert result["tdoa_rejected"] + result["tdoa_downweighted"] > 100
+
+
+def test_rig_evaluate_tells_measurements_refused_at_input_from_those_the_update_rejects(tmp_path: Path) -> None:
+    rec = read_recording(ROOT / "recordings" / "default.mcap")
+    rec.tdoa.distance_diff[::50] = np.nan
+    write_recording(rec, tmp_path / "nan.mcap")
+    proc = run_rig("evaluate", str(tmp_path / "nan.mcap"), "--json", str(tmp_path / "e.json"), check=True)
+    result = json.loads((tmp_path / "e.json").read_text())
+    by_reason = result["rejected_by_reason"]
+    assert 100 < by_reason["nonfinite"] <= len(rec.tdoa.t[::50])     # those from take-off on
+    line = re.search(r"(\d+) rejected \(gate (\d+), robust weight (\d+)\); refused before the update: (.*?);",
+                     proc.stdout)
+    assert line, proc.stdout
+    rejected, gate, weight = map(int, line.groups()[:3])
+    assert rejected == result["tdoa_rejected"] == gate + weight and gate == by_reason["gate"]
+    assert f"nonfinite {by_reason['nonfinite']}" in line.group(4) and "gate" not in line.group(4)
 
 
 def test_every_bad_input_is_counted_by_reason_and_never_reaches_the_state(survey_0425: Path) -> None:
