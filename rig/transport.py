@@ -55,10 +55,12 @@ class SocketPort(protocol_socket.Serial):
         return struct.unpack("I", fcntl.ioctl(self._socket, termios.FIONREAD, b"\0\0\0\0"))[0]
 
 
-def _serial_for_url(url: str, **kwargs) -> serial.SerialBase:
+def _serial_for_url(url: str, write_timeout: float = WRITE_TIMEOUT_S, **kwargs) -> serial.SerialBase:
+    """Every link's port (a path, socket:// or another pyserial URL), with a bound on
+    how long a write may wait for a board that stops reading."""
     if url.startswith("socket://"):
-        return SocketPort(url, **kwargs)
-    return serial.serial_for_url(url, **kwargs)
+        return SocketPort(url, write_timeout=write_timeout, **kwargs)
+    return serial.serial_for_url(url, write_timeout=write_timeout, **kwargs)
 
 
 class LinkError(Exception):
@@ -252,7 +254,7 @@ def open_native(program: Path | None = None, read_timeout: float = 0.05) -> Link
     if not line.startswith("PTY "):
         proc.kill()
         raise LinkError(f"native target did not open a pty (said {line!r})")
-    port = serial.serial_for_url(line[4:], baudrate=1_000_000, timeout=read_timeout, write_timeout=WRITE_TIMEOUT_S)
+    port = _serial_for_url(line[4:], baudrate=1_000_000, timeout=read_timeout)
     return Link(port, f"native {line[4:]}", proc)
 
 
@@ -269,7 +271,7 @@ def open_qemu(firmware: Path | None = None, read_timeout: float = 0.05, connect_
     deadline = time.monotonic() + connect_timeout
     while True:
         try:
-            port = SocketPort(f"socket://127.0.0.1:{port_number}", timeout=read_timeout, write_timeout=WRITE_TIMEOUT_S)
+            port = _serial_for_url(f"socket://127.0.0.1:{port_number}", timeout=read_timeout)
             break
         except (serial.SerialException, OSError) as exc:
             if proc.poll() is not None or time.monotonic() > deadline:
