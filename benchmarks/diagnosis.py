@@ -163,7 +163,7 @@ def imu_spectra(reports: dict, flights: dict[str, Path]) -> str:
                      + " | ".join(", ".join(f"{r:.2f}" for r in ratio) for ratio in spreads) + " |")
     lines.append("")
     lines.append("(medians over the flights; a 10 ms mean is what an estimator running at 100 Hz takes in; "
-                 "\"one size\": the axes' mean spread on all three, the model until session 21)")
+                 "\"one size\": the axes' mean spread on all three)")
     return "\n".join(lines)
 
 
@@ -192,7 +192,7 @@ def _estimator_spread(series, model: dict, sensor: str) -> tuple[np.ndarray, np.
     resonance = imu_spectrum.Resonance(peak[f"{sensor}_hz"], peak[f"{sensor}_q"], np.zeros(3)) if peak else None
     modelled = imu_spectrum.logged_noise(np.random.default_rng(0), t, corner, white, resonance,
                                          np.asarray(peak.get(f"{sensor}_std", np.zeros(3))))
-    one_size = np.mean(vibration_spread(series))      # the model until session 21: the axes' mean spread
+    one_size = np.mean(vibration_spread(series))      # white noise of one size: the axes' mean spread
     noise = np.random.default_rng(0).normal(size=fast.shape)
     recorded = imu_spectrum.means_spread(fast, rate, ESTIMATOR_S)
     candidates = (modelled, fx.lowpass(t, noise * one_size / imu_spectrum.noise_gain(corner, rate), corner),

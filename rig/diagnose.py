@@ -1508,7 +1508,7 @@ def _on_ground_term(problem: Problem, z: np.ndarray) -> Term | None:
     ON_GROUND_HEIGHTS_M that removes most): its evidence must pay for its parameters,
     one fewer than the anchors (only their differences show) and the height. Not a
     candidate of the selection: the samples on the floor are what tells an injected
-    displacement or pattern of a floor anchor apart (docs/diagnosis.md, session 32)."""
+    displacement or pattern of a floor anchor apart (docs/diagnosis-experiments.md, session 32)."""
     fits = on_ground_fits(problem, z, ON_GROUND_HEIGHTS_M)
     if not fits:
         return None
