@@ -2,7 +2,7 @@
 runs: each catalog effect injected alone into a flight, diagnosed, compared with the
 untouched flight as control, judged by the suite's own tolerances.
 
-    .venv/bin/python benchmarks/concealed.py [--flights sim 0426-traj1 ...] [--out out/concealed.json] [--rejudge]
+    .venv/bin/python benchmarks/concealed.py [--flights sim 0426-traj1 ...] [--cases nlos ...] [--out out/concealed.json] [--rejudge]
     .venv/bin/python benchmarks/concealed.py --variants --out out/variants.json     # 7 minutes
 
 By default the simulated flight and fourteen real ones (15–21 minutes on two cores).
@@ -110,6 +110,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--flights", nargs="+",
                         help="default: sim and the fourteen real flights (FLIGHTS); with --variants, VARIANT_FLIGHTS")
+    parser.add_argument("--cases", nargs="+", help="only these cases (default: all of the set)")
     parser.add_argument("--out", type=Path, default=ROOT / "out" / "concealed.json")
     parser.add_argument("--rejudge", action="store_true", help="judge the findings of the last run again")
     parser.add_argument("--variants", action="store_true",
@@ -117,6 +118,11 @@ def main() -> None:
                              f"{' '.join(VARIANT_FLIGHTS)})")
     args = parser.parse_args()
     chosen = case_set(args.variants)
+    if args.cases:
+        unknown = set(args.cases) - set(chosen)
+        if unknown:
+            parser.error(f"unknown cases {sorted(unknown)}; known: {', '.join(chosen)}")
+        chosen = {label: chosen[label] for label in args.cases}
     raw = args.out.with_suffix(".findings.json")
     if args.rejudge:
         results = {tuple(key.split("|")): value for key, value in json.loads(raw.read_text()).items()}
