@@ -24,7 +24,8 @@ import numpy as np  # noqa: E402
 
 from rig import effects as fx  # noqa: E402
 from rig import imu_spectrum, paths  # noqa: E402
-from rig.diagnose import ON_GROUND_M, left_out_text, vibration_spread  # noqa: E402
+from rig.diagnose import left_out_text, vibration_spread  # noqa: E402
+from rig.floor_error import ON_GROUND_M  # noqa: E402
 from rig.importer import load_any  # noqa: E402
 from rig.recording import Vec3Series  # noqa: E402
 

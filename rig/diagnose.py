@@ -17,7 +17,7 @@ Method, per channel (TDOA, accelerometer, gyroscope):
    equal length); the weakest goes while below a bar (a penalty per parameter).
    Delays are reported relative to their robust centre (`delay_centre`): TDOA does
    not see a delay common to all anchors.
-4. Estimates (Huber IRLS with weak priors): a named term's estimate is its value in
+4. Estimates (Huber IRLS with weak priors, rig.robust): a named term's estimate is its value in
    the joint fit of the named terms of its rank or a simpler one (ORDER: a delay
    before a displacement before a pattern before NLOS), so the simplest explanation
    takes the signal it can, and a richer effect named or not does not move the
@@ -38,7 +38,8 @@ Method, per channel (TDOA, accelerometer, gyroscope):
    (rig.nlos_mixture: a positive exponential tail, held out), its mean excess taken
    out and every candidate named again on what is left; the floor multipath is a
    noise-level effect judged on the local TDOA noise (what a running median leaves)
-   below a height.
+   below a height, and how the ranges read with the tag on the floor is fitted on
+   what the model leaves (rig.floor_error).
 6. The named effects, fitted jointly, re-simulate the recording (each channel's
    mismatch before and after); each finding's `fit_before`/`fit_after` is the
    robust RMS mismatch of its affected samples under that model without and with it.
@@ -55,14 +56,17 @@ from scipy.spatial import cKDTree
 
 from rig import effects as fx
 from rig import imu_spectrum, nlos_mixture
+from rig.floor_error import (ON_GROUND_HEIGHTS_M, ON_GROUND_M, ON_GROUND_PRIOR, floor_multipath, local_noise,
+                             on_ground_delays, on_ground_fits)
 from rig.recording import Recording, Vec3Series
 from rig.region_scan import BoxScan
+from rig.robust import (HUBER_C, delay_centre, delay_centre_slope, huber_loss, huber_mean, irls,
+                        mad_scale, robust_nll, robust_rms, weighted_normal)
 from rig.simulate import Predictor
 from rig.trajectory import ATTITUDE_WINDOW_S, window_mean
 
 log = logging.getLogger(__name__)
 
-HUBER_C = 1.345                # Huber threshold, in noise standard deviations
 FOLDS = 5                      # contiguous time blocks for cross-validation
 PENALTY_PER_PARAMETER = 2.0    # evidence a parameter must pay for (AIC-like)
 MIN_EVIDENCE = 8.0             # evidence, in half chi-square units, to name an effect
@@ -71,9 +75,6 @@ IDENTIFIED_SD_SHARE = 0.5      # a parameter is identified when its standard err
 TIME_BLOCKS = 10               # resolution of "only in part of the flight"
 MIN_SAMPLES = 50
 EDGE_S = 0.5                   # ignore samples this close to the ends of the ground truth
-ON_GROUND_M = 0.2              # a tag this low sits on the floor or is taking off or landing: left out of the
-#                                NLOS search and the floor multipath (transients); located on its own (locate)
-MIN_ON_GROUND = 20             # samples of an anchor with the tag on the floor to say how it reads there
 # IMU channels compare block means. The ground truth's rates are those of its attitude
 # averaged over ATTITUDE_WINDOW_S (its noise, differentiated, would drown the small
 # rates of these flights and dilute a fitted scale factor): the gyroscope is averaged
@@ -170,56 +171,7 @@ class Candidate:
         return fx.make_effect(self.effect, params)
 
 
-# ----------------------------------------------------------------------------- robust fitting
-
-def huber_loss(z: np.ndarray) -> np.ndarray:
-    a = np.abs(z)
-    return np.where(a <= HUBER_C, 0.5 * z * z, HUBER_C * (a - 0.5 * HUBER_C))
-
-
-def huber_weight(z: np.ndarray) -> np.ndarray:
-    a = np.abs(z)
-    return np.where(a <= HUBER_C, 1.0, HUBER_C / np.maximum(a, 1e-12))
-
-
-def irls(z: np.ndarray, x: np.ndarray, prior: np.ndarray | None = None, iterations: int = 8) -> np.ndarray:
-    """Huber M-estimate of theta in z ≈ x theta (both standardised), with a Gaussian
-    prior of standard deviation `prior` on each parameter: look-alike effects fitted
-    together stay at physical sizes instead of cancelling each other at absurd ones."""
-    theta = np.zeros(x.shape[1])
-    ridge = np.diag(np.full(x.shape[1], 1e-9) if prior is None else 1.0 / np.asarray(prior, float) ** 2)
-    for _ in range(iterations):
-        gram, moment = weighted_normal(z, x, theta)
-        new = np.linalg.solve(gram + ridge, moment)
-        if np.allclose(new, theta, atol=1e-10, rtol=1e-6):
-            return new
-        theta = new
-    return theta
-
-
-def weighted_normal(z: np.ndarray, x: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The normal equations of z ≈ x theta with the Huber weights of the residual at
-    `theta`: XᵀWX and XᵀWz."""
-    xw = x * huber_weight(z - x @ theta)[:, None]
-    return xw.T @ x, xw.T @ z
-
-
-def robust_rms(residual: np.ndarray, scale: np.ndarray) -> float:
-    """The mismatch in the channel's unit: an RMS that stops growing past HUBER_C noise
-    deviations (so a few outliers do not hide a systematic error)."""
-    if not len(residual):
-        return float("nan")
-    z = residual / scale
-    return float(np.sqrt(2.0 * np.mean(huber_loss(z) * scale ** 2)))
-
-
 # ----------------------------------------------------------------------------- channels
-
-def _mad_scale(values: np.ndarray) -> float:
-    values = values[np.isfinite(values)]
-    scale = 1.4826 * np.median(np.abs(values - np.median(values))) if len(values) else 1.0
-    return float(scale) if scale > 1e-9 else 1.0
-
 
 class Problem:
     """A recording, its predictor and the channels' rows."""
@@ -350,7 +302,7 @@ class Problem:
         steps = np.diff(readings, axis=0, prepend=readings[:1]) / np.sqrt(2.0)
         white = steps * np.random.default_rng(0).choice([-1.0, 1.0], size=steps.shape)
         rows = self._rows_of(name, white).reshape(-1, 3)
-        own = np.array([_mad_scale(rows[:, axis]) for axis in range(3)])
+        own = np.array([mad_scale(rows[:, axis]) for axis in range(3)])
         total = self.scales[name][:3]
         return np.clip(1.0 - (own / total) ** 2, 0.0, 1.0)
 
@@ -393,8 +345,8 @@ class Problem:
         inflate the scale and hide itself). Consecutive TDOA rows are different anchor
         pairs, whose biases differ: there the plain robust spread is used."""
         if name == "tdoa":
-            return np.full(len(residual), _mad_scale(residual))
-        per_axis = [_mad_scale(np.diff(residual[axis::3])) / np.sqrt(2.0) for axis in range(3)]
+            return np.full(len(residual), mad_scale(residual))
+        per_axis = [mad_scale(np.diff(residual[axis::3])) / np.sqrt(2.0) for axis in range(3)]
         return np.tile(per_axis, len(residual) // 3)
 
     def times(self, name: str) -> np.ndarray:
@@ -577,35 +529,6 @@ def _delay_family(terms: list[Term]) -> list[Term]:
     if len(delays) < 2 or np.abs(sum(t.columns[:, 0] for t in delays)).max() > 1e-6:
         return []
     return delays
-
-
-GAUGE_SPREAD_M = 0.3           # the delays' centre: delays further off than this count as the anchor's own
-
-
-def delay_centre(delays: np.ndarray) -> float:
-    """The centre delays are reported against: a Huber M-estimate of location with a
-    fixed spread (GAUGE_SPREAD_M). Like a median, one anchor's large delay moves it by
-    a bounded amount, the spread over the number of anchors (so it shows on that
-    anchor nearly alone, where a mean would spread it as −1/n over all the others);
-    unlike a median of eight, which averages the middle two, a delay that changes on
-    one anchor moves it smoothly by about 1/n of the change, not by up to half of it
-    (0425-traj13: 12 cm added to a middle anchor's delay read as 6.7 cm against its
-    control). A spread scaled by the delays' own MAD would jump with it. Fitted by
-    `irls` from their median (delays spread wide apart can leave a flat stretch of
-    centres), in units where its Huber threshold is the spread."""
-    median, unit = float(np.median(delays)), GAUGE_SPREAD_M / HUBER_C
-    about_median = (np.asarray(delays, float) - median) / unit
-    return median + float(irls(about_median, np.ones((len(delays), 1)), iterations=100)[0]) * unit
-
-
-def delay_centre_slope(delays: np.ndarray) -> np.ndarray:
-    """How `delay_centre` moves with each delay: a Huber location moves with the delays
-    within its spread of it, equally, and not with those beyond (their pull on it is
-    capped). It maps the delays' covariance to that of the delays as reported."""
-    near = np.abs(np.asarray(delays, float) - delay_centre(delays)) <= GAUGE_SPREAD_M
-    if not near.any():
-        near[:] = True
-    return near / near.sum()
 
 
 def _centre_gauge(terms: list[Term], attribute: str = "theta") -> None:
@@ -1145,7 +1068,7 @@ def nlos_shape(excess: np.ndarray, outside: np.ndarray, mean_shift: float) -> tu
     """Fraction and mean excess of an exponential NLOS mixture from its mean shift and
     the extra second moment of the signed residuals inside the region (robustly
     trimmed); falls back to 'every sample, by the mean shift' when unidentifiable."""
-    limit = 6 * _mad_scale(outside) if len(outside) else np.inf
+    limit = 6 * mad_scale(outside) if len(outside) else np.inf
     inside, outside = excess[np.abs(excess) < limit], outside[np.abs(outside) < limit]
     if mean_shift <= 0 or len(inside) < MIN_SAMPLES or len(outside) < MIN_SAMPLES:
         return 1.0, max(mean_shift, 0.0)
@@ -1176,40 +1099,6 @@ def _nlos_shapes(problem: Problem, channel: Channel, z: np.ndarray,
             log.info("%s: + nlos:%d by its shape (held-out gain %.1f)", channel.name, k, fit.evidence)
             found.append(fit)
     return found
-
-
-# ----------------------------------------------------------------------------- floor multipath
-
-FLOOR_HEIGHTS_M = (0.25, 0.4, 0.6, 0.8, 1.0)
-
-
-def _nll(r: np.ndarray, sigma: np.ndarray | float) -> np.ndarray:
-    """Robust negative log-likelihood per sample (Huber loss with scale)."""
-    return np.log(sigma) + huber_loss(r / sigma)
-
-
-def floor_multipath(channel: Channel, heights: np.ndarray) -> dict | None:
-    """Is the TDOA noise larger below some height? Robust log-likelihood gained by a
-    two-level noise model (below/above h) over one level, at the best h, judged like
-    the other effects' evidence; None when not supported."""
-    r, best = channel.residual, None
-    airborne = heights >= ON_GROUND_M
-    r, heights = r[airborne], heights[airborne]
-    one = _mad_scale(r)
-    for h in FLOOR_HEIGHTS_M:
-        low = heights < h
-        if low.sum() < MIN_SAMPLES or (~low).sum() < MIN_SAMPLES:
-            continue
-        sigma_low, sigma_high = _mad_scale(r[low]), _mad_scale(r[~low])
-        gain = float((_nll(r, one) - _nll(r, np.where(low, sigma_low, sigma_high))).sum())
-        if sigma_low > sigma_high and (best is None or gain > best["evidence"]):
-            rows = np.zeros(len(airborne), bool)
-            rows[np.flatnonzero(airborne)[low]] = True
-            best = {"height_m": h, "std_m": float(np.sqrt(sigma_low ** 2 - sigma_high ** 2)), "evidence": gain,
-                    "sigma_low": sigma_low, "sigma_high": sigma_high, "low": rows}
-    if best is None or best["evidence"] - 2 * PENALTY_PER_PARAMETER < MIN_EVIDENCE:
-        return None
-    return best
 
 
 # ----------------------------------------------------------------------------- the diagnosis
@@ -1291,7 +1180,7 @@ class Diagnosis:
         part of that noise goes through the peak (`imu_resonance`)."""
         out = []
         if "tdoa" in self.residual_after:
-            out.append({"effect": "tdoa_noise", "params": {"std_m": _mad_scale(self.residual_after["tdoa"])}})
+            out.append({"effect": "tdoa_noise", "params": {"std_m": mad_scale(self.residual_after["tdoa"])}})
         rec = self.problem.rec
         if not (len(rec.accel) and len(rec.gyro)):
             return out
@@ -1341,7 +1230,7 @@ def vibration_spread(series: Vec3Series) -> np.ndarray:
         return np.zeros(3)
     rms = []
     for values in fast.T:
-        kept = values[np.abs(values - np.median(values)) <= GROSS_Z * max(_mad_scale(values), 1e-12)]
+        kept = values[np.abs(values - np.median(values)) <= GROSS_Z * max(mad_scale(values), 1e-12)]
         rms.append(np.sqrt(np.mean((kept - np.median(values)) ** 2)) if len(kept) else 0.0)
     return np.array(rms)
 
@@ -1489,16 +1378,15 @@ def _floor_finding(problem: Problem, residual: np.ndarray) -> Finding | None:
     the finding does not depend on the rest of the model."""
     noise = local_noise(problem, residual)
     heights = problem.tag_positions()[:, 2]
-    channel = Channel("tdoa", problem.times("tdoa"), noise, problem.scales["tdoa"])
-    floor = floor_multipath(channel, heights)
+    floor = floor_multipath(noise, heights, MIN_EVIDENCE + 2 * PENALTY_PER_PARAMETER)
     if floor is None:
         return None
     low = floor["low"]
-    before = float(np.mean(_nll(noise[low], _mad_scale(noise[heights >= ON_GROUND_M]))))
-    after = float(np.mean(_nll(noise[low], floor["sigma_low"])))
+    before = float(np.mean(robust_nll(noise[low], mad_scale(noise[heights >= ON_GROUND_M]))))
+    after = float(np.mean(robust_nll(noise[low], floor["sigma_low"])))
     return Finding("multipath_floor", "tdoa", [], {"height_m": floor["height_m"], "std_m": round(floor["std_m"], 4)},
                    round(floor["evidence"], 2), before, after,
-                   {"below_height_m": floor["height_m"], "time": _span(channel.t[low]),
+                   {"below_height_m": floor["height_m"], "time": _span(problem.times("tdoa")[low]),
                     "fit_unit": "mean negative log-likelihood per sample (a noise-level effect)"})
 
 
@@ -1536,29 +1424,6 @@ def _on_ground_finding(channel: Channel, term: Term, effect: fx.Effect, z_model:
                    round(float(term.net_evidence), 2), robust_rms(without[rows] * scale, scale),
                    robust_rms(z_model[rows] * scale, scale),
                    {"below_height_m": term.extra["height_m"], "time": _span(channel.t[rows]), "anchors": anchors})
-
-
-LOCAL_SAMPLES = 4              # neighbours on each side, in measurements of one anchor pair
-
-
-def local_noise(problem: Problem, residual: np.ndarray) -> np.ndarray:
-    """Each TDOA residual minus the median of its anchor pair's 2 x LOCAL_SAMPLES
-    neighbouring measurements (itself left out), scaled so that white noise keeps its
-    standard deviation (a median of n samples varies about pi/2n times as much)."""
-    d, rows = problem.rec.tdoa, problem.tdoa_rows
-    pair = d.id_a[rows].astype(np.int64) * 65536 + d.id_b[rows]
-    out = np.zeros(len(residual))
-    k = LOCAL_SAMPLES
-    for key in np.unique(pair):
-        idx = np.flatnonzero(pair == key)
-        idx = idx[np.argsort(d.t[rows][idx], kind="stable")]
-        values = residual[idx]
-        if len(values) <= 2 * k:
-            out[idx] = values - np.median(values)
-            continue
-        windows = np.lib.stride_tricks.sliding_window_view(np.pad(values, k, mode="reflect"), 2 * k + 1)
-        out[idx] = values - np.median(np.delete(windows, k, axis=1), axis=1)
-    return out / np.sqrt(1.0 + np.pi / (4 * k))
 
 
 def rounded_floats(value, digits: int = 6):
@@ -1618,14 +1483,14 @@ def locate(problem: Problem, residual: dict[str, np.ndarray]) -> dict:
     out: dict = {}
     if "tdoa" in residual:
         r, scale = residual["tdoa"], problem.scales["tdoa"][0]
-        out["tdoa_per_anchor_m"] = {str(k): _huber_mean(problem.anchor_sign(k)[problem.anchor_sign(k) != 0]
+        out["tdoa_per_anchor_m"] = {str(k): huber_mean(problem.anchor_sign(k)[problem.anchor_sign(k) != 0]
                                                         * r[problem.anchor_sign(k) != 0], scale)
                                     for k in problem.anchor_ids}
         out["tdoa_on_ground_m"] = {k: float(v * scale) for k, v in on_ground_delays(problem, r / scale).items()}
     for name in ("accel", "gyro"):
         if name in residual:
             r = residual[name]
-            out[f"{name}_per_axis"] = {AXES[a]: _huber_mean(r[a::3], problem.scales[name][a]) for a in range(3)}
+            out[f"{name}_per_axis"] = {AXES[a]: huber_mean(r[a::3], problem.scales[name][a]) for a in range(3)}
     for name, r in residual.items():
         t = problem.times(name)
         edges = np.quantile(t, np.linspace(0, 1, TIME_BLOCKS + 1))
@@ -1635,59 +1500,3 @@ def locate(problem: Problem, residual: dict[str, np.ndarray]) -> dict:
              "robust_rms": robust_rms(r[block == b], problem.scales[name][block == b])}
             for b in range(TIME_BLOCKS) if (block == b).any()]
     return out
-
-
-ON_GROUND_PRIOR = 100.0        # in noise deviations: as good as none, it only fixes the delays' common part
-# where the ranges start to read as on the floor: on the real flights the error is
-# whole below 0.1 m (sitting), a fraction of it at 0.1-0.15 m and gone above 0.2 m
-ON_GROUND_HEIGHTS_M = (0.05, 0.1, 0.15, 0.2)
-
-
-@dataclass
-class OnGroundFit:
-    """How much longer each anchor's ranges read with the tag on the floor than in
-    flight (on_ground_fits)."""
-
-    height: float               # the tag below this, m
-    anchors: list[int]          # those seen on the floor often enough
-    change: np.ndarray          # per anchor, in noise deviations, against their centre
-    columns: np.ndarray         # per anchor, its sign in the rows on the floor, 0 elsewhere
-    gain: float                 # robust loss the changes take off, in half chi-square units
-
-
-def on_ground_fits(problem: Problem, z: np.ndarray, heights: tuple[float, ...] = (ON_GROUND_M,)) -> list[OnGroundFit]:
-    """At each of `heights`, every anchor's delay and its change with the tag below the
-    height (on the floor) fitted jointly (Huber) on `z` (the standardised residual),
-    against the delays alone (fitted once for all heights); the changes against their
-    centre as delays are (TDOA sees them only relative to each other). Anchors with
-    fewer than MIN_ON_GROUND samples on the floor are left out, and a height where
-    fewer than two are left."""
-    signs = np.stack([problem.anchor_sign(k) for k in problem.anchor_ids], axis=1)
-    delays_only = irls(z, signs, np.full(signs.shape[1], ON_GROUND_PRIOR))
-    loss_delays_only = float(huber_loss(z - signs @ delays_only).sum())
-    fits = []
-    for height in heights:
-        on_floor = (problem.tag_positions()[:, 2] < height)[:, None]
-        seen = np.sum((signs != 0) & on_floor, axis=0) >= MIN_ON_GROUND
-        if seen.sum() < 2:
-            continue
-        floor_columns = signs[:, seen] * on_floor
-        x = np.concatenate([signs, floor_columns], axis=1)
-        theta = irls(z, x, np.full(x.shape[1], ON_GROUND_PRIOR))
-        change = theta[signs.shape[1]:]
-        fits.append(OnGroundFit(height, [int(k) for k in np.asarray(problem.anchor_ids)[seen]],
-                                change - delay_centre(change), floor_columns,
-                                loss_delays_only - float(huber_loss(z - x @ theta).sum())))
-    return fits
-
-
-def on_ground_delays(problem: Problem, z: np.ndarray) -> dict[str, float]:
-    """The changes below ON_GROUND_M (on_ground_fits) by anchor id, in noise deviations of `z`."""
-    fits = on_ground_fits(problem, z)
-    return {str(k): float(c) for k, c in zip(fits[0].anchors, fits[0].change)} if fits else {}
-
-
-def _huber_mean(values: np.ndarray, scale: float) -> float:
-    if not len(values):
-        return float("nan")
-    return float(irls(values / scale, np.ones((len(values), 1)))[0] * scale)

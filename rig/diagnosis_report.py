@@ -15,7 +15,8 @@ import numpy as np  # noqa: E402
 
 from rig import effects as fx  # noqa: E402
 from rig import imu_spectrum  # noqa: E402
-from rig.diagnose import AXES, GROSS_Z, ON_GROUND_M, Diagnosis, Finding, left_out_text, vibration_spread  # noqa: E402
+from rig.diagnose import AXES, GROSS_Z, Diagnosis, Finding, left_out_text, vibration_spread  # noqa: E402
+from rig.floor_error import ON_GROUND_M  # noqa: E402
 
 REPORT_JSON, REPORT_MD, MODEL_JSON = "report.json", "report.md", "model.json"
 SENSORS = {"accel": ("accelerometer", "m/s²"), "gyro": ("gyroscope", "rad/s")}     # the IMU's, in words

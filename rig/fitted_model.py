@@ -20,7 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from rig.diagnose import delay_centre, rounded_floats
+from rig.diagnose import rounded_floats
+from rig.robust import delay_centre
 from rig.trajectory import GRAVITY
 
 log = logging.getLogger(__name__)

@@ -22,13 +22,14 @@ from scipy.spatial.transform import Rotation
 from conftest import RIG
 from rig import effects as fx
 from rig import imu_spectrum
-from rig.diagnose import (ON_GROUND_M, ORDER, Candidate, Channel, Problem, Term, _confine_in_time, _estimate,
-                          _free_offset, _mad_scale, candidates, delay_centre, delay_centre_slope, diagnose, locate,
-                          robust_rms, vibration_spread)
+from rig.diagnose import (ORDER, Candidate, Channel, Problem, Term, _confine_in_time, _estimate, _free_offset,
+                          candidates, diagnose, locate, vibration_spread)
 from rig.diagnosis_report import write as write_report
 from rig.fitted_model import outside_window
+from rig.floor_error import ON_GROUND_M
 from rig.importer import load_any
 from rig.recording import Recording, Vec3Series
+from rig.robust import delay_centre, delay_centre_slope, mad_scale, robust_rms
 from rig.simulate import Predictor, SimConfig, inject, simulate
 
 NOISE = [{"effect": "tdoa_noise", "params": {"std_m": 0.15}},
@@ -90,7 +91,7 @@ def concealed(rec, effect: dict, predictor: Predictor | None = None) -> None:
         before, after = getattr(rec, series).xyz, getattr(changed, series).xyz
         true = predictor.accel_true if name == "accel" else predictor.gyro_true
         for axis in range(3):
-            noise = _mad_scale(before[:, axis] - true[:, axis])
+            noise = mad_scale(before[:, axis] - true[:, axis])
             effect_rms = np.sqrt(np.mean((after[:, axis] - before[:, axis]) ** 2))
             assert effect_rms <= noise, f"{effect} is not concealed on {name} {axis}: {effect_rms} > {noise}"
     rows = base.tdoa_rows
@@ -98,7 +99,7 @@ def concealed(rec, effect: dict, predictor: Predictor | None = None) -> None:
         moved = Predictor(changed).tdoa([]).value[rows] - predictor.tdoa([]).value[rows]
     else:
         moved = changed.tdoa.distance_diff[rows] - rec.tdoa.distance_diff[rows]
-    noise = _mad_scale(rec.tdoa.distance_diff[rows] - predictor.tdoa([]).value[rows])
+    noise = mad_scale(rec.tdoa.distance_diff[rows] - predictor.tdoa([]).value[rows])
     effect_rms = np.sqrt(np.mean(moved ** 2))
     assert effect_rms <= noise, f"{effect} is not concealed on TDOA: {effect_rms:.3f} > {noise:.3f} m"
 
@@ -652,7 +653,7 @@ def test_the_imu_noise_level_is_the_rms_less_glitches() -> None:
     assert vibration_spread(Vec3Series(t, shaken)) == pytest.approx([1.0, 0.5, 0.2], rel=0.02)
     heavy = rng.standard_t(3, (len(t), 3)) * 0.5
     assert vibration_spread(Vec3Series(t, heavy)) == pytest.approx(heavy.std(axis=0), rel=0.05)
-    assert np.all(vibration_spread(Vec3Series(t, heavy)) > 1.4 * np.array([_mad_scale(v) for v in heavy.T]))
+    assert np.all(vibration_spread(Vec3Series(t, heavy)) > 1.4 * np.array([mad_scale(v) for v in heavy.T]))
     spiked = heavy.copy()
     spiked[100], spiked[20000] = 157.0, -157.0
     assert vibration_spread(Vec3Series(t, spiked)) == pytest.approx(vibration_spread(Vec3Series(t, heavy)), rel=0.03)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from conftest import run_rig
-from rig.diagnose import delay_centre
+from rig.robust import delay_centre
 from rig.fitted_model import combine, read_models, replace_fitted
 from rig.recording import read_recording
 

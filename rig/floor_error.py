@@ -1,0 +1,123 @@
+"""What the floor does to UWB ranges, measured on a diagnosis's TDOA residuals.
+
+Two effects, both near the ground:
+
+- with the tag sitting on the floor, each anchor's ranges read longer or shorter
+  than in flight (the floor anchors' direct paths run along the floor; what arrives
+  first has gone round): `on_ground_fits`, modelled as `on_ground_delay`;
+- close to the floor (take-off and landing) the TDOA noise is larger: the floor
+  multipath, a noise-level effect judged on each residual less the running median of
+  its anchor pair's neighbours (`local_noise`, `floor_multipath`)."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from rig.robust import delay_centre, huber_loss, irls, mad_scale, robust_nll
+
+if TYPE_CHECKING:
+    from rig.diagnose import Problem
+
+ON_GROUND_M = 0.2              # a tag this low sits on the floor or is taking off or landing: left out of the
+#                                NLOS search and the floor multipath (transients); located on its own (locate)
+MIN_ON_GROUND = 20             # samples of an anchor with the tag on the floor to say how it reads there
+ON_GROUND_PRIOR = 100.0        # in noise deviations: as good as none, it only fixes the delays' common part
+# where the ranges start to read as on the floor: on the real flights the error is
+# whole below 0.1 m (sitting), a fraction of it at 0.1-0.15 m and gone above 0.2 m
+ON_GROUND_HEIGHTS_M = (0.05, 0.1, 0.15, 0.2)
+FLOOR_HEIGHTS_M = (0.25, 0.4, 0.6, 0.8, 1.0)   # the floor multipath's heights tried
+MIN_LEVEL_SAMPLES = 50         # samples each of the floor multipath's two noise levels needs
+LOCAL_SAMPLES = 4              # neighbours on each side, in measurements of one anchor pair
+
+
+@dataclass
+class OnGroundFit:
+    """How much longer each anchor's ranges read with the tag on the floor than in
+    flight (on_ground_fits)."""
+
+    height: float               # the tag below this, m
+    anchors: list[int]          # those seen on the floor often enough
+    change: np.ndarray          # per anchor, in noise deviations, against their centre
+    columns: np.ndarray         # per anchor, its sign in the rows on the floor, 0 elsewhere
+    gain: float                 # robust loss the changes take off, in half chi-square units
+
+
+def on_ground_fits(problem: Problem, z: np.ndarray, heights: tuple[float, ...] = (ON_GROUND_M,)) -> list[OnGroundFit]:
+    """At each of `heights`, every anchor's delay and its change with the tag below the
+    height (on the floor) fitted jointly (Huber) on `z` (the standardised residual),
+    against the delays alone (fitted once for all heights); the changes against their
+    centre as delays are (TDOA sees them only relative to each other). Anchors with
+    fewer than MIN_ON_GROUND samples on the floor are left out, and a height where
+    fewer than two are left."""
+    signs = np.stack([problem.anchor_sign(k) for k in problem.anchor_ids], axis=1)
+    delays_only = irls(z, signs, np.full(signs.shape[1], ON_GROUND_PRIOR))
+    loss_delays_only = float(huber_loss(z - signs @ delays_only).sum())
+    fits = []
+    for height in heights:
+        on_floor = (problem.tag_positions()[:, 2] < height)[:, None]
+        seen = np.sum((signs != 0) & on_floor, axis=0) >= MIN_ON_GROUND
+        if seen.sum() < 2:
+            continue
+        floor_columns = signs[:, seen] * on_floor
+        x = np.concatenate([signs, floor_columns], axis=1)
+        theta = irls(z, x, np.full(x.shape[1], ON_GROUND_PRIOR))
+        change = theta[signs.shape[1]:]
+        fits.append(OnGroundFit(height, [int(k) for k in np.asarray(problem.anchor_ids)[seen]],
+                                change - delay_centre(change), floor_columns,
+                                loss_delays_only - float(huber_loss(z - x @ theta).sum())))
+    return fits
+
+
+def on_ground_delays(problem: Problem, z: np.ndarray) -> dict[str, float]:
+    """The changes below ON_GROUND_M (on_ground_fits) by anchor id, in noise deviations of `z`."""
+    fits = on_ground_fits(problem, z)
+    return {str(k): float(c) for k, c in zip(fits[0].anchors, fits[0].change)} if fits else {}
+
+
+def local_noise(problem: Problem, residual: np.ndarray) -> np.ndarray:
+    """Each TDOA residual minus the median of its anchor pair's 2 x LOCAL_SAMPLES
+    neighbouring measurements (itself left out), scaled so that white noise keeps its
+    standard deviation (a median of n samples varies about pi/2n times as much)."""
+    d, rows = problem.rec.tdoa, problem.tdoa_rows
+    pair = d.id_a[rows].astype(np.int64) * 65536 + d.id_b[rows]
+    out = np.zeros(len(residual))
+    k = LOCAL_SAMPLES
+    for key in np.unique(pair):
+        idx = np.flatnonzero(pair == key)
+        idx = idx[np.argsort(d.t[rows][idx], kind="stable")]
+        values = residual[idx]
+        if len(values) <= 2 * k:
+            out[idx] = values - np.median(values)
+            continue
+        windows = np.lib.stride_tricks.sliding_window_view(np.pad(values, k, mode="reflect"), 2 * k + 1)
+        out[idx] = values - np.median(np.delete(windows, k, axis=1), axis=1)
+    return out / np.sqrt(1.0 + np.pi / (4 * k))
+
+
+def floor_multipath(noise: np.ndarray, heights: np.ndarray, bar: float) -> dict | None:
+    """Is the TDOA noise (`noise`: local_noise, at the tag's `heights`) larger below
+    some height? The robust log-likelihood a two-level noise model (below/above h)
+    gains over one level, at the best h of FLOOR_HEIGHTS_M, on the samples above
+    ON_GROUND_M; None when that gain is below `bar` (what the diagnosis asks of an
+    effect with the two parameters, height and extra noise)."""
+    airborne = heights >= ON_GROUND_M
+    r, heights, best = noise[airborne], heights[airborne], None
+    one = mad_scale(r)
+    for h in FLOOR_HEIGHTS_M:
+        low = heights < h
+        if low.sum() < MIN_LEVEL_SAMPLES or (~low).sum() < MIN_LEVEL_SAMPLES:
+            continue
+        sigma_low, sigma_high = mad_scale(r[low]), mad_scale(r[~low])
+        gain = float((robust_nll(r, one) - robust_nll(r, np.where(low, sigma_low, sigma_high))).sum())
+        if sigma_low > sigma_high and (best is None or gain > best["evidence"]):
+            rows = np.zeros(len(airborne), bool)
+            rows[np.flatnonzero(airborne)[low]] = True
+            best = {"height_m": h, "std_m": float(np.sqrt(sigma_low ** 2 - sigma_high ** 2)), "evidence": gain,
+                    "sigma_low": sigma_low, "sigma_high": sigma_high, "low": rows}
+    if best is None or best["evidence"] < bar:
+        return None
+    return best
