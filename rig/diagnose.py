@@ -60,7 +60,7 @@ from rig.floor_error import (ON_GROUND_HEIGHTS_M, ON_GROUND_M, ON_GROUND_PRIOR, 
                              on_ground_delays, on_ground_fits)
 from rig.recording import Recording, Vec3Series
 from rig.region_scan import BoxScan
-from rig.robust import (HUBER_C, delay_centre, delay_centre_slope, huber_loss, huber_mean, irls,
+from rig.robust import (HUBER_C, MIN_SAMPLES, delay_centre, delay_centre_slope, huber_loss, huber_mean, irls,
                         mad_scale, robust_nll, robust_rms, weighted_normal)
 from rig.simulate import Predictor
 from rig.trajectory import ATTITUDE_WINDOW_S, window_mean
@@ -73,7 +73,6 @@ MIN_EVIDENCE = 8.0             # evidence, in half chi-square units, to name an 
 LOOK_ALIKE_MARGIN = 10.0       # candidates whose evidence came this close to the chosen one
 IDENTIFIED_SD_SHARE = 0.5      # a parameter is identified when its standard error is below this share of its prior
 TIME_BLOCKS = 10               # resolution of "only in part of the flight"
-MIN_SAMPLES = 50
 EDGE_S = 0.5                   # ignore samples this close to the ends of the ground truth
 # IMU channels compare block means. The ground truth's rates are those of its attitude
 # averaged over ATTITUDE_WINDOW_S (its noise, differentiated, would drown the small
@@ -1382,7 +1381,7 @@ def _floor_finding(problem: Problem, residual: np.ndarray) -> Finding | None:
     if floor is None:
         return None
     low = floor["low"]
-    before = float(np.mean(robust_nll(noise[low], mad_scale(noise[heights >= ON_GROUND_M]))))
+    before = float(np.mean(robust_nll(noise[low], floor["sigma_one_level"])))
     after = float(np.mean(robust_nll(noise[low], floor["sigma_low"])))
     return Finding("multipath_floor", "tdoa", [], {"height_m": floor["height_m"], "std_m": round(floor["std_m"], 4)},
                    round(floor["evidence"], 2), before, after,

@@ -11,13 +11,12 @@ Two effects, both near the ground:
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from rig.robust import delay_centre, huber_loss, irls, mad_scale, robust_nll
+from rig.robust import MIN_SAMPLES, delay_centre, huber_loss, irls, mad_scale, robust_nll
 
 if TYPE_CHECKING:
     from rig.diagnose import Problem
@@ -30,7 +29,6 @@ ON_GROUND_PRIOR = 100.0        # in noise deviations: as good as none, it only f
 # whole below 0.1 m (sitting), a fraction of it at 0.1-0.15 m and gone above 0.2 m
 ON_GROUND_HEIGHTS_M = (0.05, 0.1, 0.15, 0.2)
 FLOOR_HEIGHTS_M = (0.25, 0.4, 0.6, 0.8, 1.0)   # the floor multipath's heights tried
-MIN_LEVEL_SAMPLES = 50         # samples each of the floor multipath's two noise levels needs
 LOCAL_SAMPLES = 4              # neighbours on each side, in measurements of one anchor pair
 
 
@@ -109,7 +107,7 @@ def floor_multipath(noise: np.ndarray, heights: np.ndarray, bar: float) -> dict 
     one = mad_scale(r)
     for h in FLOOR_HEIGHTS_M:
         low = heights < h
-        if low.sum() < MIN_LEVEL_SAMPLES or (~low).sum() < MIN_LEVEL_SAMPLES:
+        if low.sum() < MIN_SAMPLES or (~low).sum() < MIN_SAMPLES:
             continue
         sigma_low, sigma_high = mad_scale(r[low]), mad_scale(r[~low])
         gain = float((robust_nll(r, one) - robust_nll(r, np.where(low, sigma_low, sigma_high))).sum())
@@ -117,7 +115,7 @@ def floor_multipath(noise: np.ndarray, heights: np.ndarray, bar: float) -> dict 
             rows = np.zeros(len(airborne), bool)
             rows[np.flatnonzero(airborne)[low]] = True
             best = {"height_m": h, "std_m": float(np.sqrt(sigma_low ** 2 - sigma_high ** 2)), "evidence": gain,
-                    "sigma_low": sigma_low, "sigma_high": sigma_high, "low": rows}
+                    "sigma_low": sigma_low, "sigma_one_level": one, "low": rows}
     if best is None or best["evidence"] < bar:
         return None
     return best

@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 HUBER_C = 1.345                # Huber threshold, in noise standard deviations
+MIN_SAMPLES = 50               # the fewest samples a robust scale or location is taken from
 GAUGE_SPREAD_M = 0.3           # the delays' centre: delays further off than this count as the anchor's own
 
 
