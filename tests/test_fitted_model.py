@@ -50,13 +50,15 @@ def test_effects_named_on_most_flights_enter_with_their_medians() -> None:
     assert ("nlos", 2) not in combined, "an NLOS region belongs to one flight's path"
 
 
-def test_the_config_keeps_its_own_outliers_and_imu_noise() -> None:
-    own = [{"effect": "outliers", "params": {"fraction": 0.05}}, {"effect": "imu_noise", "params": {"accel_std": 0.1}},
+def test_the_config_keeps_its_own_outliers_imu_noise_and_learned_bias() -> None:
+    own = [{"effect": "learned_bias", "params": {"gain": 1.0, "network": "room.json"}},
+           {"effect": "outliers", "params": {"fraction": 0.05}}, {"effect": "imu_noise", "params": {"accel_std": 0.1}},
            {"effect": "imu_vibration", "params": {"accel_std": [0.3, 0.3, 0.0]}}]
     config = {"trajectory": "circle", "effects": [*own, {"effect": "tdoa_noise", "params": {"std_m": 0.1}}]}
     effects = replace_fitted(config, combine(MODELS + [[{"effect": "imu_noise", "params": {"accel_std": 0.9}}]]))
     effects = effects["effects"]
-    assert effects[-3:] == own, "heavy tails, the IMU's white noise and the rotors' vibration stay the config's own"
+    assert effects[-4:] == own, \
+        "the pose-dependent bias, heavy tails, the IMU's white noise and the rotors' vibration stay the config's own"
     assert all(e["effect"] != "tdoa_noise" for e in effects), "the config's own noise is replaced by none fitted"
 
 
