@@ -258,12 +258,19 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 # ----------------------------------------------------------------------------- train
 
 def cmd_train(args: argparse.Namespace) -> int:
-    from rig.train import FEATURE_SETS, TrainConfig, provenance_path, run_training
+    from rig.train import FEATURE_SETS, TrainConfig, provenance_path, run_training, trained_on
 
     flights = [f for f in paths.flights() if any(f.name.startswith(p) for p in args.flights)] \
         if args.flights else paths.flights()
+    if args.apart_from:
+        try:
+            apart = trained_on(args.apart_from)
+        except ValueError as exc:
+            raise CliError(str(exc)) from exc
+        flights = [f for f in flights if f.name not in apart]
     if not flights:
-        raise CliError(f"no flight in {paths.data_dir() / 'flights'} matches {args.flights}")
+        raise CliError(f"no flight in {paths.data_dir() / 'flights'} matches {args.flights or 'all'}"
+                       + (f" apart from {args.apart_from}'s training flights" if args.apart_from else ""))
     if args.restarts < 1:
         raise CliError(f"--restarts must be at least 1, got {args.restarts}")
     config = TrainConfig(seed=args.seed, restarts=args.restarts, select_by=args.select_by,
@@ -745,6 +752,9 @@ def build_parser() -> argparse.ArgumentParser:
                                    "validation flights and write the model JSON and a provenance file. Seeded "
                                    "and reproducible.")
     p.add_argument("--flights", nargs="+", metavar="PREFIX", help="use flights whose names start with these")
+    p.add_argument("--apart-from", type=Path, metavar="MODEL",
+                   help="leave out the flights this model (a `rig train` output) trained on, so that it can be "
+                        "tested on what this one learns (how recordings/room_bias_net.json is made)")
     p.add_argument("--test", nargs="+", metavar="PREFIX",
                    help="these flights are the test set (default: a seeded 15%% of the flights)")
     p.add_argument("--exclude-anchors", metavar="K,K", help="leave these anchors out of training; test on them")

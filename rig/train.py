@@ -257,6 +257,14 @@ def provenance_path(model_path: Path) -> Path:
     return model_path.with_name(model_path.stem + ".provenance.json")
 
 
+def trained_on(model_path: Path) -> set[str]:
+    """The names of the flights a `rig train` output trained on, from its provenance."""
+    try:
+        return set(json.loads(provenance_path(model_path).read_text())["split"]["train"])
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise ValueError(f"{model_path}: no readable provenance with its training flights ({exc})") from exc
+
+
 def load_or_build_dataset(flights: list[Path], cache: Path | None, progress=None,
                           features_from: str = "estimate") -> tuple[Samples, dict]:
     """The samples of `flights`, from `cache` when it holds exactly these flights with
