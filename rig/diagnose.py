@@ -56,7 +56,7 @@ from scipy.spatial import cKDTree
 
 from rig import effects as fx
 from rig import imu_spectrum, nlos_mixture
-from rig.floor_error import (ON_GROUND_HEIGHTS_M, ON_GROUND_M, ON_GROUND_PRIOR, floor_multipath, local_noise,
+from rig.floor_error import (ON_GROUND_M, ON_GROUND_SHAPES, ON_GROUND_PRIOR, floor_multipath, local_noise,
                              on_ground_delays, on_ground_fits)
 from rig.recording import Recording, Vec3Series
 from rig.region_scan import BoxScan
@@ -1391,17 +1391,18 @@ def _floor_finding(problem: Problem, residual: np.ndarray) -> Finding | None:
 
 def _on_ground_term(problem: Problem, z: np.ndarray) -> Term | None:
     """The ranges' change with the tag on the floor, as a term of the TDOA model, where
-    what the model leaves (`z`) supports it (on_ground_fits, at the height of
-    ON_GROUND_HEIGHTS_M that removes most): its evidence must pay for its parameters,
+    what the model leaves (`z`) supports it (on_ground_fits, at the shape of
+    ON_GROUND_SHAPES that removes most): its evidence must pay for its parameters,
     one fewer than the anchors (only their differences show) and the height. Not a
     candidate of the selection: the samples on the floor are what tells an injected
     displacement or pattern of a floor anchor apart (docs/diagnosis-experiments.md, session 32)."""
-    fits = on_ground_fits(problem, z, ON_GROUND_HEIGHTS_M)
+    fits = on_ground_fits(problem, z, ON_GROUND_SHAPES)
     if not fits:
         return None
     fit = max(fits, key=lambda f: f.gain)
     candidate = Candidate("on_ground_delay", "tdoa", "meters", len(fit.anchors), prior=ON_GROUND_PRIOR, bound=np.inf)
-    term = Term(candidate, fit.columns, {"height_m": fit.height, "anchors": fit.anchors}, evidence=fit.gain)
+    term = Term(candidate, fit.columns, {"height_m": fit.height, "fade_m": fit.fade, "anchors": fit.anchors},
+                evidence=fit.gain)
     return term if term.supported else None
 
 
@@ -1409,7 +1410,8 @@ def _on_ground_effect(problem: Problem, term: Term) -> fx.Effect:
     """The floor's term as fitted in the model, in metres against the anchors' centre."""
     change = term.theta * problem.scales["tdoa"][0]
     meters = {str(k): float(m) for k, m in zip(term.extra["anchors"], change - delay_centre(change))}
-    return fx.make_effect("on_ground_delay", {"height_m": term.extra["height_m"], "meters": meters})
+    return fx.make_effect("on_ground_delay", {"height_m": term.extra["height_m"], "fade_m": term.extra["fade_m"],
+                                              "meters": meters})
 
 
 def _on_ground_finding(channel: Channel, term: Term, effect: fx.Effect, z_model: np.ndarray) -> Finding:

@@ -780,19 +780,29 @@ class MultipathFloor(Effect):
             tdoa.value += rng.normal(0.0, self.std, len(tdoa.t)) * self.low(tdoa.tag_position)
 
 
+def on_ground_weight(height: np.ndarray, below_m: float, fade_m: float = 0.0) -> np.ndarray:
+    """How much of the floor's error a tag at `height` has: all of it below `below_m`,
+    none above `below_m + fade_m`, linearly in between (0 fade: a step)."""
+    if fade_m <= 0.0:
+        return (height < below_m).astype(float)
+    return np.clip((below_m + fade_m - height) / fade_m, 0.0, 1.0)
+
+
 class OnGroundDelay(Effect):
     """With the drone on the floor (its body origin, the ground truth's position,
     below `height_m`), every range from anchor k reads `meters[k]` longer than in
-    flight: the floor lies in the direct paths, most to the anchors at its own
-    height, and what arrives first has gone round (real flights: metres,
-    docs/diagnosis.md). Keys are anchor ids; TDOA sees the values only relative to
-    each other. The body, not the antenna: a lever arm fitted to a flight (decimetres
-    on z, docs/diagnosis.md) would otherwise move where the floor begins."""
+    flight, fading out linearly over `fade_m` above that height: the floor lies in
+    the direct paths, most to the anchors at its own height, and what arrives first
+    has gone round (real flights: metres, docs/diagnosis.md). Keys are anchor ids;
+    TDOA sees the values only relative to each other. The body, not the antenna: a
+    lever arm fitted to a flight (decimetres on z, docs/diagnosis.md) would otherwise
+    move where the floor begins."""
 
     name, stage = "on_ground_delay", SIGNAL
 
-    def __init__(self, meters: dict | None = None, height_m: float = 0.2):
+    def __init__(self, meters: dict | None = None, height_m: float = 0.2, fade_m: float = 0.0):
         self.height = _finite(height_m, "height_m", HEIGHT, _positive)
+        self.fade = _finite(fade_m, "fade_m", "a width >= 0", lambda v: v >= 0.0)
         try:
             self.meters = {_anchor_id(int(k)): float(m) for k, m in (meters or {}).items()}
         except (TypeError, ValueError, AttributeError) as exc:
@@ -801,11 +811,12 @@ class OnGroundDelay(Effect):
             raise ValueError(f"meters must be finite, got {meters!r}")
 
     def params(self) -> dict:
-        return {"height_m": self.height, "meters": {str(k): m for k, m in sorted(self.meters.items())}}
+        return {"height_m": self.height, "fade_m": self.fade,
+                "meters": {str(k): m for k, m in sorted(self.meters.items())}}
 
     def apply_tdoa(self, tdoa: TdoaBatch, world: World, rng: np.random.Generator | None) -> None:
         body = tdoa.tag_position - tdoa.tag_rotation.apply(world.lever_arm)
-        low = body[:, 2] < self.height
+        low = on_ground_weight(body[:, 2], self.height, self.fade)
         for anchor, meters in self.meters.items():
             tdoa.value += meters * low * _anchor_sign(tdoa, anchor)
 

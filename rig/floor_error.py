@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from rig.effects import on_ground_weight
 from rig.robust import MIN_SAMPLES, delay_centre, huber_loss, irls, mad_scale, robust_nll
 
 if TYPE_CHECKING:
@@ -25,9 +26,11 @@ ON_GROUND_M = 0.2              # a tag this low sits on the floor or is taking o
 #                                NLOS search and the floor multipath (transients); located on its own (locate)
 MIN_ON_GROUND = 20             # samples of an anchor with the tag on the floor to say how it reads there
 ON_GROUND_PRIOR = 100.0        # in noise deviations: as good as none, it only fixes the delays' common part
-# where the ranges start to read as on the floor: on the real flights the error is
-# whole below 0.1 m (sitting), a fraction of it at 0.1-0.15 m and gone above 0.2 m
-ON_GROUND_HEIGHTS_M = (0.05, 0.1, 0.15, 0.2)
+# where the ranges start to read as on the floor, (height below which all of the
+# error, width over which it fades out above): steps, and fades. On the real flights
+# the error is whole below 0.05-0.1 m (sitting), a fraction of it at 0.1-0.15 m and
+# gone above 0.2 m; a fade from 0.05 to 0.15 m fits 26 of the 35 better than any step
+ON_GROUND_SHAPES = ((0.05, 0.0), (0.1, 0.0), (0.15, 0.0), (0.2, 0.0), (0.05, 0.1), (0.1, 0.05))
 FLOOR_HEIGHTS_M = (0.25, 0.4, 0.6, 0.8, 1.0)   # the floor multipath's heights tried
 LOCAL_SAMPLES = 4              # neighbours on each side, in measurements of one anchor pair
 
@@ -37,34 +40,37 @@ class OnGroundFit:
     """How much longer each anchor's ranges read with the tag on the floor than in
     flight (on_ground_fits)."""
 
-    height: float               # the tag below this, m
+    height: float               # the tag below this, m: all of the change
+    fade: float                 # and over this much above it, m: linearly less
     anchors: list[int]          # those seen on the floor often enough
     change: np.ndarray          # per anchor, in noise deviations, against their centre
     columns: np.ndarray         # per anchor, its sign in the rows on the floor, 0 elsewhere
     gain: float                 # robust loss the changes take off, in half chi-square units
 
 
-def on_ground_fits(problem: Problem, z: np.ndarray, heights: tuple[float, ...] = (ON_GROUND_M,)) -> list[OnGroundFit]:
-    """At each of `heights`, every anchor's delay and its change with the tag below the
-    height (on the floor) fitted jointly (Huber) on `z` (the standardised residual),
-    against the delays alone (fitted once for all heights); the changes against their
-    centre as delays are (TDOA sees them only relative to each other). Anchors with
-    fewer than MIN_ON_GROUND samples on the floor are left out, and a height where
-    fewer than two are left."""
+def on_ground_fits(problem: Problem, z: np.ndarray,
+                   shapes: tuple[tuple[float, float], ...] = ((ON_GROUND_M, 0.0),)) -> list[OnGroundFit]:
+    """At each of `shapes` (height, fade: `on_ground_weight`), every anchor's delay and
+    its change with the tag on the floor fitted jointly (Huber) on `z` (the
+    standardised residual), against the delays alone (fitted once for all shapes);
+    the changes against their centre as delays are (TDOA sees them only relative to
+    each other). Anchors with fewer than MIN_ON_GROUND samples below the height are
+    left out, and a shape where fewer than two are left."""
     signs = np.stack([problem.anchor_sign(k) for k in problem.anchor_ids], axis=1)
     delays_only = irls(z, signs, np.full(signs.shape[1], ON_GROUND_PRIOR))
     loss_delays_only = float(huber_loss(z - signs @ delays_only).sum())
     fits = []
-    for height in heights:
-        on_floor = (problem.tag_positions()[:, 2] < height)[:, None]
+    tag_height = problem.tag_positions()[:, 2]
+    for height, fade in shapes:
+        on_floor = (tag_height < height)[:, None]
         seen = np.sum((signs != 0) & on_floor, axis=0) >= MIN_ON_GROUND
         if seen.sum() < 2:
             continue
-        floor_columns = signs[:, seen] * on_floor
+        floor_columns = signs[:, seen] * on_ground_weight(tag_height, height, fade)[:, None]
         x = np.concatenate([signs, floor_columns], axis=1)
         theta = irls(z, x, np.full(x.shape[1], ON_GROUND_PRIOR))
         change = theta[signs.shape[1]:]
-        fits.append(OnGroundFit(height, [int(k) for k in np.asarray(problem.anchor_ids)[seen]],
+        fits.append(OnGroundFit(height, fade, [int(k) for k in np.asarray(problem.anchor_ids)[seen]],
                                 change - delay_centre(change), floor_columns,
                                 loss_delays_only - float(huber_loss(z - x @ theta).sum())))
     return fits

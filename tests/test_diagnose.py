@@ -513,7 +513,7 @@ def test_ranges_that_read_long_on_the_floor_are_modelled_per_anchor(survey) -> N
     found = findings(diagnose(simulate(sim_config(survey, [ON_THE_FLOOR]))))
     assert ("on_ground_delay", tuple(range(8))) in found, sorted(found)
     got = found[("on_ground_delay", tuple(range(8)))]
-    assert got["params"]["height_m"] == 0.1
+    assert (got["params"]["height_m"], got["params"]["fade_m"]) == (0.1, 0.0), "a step, where it is"
     want = np.zeros(8)
     want[[0, 3]] = 0.4, -0.3
     measured = np.array([got["params"]["meters"][str(k)] for k in range(8)])
@@ -521,6 +521,21 @@ def test_ranges_that_read_long_on_the_floor_are_modelled_per_anchor(survey) -> N
     untouched = Problem(simulate(sim_config(survey, [])))
     noise_only = robust_rms(untouched.residual_before["tdoa"], untouched.scales["tdoa"])
     assert got["fit_after"] < 1.05 * noise_only < got["fit_before"], "the model leaves the noise on the floor"
+
+
+def test_the_floors_error_fading_out_above_the_floor_is_told_from_a_step(survey) -> None:
+    """As on most real flights: all of it below 0.05 m, none above 0.15 m. The fade is
+    named with its shape and its values, and leaves the samples it touches at the noise."""
+    fading = {"effect": "on_ground_delay", "params": {**ON_THE_FLOOR["params"], "height_m": 0.05, "fade_m": 0.1}}
+    got = findings(diagnose(simulate(sim_config(survey, [fading]))))[("on_ground_delay", tuple(range(8)))]
+    assert (got["params"]["height_m"], got["params"]["fade_m"]) == (0.05, 0.1)
+    want = np.zeros(8)
+    want[[0, 3]] = 0.4, -0.3
+    measured = np.array([got["params"]["meters"][str(k)] for k in range(8)])
+    np.testing.assert_allclose(measured, want - delay_centre(want), atol=0.08)
+    untouched = Problem(simulate(sim_config(survey, [])))
+    noise_only = robust_rms(untouched.residual_before["tdoa"], untouched.scales["tdoa"])
+    assert got["fit_after"] < 1.05 * noise_only < got["fit_before"]
 
 
 def test_ranges_that_read_long_on_the_floor_of_a_real_flight_are_measured_against_its_control(real,

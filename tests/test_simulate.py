@@ -222,6 +222,25 @@ def test_ranges_read_longer_per_anchor_only_while_the_drone_sits_on_the_floor(su
             make_effect("on_ground_delay", {"meters": bad})
 
 
+def test_the_floors_error_fades_out_linearly_over_its_fade(survey_0425: Path) -> None:
+    """All of it below the height, none above height + fade, in between linearly: a
+    tag half way up the fade reads half of it."""
+    on_ground = {"effect": "on_ground_delay", "params": {"height_m": 0.05, "fade_m": 0.1, "meters": {"0": 1.0}}}
+    cfg = SimConfig(trajectory="circle", duration=10.0, survey=str(survey_0425), resolution=dict(FULL_PRECISION),
+                    effects=[on_ground])
+    floored, clean = simulate(cfg), simulate(replace(cfg, effects=[]))
+    tdoa = floored.tdoa
+    height = np.interp(tdoa.t, floored.truth.t, floored.truth.position[:, 2])
+    sign = (tdoa.id_b == 0).astype(float) - (tdoa.id_a == 0)
+    share = np.clip((0.15 - height) / 0.1, 0.0, 1.0)
+    added = tdoa.distance_diff - clean.tdoa.distance_diff
+    np.testing.assert_allclose(added, share * sign, atol=1e-3)
+    fading = (share > 0.1) & (share < 0.9) & (sign != 0)
+    assert fading.sum() >= 5, "the take-off and landing pass through the fade"
+    with pytest.raises(ValueError, match="fade_m must be a width >= 0"):
+        make_effect("on_ground_delay", {"fade_m": -0.1})
+
+
 def test_the_tags_antenna_pattern_biases_each_range_by_its_anchors_direction_in_the_body_frame(
         survey_0425: Path) -> None:
     """Each range reads c · [u_z² − 1/3, u_x² − u_y², 2 u_x u_y], u the unit vector
@@ -261,8 +280,8 @@ SCALAR_PARAMS = [("time_offset", "seconds"), ("clock_drift", "ppm"), ("anchor_de
                  ("anchor_delay", "outside_m"), ("nlos", "fraction"), ("nlos", "mean_excess_m"),
                  ("multipath_floor", "height_m"), ("multipath_floor", "std_m"), ("tdoa_noise", "std_m"),
                  ("outliers", "fraction"), ("outliers", "mean_excess_m"), ("on_ground_delay", "height_m"),
-                 ("learned_bias", "gain"), ("imu_noise", "accel_std"), ("imu_lowpass", "gyro_hz"),
-                 ("imu_resonance", "accel_q")]
+                 ("on_ground_delay", "fade_m"), ("learned_bias", "gain"), ("imu_noise", "accel_std"),
+                 ("imu_lowpass", "gyro_hz"), ("imu_resonance", "accel_q")]
 
 
 @pytest.mark.parametrize("effect,param", SCALAR_PARAMS)
