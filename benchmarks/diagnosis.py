@@ -108,16 +108,20 @@ def on_ground(reports: dict) -> str:
     """How each anchor's ranges read with the tag on the floor against in flight, over
     the flights, median (min–max) per anchor: located against the untouched simulation
     (`mismatch.tdoa_on_ground_m`), and as the models carry it (`on_ground_delay`,
-    with the heights it was named below)."""
+    with the shapes it was named with: a step, or a fade above its height)."""
     located = [r["mismatch"].get("tdoa_on_ground_m", {}) for r in reports.values()]
     modelled = [f for r in reports.values() for f in r["findings"] if f["effect"] == "on_ground_delay"]
-    heights = Counter(f["params"]["height_m"] for f in modelled)
+    shapes = Counter((f["params"]["height_m"], f["params"].get("fade_m", 0.0)) for f in modelled)
     return (f"With the tag on the floor (below {ON_GROUND_M:g} m; {sum(map(bool, located))} of {len(reports)} "
             f"flights), each anchor's ranges read, against its own in flight (relative to the other anchors'), "
             f"median (min–max) over the flights: {_per_anchor_spans(located)}. Modelled (`on_ground_delay`) on "
-            f"{len(modelled)} of {len(reports)} flights, below "
-            + ", ".join(f"{h:g} m on {n}" for h, n in sorted(heights.items()))
+            f"{len(modelled)} of {len(reports)} flights, "
+            + ", ".join(f"{_shape(h, fade)} on {n}" for (h, fade), n in sorted(shapes.items()))
             + f": {_per_anchor_spans([f['params']['meters'] for f in modelled])}.")
+
+
+def _shape(height: float, fade: float) -> str:
+    return f"fading out from {height:g} to {height + fade:g} m" if fade else f"below {height:g} m"
 
 
 def _per_anchor_spans(readings: list[dict[str, float]]) -> str:
