@@ -503,17 +503,21 @@ def test_ranges_that_read_long_with_the_tag_on_the_floor_are_located_on_their_an
 ON_THE_FLOOR = {"effect": "on_ground_delay", "params": {"height_m": 0.1, "meters": {"0": 0.4, "3": -0.3}}}
 
 
-def test_ranges_that_read_long_on_the_floor_are_modelled_per_anchor(survey) -> None:
+@pytest.mark.parametrize("height,fade", [(0.1, 0.0), (0.05, 0.1)], ids=["step", "fade"])
+def test_ranges_that_read_long_on_the_floor_are_modelled_per_anchor(survey, height, fade) -> None:
     """Injected on the simulated flight's few seconds on the floor, the ranges' change
-    is named, measured per anchor (relative to the anchors' centre, as TDOA sees it) at
-    the height it starts at, and the model re-simulates those seconds down to the noise
-    (the untouched flight names nothing: test_an_untouched_simulated_flight_names_nothing).
-    The selection names look-alikes of anchors 0 and 3 from those seconds too (see
-    docs/diagnosis.md); in the model, fitted with the floor's error, they are small."""
-    found = findings(diagnose(simulate(sim_config(survey, [ON_THE_FLOOR]))))
+    is named, measured per anchor (relative to the anchors' centre, as TDOA sees it)
+    with its shape (a step, or as on most real flights a fade: all of it below
+    0.05 m, none above 0.15 m), and the model re-simulates the samples it touches
+    down to the noise (the untouched flight names nothing:
+    test_an_untouched_simulated_flight_names_nothing). The selection names
+    look-alikes of anchors 0 and 3 from those seconds too (see docs/diagnosis.md); in
+    the model, fitted with the floor's error, they are small."""
+    floor = {"effect": "on_ground_delay", "params": {**ON_THE_FLOOR["params"], "height_m": height, "fade_m": fade}}
+    found = findings(diagnose(simulate(sim_config(survey, [floor]))))
     assert ("on_ground_delay", tuple(range(8))) in found, sorted(found)
     got = found[("on_ground_delay", tuple(range(8)))]
-    assert (got["params"]["height_m"], got["params"]["fade_m"]) == (0.1, 0.0), "a step, where it is"
+    assert (got["params"]["height_m"], got["params"]["fade_m"]) == (height, fade), "its shape, where it is"
     want = np.zeros(8)
     want[[0, 3]] = 0.4, -0.3
     measured = np.array([got["params"]["meters"][str(k)] for k in range(8)])
@@ -521,21 +525,6 @@ def test_ranges_that_read_long_on_the_floor_are_modelled_per_anchor(survey) -> N
     untouched = Problem(simulate(sim_config(survey, [])))
     noise_only = robust_rms(untouched.residual_before["tdoa"], untouched.scales["tdoa"])
     assert got["fit_after"] < 1.05 * noise_only < got["fit_before"], "the model leaves the noise on the floor"
-
-
-def test_the_floors_error_fading_out_above_the_floor_is_told_from_a_step(survey) -> None:
-    """As on most real flights: all of it below 0.05 m, none above 0.15 m. The fade is
-    named with its shape and its values, and leaves the samples it touches at the noise."""
-    fading = {"effect": "on_ground_delay", "params": {**ON_THE_FLOOR["params"], "height_m": 0.05, "fade_m": 0.1}}
-    got = findings(diagnose(simulate(sim_config(survey, [fading]))))[("on_ground_delay", tuple(range(8)))]
-    assert (got["params"]["height_m"], got["params"]["fade_m"]) == (0.05, 0.1)
-    want = np.zeros(8)
-    want[[0, 3]] = 0.4, -0.3
-    measured = np.array([got["params"]["meters"][str(k)] for k in range(8)])
-    np.testing.assert_allclose(measured, want - delay_centre(want), atol=0.08)
-    untouched = Problem(simulate(sim_config(survey, [])))
-    noise_only = robust_rms(untouched.residual_before["tdoa"], untouched.scales["tdoa"])
-    assert got["fit_after"] < 1.05 * noise_only < got["fit_before"]
 
 
 def test_ranges_that_read_long_on_the_floor_of_a_real_flight_are_measured_against_its_control(real,
