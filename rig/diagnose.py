@@ -56,7 +56,7 @@ from scipy.spatial import cKDTree
 
 from rig import effects as fx
 from rig import imu_spectrum, nlos_mixture
-from rig.floor_error import (ON_GROUND_M, ON_GROUND_SHAPES, ON_GROUND_PRIOR, floor_multipath, local_noise,
+from rig.floor_error import (ON_GROUND_M, ON_GROUND_PRIOR, ON_GROUND_SHAPES, floor_multipath, local_noise,
                              on_ground_delays, on_ground_fits)
 from rig.recording import Recording, Vec3Series
 from rig.region_scan import BoxScan
@@ -1393,7 +1393,7 @@ def _on_ground_term(problem: Problem, z: np.ndarray) -> Term | None:
     """The ranges' change with the tag on the floor, as a term of the TDOA model, where
     what the model leaves (`z`) supports it (on_ground_fits, at the shape of
     ON_GROUND_SHAPES that removes most): its evidence must pay for its parameters,
-    one fewer than the anchors (only their differences show) and the height. Not a
+    one fewer than the anchors (only their differences show) and its shape. Not a
     candidate of the selection: the samples on the floor are what tells an injected
     displacement or pattern of a floor anchor apart (docs/diagnosis-experiments.md, session 32)."""
     fits = on_ground_fits(problem, z, ON_GROUND_SHAPES)

@@ -29,7 +29,7 @@ ON_GROUND_PRIOR = 100.0        # in noise deviations: as good as none, it only f
 # where the ranges start to read as on the floor, (height below which all of the
 # error, width over which it fades out above): steps, and fades. On the real flights
 # the error is whole below 0.05-0.1 m (sitting), a fraction of it at 0.1-0.15 m and
-# gone above 0.2 m; a fade from 0.05 to 0.15 m fits 26 of the 35 better than any step
+# gone above 0.2 m; 24 of the 35 choose a fade (23 of them from 0.05 to 0.15 m)
 ON_GROUND_SHAPES = ((0.05, 0.0), (0.1, 0.0), (0.15, 0.0), (0.2, 0.0), (0.05, 0.1), (0.1, 0.05))
 FLOOR_HEIGHTS_M = (0.25, 0.4, 0.6, 0.8, 1.0)   # the floor multipath's heights tried
 LOCAL_SAMPLES = 4              # neighbours on each side, in measurements of one anchor pair

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import run_rig
+from conftest import ROOT, run_rig
 from rig import native
 from rig.bias_dataset import Samples
 from rig.bias_model import DEFAULT_NETWORK
@@ -139,8 +139,7 @@ def test_fresh_training_reproduces_the_shipped_model(tmp_path: Path, data_dir: P
     assert prov["test"]["after_int8"]["std"] == pytest.approx(prov["test"]["after"]["std"], abs=0.001)
 
 
-
-ROOM_NETWORK = Path(__file__).resolve().parent.parent / "recordings" / "room_bias_net.json"
+ROOM_NETWORK = ROOT / "recordings" / "room_bias_net.json"
 
 
 def test_the_default_recordings_bias_is_learned_on_flights_the_shipped_network_did_not_train_on(
