@@ -3,7 +3,7 @@ runs: each catalog effect injected alone into a flight, diagnosed, compared with
 untouched flight as control, judged by the suite's own tolerances.
 
     .venv/bin/python benchmarks/concealed.py [--flights sim 0426-traj1 ...] [--cases nlos ...] [--out out/concealed.json] [--rejudge]
-    .venv/bin/python benchmarks/concealed.py --variants --out out/variants.json     # 7 minutes
+    .venv/bin/python benchmarks/concealed.py --variants --out out/variants.json     # 8 minutes
 
 By default the simulated flight and fourteen real ones (15–21 minutes on two cores).
 `sim` is the suite's simulated flight (or, for an effect the suite flies on its own
@@ -65,6 +65,14 @@ VARIANTS = {
                              lambda got, want, slack=1.0: abs(got["scale"][2] - 0.9) < 0.03 * slack),
     "lever_arm y 6 cm": ("lever_arm", {"offset_m": [0.0, 0.06, 0.0]}, cases._vector_close("offset_m", 0.03)),
     "lever_arm x, y 5 cm": ("lever_arm", {"offset_m": [0.05, -0.05, 0.0]}, cases._vector_close("offset_m", 0.03)),
+    "antenna_pattern 5": ("antenna_pattern", {"anchor": 5, "coeffs_m": [-0.2, 0.0, 0.3]},
+                          cases._vector_close("coeffs_m", 0.15)),
+    "antenna_pattern 0": ("antenna_pattern", {"anchor": 0, "coeffs_m": [0.0, -0.3, 0.2]},
+                          cases._vector_close("coeffs_m", 0.15)),
+    "nlos 1 x < 0": ("nlos", {"anchor": 1, "fraction": 0.5, "mean_excess_m": 0.3,
+                              "region": {"min": [-5, -5, -1], "max": [0, 5, 5]}}, cases.CASES["nlos"][1]),
+    "nlos 3 above 1 m": ("nlos", {"anchor": 3, "fraction": 0.5, "mean_excess_m": 0.3,
+                                  "region": {"min": [-5, -5, 1.0], "max": [5, 5, 5]}}, cases.CASES["nlos"][1]),
 }
 VARIANT_FLIGHTS = ["0426-traj1", "0425-traj5", "0422-log00", "0425-traj13", "0426-traj6", "0425-traj21"]
 
