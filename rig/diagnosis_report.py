@@ -31,7 +31,7 @@ PLAIN = {
     "nlos": "ranges to anchor {anchor} carry an excess delay (NLOS: {fraction:.0%} of them, {mean_excess_m:.3f} m "
             "on average) while the tag is inside {region}",
     "multipath_floor": "below {height_m} m the TDOA noise grows by {std_m:.3f} m (floor multipath)",
-    "on_ground_delay": "with the tag on the floor (below {height_m} m, fading out over the {fade_m} m above) the "
+    "on_ground_delay": "with the tag on the floor (below {height_m} m{fade}) the "
                        "ranges read longer than in flight, per "
                        "anchor: {meters} m (the floor in the direct paths; relative to each other)",
     "imu_accel_bias": "the accelerometer reads {bias_mps2} m/s² too high",
@@ -50,6 +50,9 @@ def describe(finding: Finding) -> str:
     params = {k: (np.round(v, 3).tolist() if isinstance(v, list) else v) for k, v in finding.params.items()}
     if isinstance(params.get("meters"), dict):
         params["meters"] = _per_anchor(params["meters"])
+    if params.get("fade_m"):
+        params["fade"] = f", fading out over the {params['fade_m']} m above"
+    params.setdefault("fade", "")          # a step: whole below its height, none above
     if isinstance(params.get("region"), dict):
         box = params["region"]
         params["region"] = ", ".join(f"{axis} {low:.2f}…{high:.2f}" for axis, low, high

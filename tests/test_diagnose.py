@@ -24,7 +24,7 @@ from rig import effects as fx
 from rig import imu_spectrum
 from rig.diagnose import (ORDER, Candidate, Channel, Problem, Term, _confine_in_time, _estimate, _free_offset,
                           candidates, diagnose, locate, vibration_spread)
-from rig.diagnosis_report import write as write_report
+from rig.diagnosis_report import describe, write as write_report
 from rig.fitted_model import outside_window
 from rig.floor_error import ON_GROUND_M
 from rig.importer import load_any
@@ -514,10 +514,13 @@ def test_ranges_that_read_long_on_the_floor_are_modelled_per_anchor(survey, heig
     look-alikes of anchors 0 and 3 from those seconds too (see docs/diagnosis.md); in
     the model, fitted with the floor's error, they are small."""
     floor = {"effect": "on_ground_delay", "params": {**ON_THE_FLOOR["params"], "height_m": height, "fade_m": fade}}
-    found = findings(diagnose(simulate(sim_config(survey, [floor]))))
+    result = diagnose(simulate(sim_config(survey, [floor])))
+    found = findings(result)
     assert ("on_ground_delay", tuple(range(8))) in found, sorted(found)
     got = found[("on_ground_delay", tuple(range(8)))]
     assert (got["params"]["height_m"], got["params"]["fade_m"]) == (height, fade), "its shape, where it is"
+    words = describe(next(f for f in result.findings if f.effect == "on_ground_delay"))
+    assert f"below {height} m" in words and ("fading out" in words) == (fade > 0), words
     want = np.zeros(8)
     want[[0, 3]] = 0.4, -0.3
     measured = np.array([got["params"]["meters"][str(k)] for k in range(8)])
