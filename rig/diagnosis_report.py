@@ -31,9 +31,8 @@ PLAIN = {
     "nlos": "ranges to anchor {anchor} carry an excess delay (NLOS: {fraction:.0%} of them, {mean_excess_m:.3f} m "
             "on average) while the tag is inside {region}",
     "multipath_floor": "below {height_m} m the TDOA noise grows by {std_m:.3f} m (floor multipath)",
-    "on_ground_delay": "with the tag on the floor (below {height_m} m{fade}) the "
-                       "ranges read longer than in flight, per "
-                       "anchor: {meters} m (the floor in the direct paths; relative to each other)",
+    "on_ground_delay": "with the tag on the floor (below {height_m} m{fade}) the ranges read longer than in flight, "
+                       "per anchor: {meters} m (the floor in the direct paths; relative to each other)",
     "imu_accel_bias": "the accelerometer reads {bias_mps2} m/s² too high",
     "imu_gyro_bias": "the gyroscope reads {bias_rps} rad/s too high",
     "imu_accel_scale": "the accelerometer's scale factors are {scale}",
