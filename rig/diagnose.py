@@ -43,6 +43,9 @@ Method, per channel (TDOA, accelerometer, gyroscope):
 6. The named effects, fitted jointly, re-simulate the recording (each channel's
    mismatch before and after); each finding's `fit_before`/`fit_after` is the
    robust RMS mismatch of its affected samples under that model without and with it.
+7. What the trajectory can tell apart (rig.identifiability): for every candidate,
+   from its design columns, the size from which it shows at all and from which it
+   is told from its look-alikes (`identifiability`).
 """
 
 from __future__ import annotations
@@ -55,6 +58,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from rig import effects as fx
+from rig import identifiability as ident
 from rig import imu_spectrum, nlos_mixture
 from rig.floor_error import (ON_GROUND_M, ON_GROUND_PRIOR, ON_GROUND_SHAPES, floor_multipath, local_noise,
                              on_ground_delays, on_ground_fits)
@@ -1143,6 +1147,7 @@ class Diagnosis:
     model: list[fx.Effect]
     residual_before: dict[str, np.ndarray]
     residual_after: dict[str, np.ndarray]
+    identifiability: list[ident.Identifiability] = field(default_factory=list)
 
     def channel_fits(self) -> dict:
         return {name: {"samples": int(len(r)), "gross_errors_left_out": self.problem.left_out[name],
@@ -1157,7 +1162,8 @@ class Diagnosis:
                 "findings": [f.to_json() for f in self.findings], "channels": self.channel_fits(),
                 "mismatch": locate(self.problem, self.residual_before),
                 "model": [e.to_json() for e in self.model] + self.noise_model,
-                "vibration_rms_mps2": self.vibration_rms()}
+                "vibration_rms_mps2": self.vibration_rms(),
+                "identifiability": [i.to_json() for i in self.identifiability]}
 
     def vibration_rms(self) -> list[float] | None:
         """The accelerometer's mean vibration RMS per axis over the compared rows: what
@@ -1275,7 +1281,23 @@ def diagnose(rec: Recording, progress=None) -> Diagnosis:
             findings.append(floor)
             model.append(fx.make_effect("multipath_floor", floor.params))
     findings.sort(key=lambda f: -f.evidence)
-    return Diagnosis(problem, findings, model, before, after)
+    return Diagnosis(problem, findings, model, before, after, identifiability(pool))
+
+
+def identifiability(pool: list[Candidate]) -> list[ident.Identifiability]:
+    """For every candidate, how large it must be for the recording to show it, and to
+    tell it from its look-alikes (rig.identifiability): those of LOOK_ALIKES on its
+    anchor that are as simple or simpler (ORDER), the explanations it must beat to be
+    named; a richer look-alike gives way to it."""
+    out = []
+    for c in pool:
+        rank = ORDER[c.effect][1]
+        alikes = {a.effect: a.columns for a in pool if a.effect in LOOK_ALIKES.get(c.effect, ())
+                  and ORDER[a.effect][1] <= rank and a.fixed.get("anchor") == c.fixed.get("anchor")}
+        anchors = [c.fixed["anchor"]] if "anchor" in c.fixed else []
+        out.append(ident.assess(c.effect, anchors, c.param, c.columns, alikes,
+                                c.penalty * c.size + MIN_EVIDENCE, c.bound))
+    return out
 
 
 def _effect_of(problem: Problem, channel: Channel, term: Term, theta: np.ndarray) -> fx.Effect:

@@ -17,6 +17,7 @@ from rig import effects as fx  # noqa: E402
 from rig import imu_spectrum  # noqa: E402
 from rig.diagnose import AXES, GROSS_Z, Diagnosis, Finding, left_out_text, vibration_spread  # noqa: E402
 from rig.floor_error import ON_GROUND_M  # noqa: E402
+from rig.identifiability import figures  # noqa: E402
 
 REPORT_JSON, REPORT_MD, MODEL_JSON = "report.json", "report.md", "model.json"
 SENSORS = {"accel": ("accelerometer", "m/s²"), "gyro": ("gyroscope", "rad/s")}     # the IMU's, in words
@@ -129,10 +130,67 @@ def _markdown(diagnosis: Diagnosis, report: dict, images: list[tuple[str, str]])
               "`alternative_to` the other in report.json). Once one anchor's delay is supported, every "
               "anchor's delay is reported (some with little evidence of their own): TDOA measures them relative "
               "to each other.", ""]
+    lines += _identifiability_lines(report["identifiability"])
     lines += _noise_lines(report["model"])
     for title, name in images:
         lines += [f"## {title}", "", f"![{title}]({name})", ""]
     return "\n".join(lines)
+
+
+def _identifiability_lines(items: list[dict]) -> list[str]:
+    """How large each candidate must be for this flight to show it and to tell it
+    from its look-alikes, and, in words, the kinds it cannot tell apart at any size
+    they can physically have."""
+    if not items:
+        return []
+    lines = ["## What this flight can tell apart", "",
+             "How large each candidate effect must be for this recording to show it at all (against the noise "
+             "alone) and to tell it from its look-alikes: the explanations as simple as it or simpler that fit "
+             "the same signal (a displacement's is its anchor's delay, a pattern's its delay and displacement; "
+             "a time offset and a clock drift, or an IMU bias and scale, are each other's). Sizes are of the "
+             "parameter's change from neutral (a scale's from 1): first in the direction the trajectory shows "
+             "best, then the size from which it tells every direction apart (`identifiability` in report.json). "
+             "They are bounds for one effect alone: outliers and the other effects in the model only raise "
+             "them. Of two equally simple look-alikes it cannot tell apart, the diagnosis names the one that "
+             "explains more and reports the other in its place (`alternative_to`).", "",
+             "| effect | anchor | shows from | told from its look-alikes from | in every direction from | "
+             "look-alikes |", "|---|---|---|---|---|---|"]
+    for i in items:
+        beyond = "" if i["told_apart"] else f" (beyond its {_size(i['bound'], i['unit'])})"
+        seen, apart, every = (_size(i[key], i["unit"]) for key in
+                              ("smallest_seen", "smallest_told_apart", "told_apart_in_every_direction"))
+        lines.append(f"| {i['effect']} (`{i['param']}`) | {_anchors(i)} | {seen} | {apart}{beyond} | {every} | "
+                     f"{', '.join(i['look_alikes']) or '—'} |")
+    never: dict[str, list[dict]] = {}
+    for i in items:
+        if not i["told_apart"]:
+            never.setdefault(i["effect"], []).append(i)
+    if never:
+        kinds = "; ".join(_never_told_apart(group) for group in never.values())
+        lines += ["", f"This trajectory cannot tell apart from their look-alikes, at any size they can physically "
+                      f"have: {kinds}. Such an effect, were it there, is reported as its look-alikes, unless the "
+                      "flight shows one of its own of that kind (a comparison with a control recording of the same "
+                      "flight then sees what changed)."]
+    return lines + [""]
+
+
+def _never_told_apart(group: list[dict]) -> str:
+    """'antenna_pattern on anchors 0, 2 (told apart from 1.8 m on, physically at most 1 m)'."""
+    first, on = group[0], ", ".join(_anchors(i) for i in group if i.get("anchors"))
+    smallest = min((i["smallest_told_apart"] for i in group if i["smallest_told_apart"] is not None), default=None)
+    where = f" on anchor{'s' if len(group) > 1 else ''} {on}" if on else ""
+    told = f"told apart from {_size(smallest, first['unit'])} on" if smallest is not None else "never told apart"
+    return f"{first['effect']}{where} ({told}, physically at most {_size(first['bound'], first['unit'])})"
+
+
+def _anchors(item: dict) -> str:
+    return ", ".join(str(k) for k in item.get("anchors", [])) or "—"
+
+
+def _size(value: float | None, unit: str) -> str:
+    if value is None:
+        return "never"
+    return f"{figures(value)} {unit}".rstrip()
 
 
 def _on_ground_lines(on_ground: dict[str, float]) -> list[str]:

@@ -23,7 +23,7 @@ from conftest import RIG
 from rig import effects as fx
 from rig import imu_spectrum
 from rig.diagnose import (ORDER, Candidate, Channel, Problem, Term, _confine_in_time, _estimate, _free_offset,
-                          candidates, diagnose, locate, vibration_spread)
+                          candidates, diagnose, identifiability, locate, vibration_spread)
 from rig.diagnosis_report import describe, write as write_report
 from rig.fitted_model import outside_window
 from rig.floor_error import ON_GROUND_M
@@ -557,6 +557,23 @@ def test_a_pattern_seen_in_a_narrow_cone_reads_as_a_displaced_anchor(survey) -> 
     assert ("anchor_position", (2,)) in found and ("antenna_pattern", (2,)) not in found
 
 
+def test_a_pattern_is_told_from_a_delay_and_a_displacement_only_where_the_anchor_is_seen_widely(survey) -> None:
+    """What the report says a trajectory can tell apart agrees with what the diagnosis
+    does: on the wider circle that passes near anchor 2, a pattern there is told from
+    its delay and displacement at a size under the concealed case's (named there);
+    over the suite's circle only beyond any size a pattern can physically have (the
+    case then reads as a displacement, above)."""
+    pattern = {}
+    for label, flight in (("wide", SIM_FLIGHT["antenna_pattern"]), ("narrow", None)):
+        found = identifiability(candidates(Problem(simulate(sim_config(survey, [], flight)))))
+        pattern[label] = next(i for i in found if i.effect == "antenna_pattern" and i.anchors == [2])
+        assert pattern[label].look_alikes == ["anchor_delay", "anchor_position"]
+    injected = float(np.linalg.norm(CASES["antenna_pattern"][0]["coeffs_m"]))
+    assert pattern["wide"].told_apart and pattern["wide"].smallest_told_apart < injected
+    assert not pattern["narrow"].told_apart and pattern["narrow"].smallest_told_apart > pattern["narrow"].bound
+    assert pattern["narrow"].smallest_seen < injected        # it shows: as its look-alikes
+
+
 def test_a_flight_that_cannot_tell_a_z_scale_from_a_z_bias_says_both(survey) -> None:
     """A level circle at a constant speed asks the same thrust all flight: an
     accelerometer z scale is a z bias there. One of the two is named (the model
@@ -608,6 +625,29 @@ def test_cli_writes_the_report_contract(tmp_path: Path, survey) -> None:
     # explanations only: the two agree where no richer look-alike shares the signal
     fitted = next(e for e in model if e["effect"] == "anchor_delay" and e["params"]["anchor"] == 2)
     assert fitted["params"]["meters"] == pytest.approx(delay["params"]["meters"], abs=0.01)
+
+
+def test_the_report_says_what_the_real_flight_cannot_tell_apart(tmp_path: Path, real_diagnosis) -> None:
+    """On the real circles an anchor's pattern over the few tens of degrees they see of
+    it is a delay and a displacement (the concealed pattern is found against its
+    control only because the flight names a pattern of its own there), while a
+    displacement of the concealed case's size is told from a delay: report.json says
+    so for every candidate, and report.md in words."""
+    report = write_report(real_diagnosis, tmp_path, "0426-traj1")
+    items = {(i["effect"], tuple(i.get("anchors", []))): i for i in report["identifiability"]}
+    assert {(c.effect, tuple(c.fixed.values())) for c in candidates(real_diagnosis.problem)} == set(items)
+    for item in items.values():
+        assert {"param", "unit", "look_alikes", "smallest_seen", "smallest_told_apart",
+                "told_apart_in_every_direction", "direction", "bound", "told_apart"} <= set(item)
+        assert item["smallest_seen"] <= item["smallest_told_apart"] <= item["told_apart_in_every_direction"]
+    assert not any(items[("antenna_pattern", (k,))]["told_apart"] for k in range(8))
+    displaced = float(np.linalg.norm(CASES["anchor_position"][0]["offset_m"]))
+    assert items[("anchor_position", (3,))]["smallest_told_apart"] < displaced
+    assert items[("anchor_delay", (5,))]["smallest_told_apart"] < CASES["anchor_delay"][0]["meters"]
+    markdown = (tmp_path / "report.md").read_text()
+    assert "## What this flight can tell apart" in markdown
+    assert re.search(r"cannot tell apart from their look-alikes, at any size they can physically have: "
+                     r"antenna_pattern on anchors 0, 1, 2, 3, 4, 5, 6, 7 \(told apart from [0-9.]+ m on", markdown)
 
 
 def test_the_report_shows_a_rectification_against_the_vibration(tmp_path: Path, real) -> None:

@@ -1,0 +1,54 @@
+"""The sizes below which a trajectory cannot show an effect or tell it from its
+look-alikes (rig.identifiability), on columns whose answer is known in closed form."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rig.identifiability import assess
+
+BAR = 10.0          # half a chi-square an effect must remove to be named
+
+
+def _orthogonal(v: np.ndarray, to: np.ndarray) -> np.ndarray:
+    return v - to * (to @ v) / (to @ to)
+
+
+def test_only_what_the_look_alike_cannot_fit_tells_an_effect_from_it() -> None:
+    """A column that is twice its look-alike's plus a small part of its own: it shows
+    at the size where its whole column removes BAR, and is told apart only where its
+    own part does (½ a² ε² |u|² = BAR)."""
+    rng = np.random.default_rng(0)
+    alike = rng.normal(size=400)
+    own = _orthogonal(rng.normal(size=400), alike)
+    eps = 0.05
+    column = 2.0 * alike + eps * own
+    result = assess("anchor_position", [3], "offset_m", column[:, None], {"anchor_delay": alike[:, None]}, BAR, 1.0)
+    assert result.smallest_seen == pytest.approx(np.sqrt(2 * BAR / (column @ column)), rel=1e-3)
+    assert result.smallest_told_apart == pytest.approx(np.sqrt(2 * BAR / (eps ** 2 * (own @ own))), rel=1e-3)
+    assert result.told_apart == (result.smallest_told_apart <= 1.0)
+    assert result.to_json()["anchors"] == [3] and result.to_json()["unit"] == "m"
+
+
+def test_an_effect_its_look_alike_fits_whole_is_never_told_apart() -> None:
+    alike = np.random.default_rng(1).normal(size=(300, 1))
+    result = assess("antenna_pattern", [2], "coeffs_m", 0.5 * alike, {"anchor_delay": alike}, BAR, 1.0)
+    assert result.smallest_seen is not None
+    assert result.smallest_told_apart is None and not result.told_apart
+    assert result.to_json()["smallest_told_apart"] is None            # JSON null, not NaN or Infinity
+
+
+def test_a_vector_is_told_apart_first_along_the_direction_it_shows_best() -> None:
+    """Two components with orthogonal columns, the second three times the first's:
+    the best direction is the second's, and every direction is told apart from the
+    size at which the first's is."""
+    rng = np.random.default_rng(2)
+    a = rng.normal(size=500)
+    u = _orthogonal(rng.normal(size=500), a)
+    b = 3.0 * u * np.linalg.norm(a) / np.linalg.norm(u)
+    result = assess("lever_arm", [], "offset_m", np.stack([a, b], axis=1), {}, BAR, 0.5)
+    assert result.smallest_told_apart == pytest.approx(np.sqrt(2 * BAR / (b @ b)), rel=1e-3)
+    assert result.every_direction == pytest.approx(np.sqrt(2 * BAR / (a @ a)), rel=1e-3)
+    assert np.abs(result.direction) == pytest.approx([0.0, 1.0], abs=1e-3)
+    assert result.smallest_seen == result.smallest_told_apart           # no look-alike: seen is told apart
