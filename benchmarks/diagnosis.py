@@ -18,7 +18,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
+sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
 
 import numpy as np  # noqa: E402
 
@@ -26,8 +26,10 @@ from rig import effects as fx  # noqa: E402
 from rig import imu_spectrum, paths  # noqa: E402
 from rig.diagnose import left_out_text, vibration_spread  # noqa: E402
 from rig.floor_error import ON_GROUND_M  # noqa: E402
+from rig.identifiability import figures  # noqa: E402
 from rig.importer import load_any  # noqa: E402
 from rig.recording import Vec3Series  # noqa: E402
+from test_diagnose import CASES  # noqa: E402  - the suite's concealed cases, for their sizes
 
 
 def run(flight: Path, out: Path, reuse: bool) -> None:
@@ -56,8 +58,11 @@ def main() -> None:
         {name: {"channels": r["channels"], "findings": r["findings"]} for name, r in reports.items()}, indent=1))
     spectra = imu_spectra(reports, {f.name: f for f in flights})
     print(spectra)
+    told_apart = identifiability(reports)
+    print(told_apart)
     text = (ROOT / "docs" / "diagnosis.md.in").read_text()
-    args.doc.write_text(text.replace("{{TABLE}}", table).replace("{{IMU_SPECTRUM}}", spectra))
+    args.doc.write_text(text.replace("{{TABLE}}", table).replace("{{IMU_SPECTRUM}}", spectra)
+                        .replace("{{IDENTIFIABILITY}}", told_apart))
     print(f"wrote {args.doc} and {args.out / 'summary.json'}")
 
 
@@ -120,6 +125,29 @@ def on_ground(reports: dict) -> str:
             + f": {_per_anchor_spans([f['params']['meters'] for f in modelled])}.")
 
 
+def identifiability(reports: dict) -> str:
+    """Per candidate effect, over the flights (and anchors), the size from which each
+    flight shows it and tells it from its look-alikes (report.json's
+    `identifiability`), median (min–max), how often that is within its physical
+    bound, and the size of the suite's concealed case of it."""
+    items: dict[str, list[dict]] = {}
+    for r in reports.values():
+        for i in r["identifiability"]:
+            items.setdefault(i["effect"], []).append(i)
+    lines = ["| effect | shows from | told from its look-alikes from | told apart (of flights × anchors) | "
+             "the concealed case's size | look-alikes |", "|---|---|---|---|---|---|"]
+    for effect, found in items.items():
+        unit = f" {found[0]['unit']}" if found[0]["unit"] else ""
+        apart = [i["smallest_told_apart"] for i in found if i["smallest_told_apart"] is not None]
+        case = CASES.get(effect)
+        neutral = 1.0 if found[0]["param"] == "scale" else 0.0
+        size = f"{figures(np.linalg.norm(np.subtract(case[0][found[0]['param']], neutral)))}{unit}" if case else "—"
+        lines.append(f"| {effect} (`{found[0]['param']}`) | {_span([i['smallest_seen'] for i in found], 3, unit)} | "
+                     f"{_span(apart, 3, unit)} | {sum(i['told_apart'] for i in found)} of {len(found)} | {size} | "
+                     f"{', '.join(found[0]['look_alikes']) or '—'} |")
+    return "\n".join(lines)
+
+
 def _shape(height: float, fade: float) -> str:
     return f"fading out from {height:g} to {height + fade:g} m" if fade else f"below {height:g} m"
 
@@ -172,11 +200,14 @@ def imu_spectra(reports: dict, flights: dict[str, Path]) -> str:
     return "\n".join(lines)
 
 
-def _span(values: list[float], digits: int) -> str:
-    """'median (min–max)', or a dash for none."""
+def _span(values: list[float], digits: int, unit: str | None = None) -> str:
+    """'median (min–max)', or a dash for none: `digits` decimals, or with a `unit`
+    (sizes that span ppm to rad/s) significant figures and the unit."""
     if not values:
         return "—"
-    return f"{np.median(values):.{digits}f} ({min(values):.{digits}f}–{max(values):.{digits}f})"
+    if unit is None:
+        return f"{np.median(values):.{digits}f} ({min(values):.{digits}f}–{max(values):.{digits}f})"
+    return f"{figures(np.median(values))} ({figures(min(values))}–{figures(max(values))}){unit}"
 
 
 SHARE_ABOVE_HZ = 100.0
