@@ -22,6 +22,7 @@ from rig.bias_model import DEFAULT_NETWORK
 log = logging.getLogger("rig")
 
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT = 0, 1, 2
+CHANGES_PRINTED = 12           # `rig diagnose --control`: the largest changes printed (all in report.md)
 
 
 class CliError(Exception):
@@ -110,14 +111,18 @@ def _effects_argument(text: str) -> list[dict]:
 def cmd_diagnose(args: argparse.Namespace) -> int:
     from rig import effects as fx
     from rig.diagnose import diagnose
-    from rig.diagnosis_report import REPORT_JSON, REPORT_MD, SENSORS, describe, write
+    from rig import compare
+    from rig.diagnosis_report import CONTROL_DIR, REPORT_JSON, REPORT_MD, SENSORS, describe, write
     from rig.importer import load_any
 
-    rec = load_any(args.recording, args.survey)
-    if len(rec.truth) < 10:
-        raise CliError(f"{args.recording}: no ground truth to simulate the flight from")
+    control = None
+    if args.control is not None:
+        control = write(diagnose(_flight_to_diagnose(args.control, args.survey, load_any),
+                                 progress=_progress(desc="diagnose the control")),
+                        args.out / CONTROL_DIR, str(args.control))
+    rec = _flight_to_diagnose(args.recording, args.survey, load_any)
     result = diagnose(rec, progress=_progress(desc="diagnose channels"))
-    report = write(result, args.out, str(args.recording))
+    report = write(result, args.out, str(args.recording), control)
     for name, c in report["channels"].items():
         print(f"{name}: mismatch {c['fit_before']:.4g} -> {c['fit_after']:.4g} ({c['samples']} samples)")
     for f in result.findings:
@@ -131,8 +136,23 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         peak = noise["imu_resonance"]
         peaks = [f"{peak[f'{s}_hz']:.1f} Hz ({name})" for s, (name, _) in SENSORS.items() if peak[f"{s}_hz"] > 0]
         print(f"  IMU noise peaks at {', '.join(peaks)}: the airframe's slow shaking; model.json carries it")
-    print(f"wrote {args.out / REPORT_JSON} and {args.out / REPORT_MD}")
+    listed = compare.by_size(report.get("against_control", {}).get("changes", []))
+    for c in listed[:CHANGES_PRINTED]:
+        anchors = f" {c['anchors']}" if "anchors" in c else ""
+        size = f" ({c['change_std_errs']:.1f} standard errors)" if c["change_std_errs"] is not None else ""
+        print(f"  against the control: {c['effect']}{anchors} named on {c['named_in']}, change {c['change']}{size}")
+    if len(listed) > CHANGES_PRINTED:
+        print(f"  against the control: {len(listed) - CHANGES_PRINTED} more in report.md")
+    print(f"wrote {args.out / REPORT_JSON} and {args.out / REPORT_MD}"
+          + (f" (the control's report in {args.out / CONTROL_DIR})" if control else ""))
     return EXIT_OK
+
+
+def _flight_to_diagnose(path: Path, survey: Path | None, load_any):
+    rec = load_any(path, survey)
+    if len(rec.truth) < 10:
+        raise CliError(f"{path}: no ground truth to simulate the flight from")
+    return rec
 
 
 def cmd_combine_models(args: argparse.Namespace) -> int:
@@ -696,6 +716,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("recording", type=Path, help="recording (MCAP, or a flight log of the shared data)")
     _survey_option(p)
     p.add_argument("--out", type=Path, required=True, help="output directory")
+    p.add_argument("--control", type=Path, metavar="RECORDING",
+                   help="a control recording of the same flight (as it was before a change, or before effects "
+                        "were injected): diagnosed too (its report in DIR/control/), and report.json's "
+                        "`against_control` lists each effect's change from it (real flights carry effects of "
+                        "their own; a change shows as the difference)")
     p.set_defaults(func=cmd_diagnose)
 
     p = sub.add_parser("combine-models", help="one simulation model from the models diagnosed on several flights",

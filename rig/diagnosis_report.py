@@ -13,6 +13,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from rig import compare  # noqa: E402
 from rig import effects as fx  # noqa: E402
 from rig import imu_spectrum  # noqa: E402
 from rig.diagnose import AXES, GROSS_Z, Diagnosis, Finding, left_out_text, vibration_spread  # noqa: E402
@@ -20,6 +21,7 @@ from rig.floor_error import ON_GROUND_M  # noqa: E402
 from rig.identifiability import figures  # noqa: E402
 
 REPORT_JSON, REPORT_MD, MODEL_JSON = "report.json", "report.md", "model.json"
+CONTROL_DIR = "control"          # `rig diagnose --control`: the control recording's own report
 SENSORS = {"accel": ("accelerometer", "m/s²"), "gyro": ("gyroscope", "rad/s")}     # the IMU's, in words
 
 PLAIN = {
@@ -74,10 +76,16 @@ def describe(finding: Finding) -> str:
     return text
 
 
-def write(diagnosis: Diagnosis, out: Path, recording: str) -> dict:
+def write(diagnosis: Diagnosis, out: Path, recording: str, control: dict | None = None) -> dict:
+    """report.json, model.json, report.md and its plots into `out`; with `control`
+    (the report.json of a control recording of the same flight), what changed
+    against it too (`against_control`)."""
     out.mkdir(parents=True, exist_ok=True)
     report = diagnosis.to_json()
     report["recording"] = recording
+    if control is not None:
+        report["against_control"] = {"recording": control["recording"], "changes": [
+            c.to_json() for c in compare.changes(report["findings"], control["findings"])]}
     (out / REPORT_JSON).write_text(json.dumps(report, indent=2, allow_nan=False, default=_finite))
     (out / MODEL_JSON).write_text(json.dumps({"effects": report["model"],
                                               "vibration_rms_mps2": report["vibration_rms_mps2"]}, indent=2))
@@ -130,11 +138,52 @@ def _markdown(diagnosis: Diagnosis, report: dict, images: list[tuple[str, str]])
               "`alternative_to` the other in report.json). Once one anchor's delay is supported, every "
               "anchor's delay is reported (some with little evidence of their own): TDOA measures them relative "
               "to each other.", ""]
+    lines += _against_control_lines(report.get("against_control"))
     lines += _identifiability_lines(report["identifiability"])
     lines += _noise_lines(report["model"])
     for title, name in images:
         lines += [f"## {title}", "", f"![{title}]({name})", ""]
     return "\n".join(lines)
+
+
+def _against_control_lines(against: dict | None) -> list[str]:
+    """What changed against the control recording, effect by effect."""
+    if against is None:
+        return []
+    lines = ["## Against the control recording", "",
+             f"Each effect as it changed from the control, {against['recording']} (the same flight as it was): "
+             "the recording's parameters less the control's, where both name it; as named, where one does "
+             "(`against_control` in report.json), and its largest component in the recording's standard "
+             "errors (too large a yardstick for effects injected into the control, whose noise the two "
+             "share). Those named on one only come first, then the largest changes. NLOS and the floor's "
+             "effects are listed as each has them.", "",
+             "| effect | anchors | named on | change | standard errors | on this recording | on the control |",
+             "|---|---|---|---|---|---|---|"]
+    for c in compare.by_size(against["changes"]):
+        z = "—" if c["change_std_errs"] is None else f"{c['change_std_errs']:.1f}"
+        lines.append(f"| {c['effect']} | {', '.join(map(str, c.get('anchors', []))) or '—'} | "
+                     f"{c['named_in']} | {_params_text(c['change'])} | {z} | {_params_text(c['recording'])} | "
+                     f"{_params_text(c['control'])} |")
+    if not against["changes"]:
+        lines.append("| — | — | neither | — | — | — | — |")
+    return lines + [""]
+
+
+def _params_text(params: dict | None) -> str:
+    """'meters 0.12; offset_m [0.2, 0.2, 0]': the amounts, three significant figures."""
+    if params is None:
+        return "—"
+    return "; ".join(f"{k} {_amount(v)}" for k, v in params.items() if k != "anchor")
+
+
+def _amount(value) -> str:
+    if isinstance(value, float):
+        return f"{value:.3g}"
+    if isinstance(value, list):
+        return "[" + ", ".join(_amount(v) for v in value) + "]"
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{k}: {_amount(v)}" for k, v in value.items()) + "}"
+    return str(value)
 
 
 def _identifiability_lines(items: list[dict]) -> list[str]:

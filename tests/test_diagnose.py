@@ -20,12 +20,12 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from conftest import RIG
+from rig import compare
 from rig import effects as fx
 from rig import imu_spectrum
 from rig.diagnose import (ORDER, Candidate, Channel, Problem, Term, _confine_in_time, _estimate, _free_offset,
                           candidates, diagnose, identifiability, locate, vibration_spread)
 from rig.diagnosis_report import describe, write as write_report
-from rig.fitted_model import outside_window
 from rig.floor_error import ON_GROUND_M
 from rig.importer import load_any
 from rig.recording import Recording, Vec3Series
@@ -182,22 +182,14 @@ def _mark(name: str, known: dict) -> list:
 
 
 def _check(found: dict, control: dict, name: str, params: dict, check, real: bool = False) -> None:
+    """The injected effect named, located and measured: on a real flight, as its
+    change from the control recording (rig.compare, as `rig diagnose --control`)."""
     key = (name, (params["anchor"],) if "anchor" in params else ())
     if key not in found and key in control and name in CANCELLABLE:
-        _check_cancelled(found, control[key], name, params, check, real)
+        _check_cancelled(control[key], name, params, check, real)
         return
     assert key in found, f"{name} not named; found {sorted(found)}"
-    got = dict(found[key]["params"])
-    if key in control:           # a real flight: what the injection added to what was there
-        own = control[key]["params"]
-        if ("during" in got) != ("during" in own):     # a delay changed in a window on one: compare outside it
-            got, own = outside_window(got), outside_window(own)
-        neutral = 1.0 if "scale" in name else 0.0
-        for field, value in own.items():
-            if isinstance(value, (int, float)) and field != "anchor" and name not in ("nlos", "multipath_floor"):
-                got[field] = got[field] - value + neutral
-            elif isinstance(value, list) and field not in ("during",):
-                got[field] = (np.array(got[field]) - np.array(value) + neutral).tolist()
+    got = compare.change(name, list(key[1]), found[key], control.get(key)).change or dict(found[key]["params"])
     _check_unidentified(found[key], got, params)
     assert check(got, params, REAL_SLACK if real else 1.0), f"{name}: got {got}, injected {params}"
     assert found[key]["fit_after"] < found[key]["fit_before"]
@@ -213,11 +205,11 @@ def _check(found: dict, control: dict, name: str, params: dict, check, real: boo
 # finding) plus the injected one adds up to about none, which the tool rightly does not
 # name. Compared with the control, the injection then changed it from the control's
 # value to the neutral one.
-CANCELLABLE = {"time_offset", "clock_drift"}
+CANCELLABLE = compare.CANCELLABLE
 
 
-def _check_cancelled(found: dict, own: dict, name: str, params: dict, check, real: bool) -> None:
-    got = {field: -value for field, value in own["params"].items()}
+def _check_cancelled(own: dict, name: str, params: dict, check, real: bool) -> None:
+    got = compare.change(name, [], None, own).change
     assert check(got, params, REAL_SLACK if real else 1.0), \
         f"{name}: not named, its control's {own['params']} not cancelled by the injected {params}"
     assert own["fit_after"] < own["fit_before"]
@@ -648,6 +640,35 @@ def test_the_report_says_what_the_real_flight_cannot_tell_apart(tmp_path: Path, 
     assert "## What this flight can tell apart" in markdown
     assert re.search(r"cannot tell apart from their look-alikes, at any size they can physically have: "
                      r"antenna_pattern on anchors 0, 1, 2, 3, 4, 5, 6, 7 \(told apart from [0-9.]+ m on", markdown)
+
+
+def test_cli_diagnoses_against_a_control_recording(tmp_path: Path, survey) -> None:
+    """`rig diagnose REC --control CONTROL`: the control's own report in DIR/control/,
+    and each effect's change from it: a delay the control already has, grown on the
+    recording, is reported as its growth; one on the recording only, as it is."""
+    simulated, control, recording = (tmp_path / name for name in ("sim.mcap", "control.mcap", "rec.mcap"))
+    subprocess.run([*RIG, "simulate", "--trajectory", "circle-sine", "--survey", str(survey), "--duration", "20",
+                    "-o", str(simulated)], check=True, capture_output=True)
+    for source, target, effects in (
+            (simulated, control, [{"effect": "anchor_delay", "params": {"anchor": 2, "meters": 0.3}}]),
+            (control, recording, [{"effect": "anchor_delay", "params": {"anchor": 2, "meters": 0.15}},
+                                  {"effect": "anchor_delay", "params": {"anchor": 6, "meters": -0.25}}])):
+        subprocess.run([*RIG, "inject", str(source), "--effects", json.dumps(effects), "-o", str(target)],
+                       check=True, capture_output=True)
+    proc = subprocess.run([*RIG, "diagnose", str(recording), "--control", str(control), "--out", str(tmp_path / "d")],
+                          capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    own = json.loads((tmp_path / "d" / "control" / "report.json").read_text())
+    assert own["recording"] == str(control) and "against_control" not in own
+    report = json.loads((tmp_path / "d" / "report.json").read_text())
+    assert report["against_control"]["recording"] == str(control)
+    listed = {(c["effect"], tuple(c.get("anchors", []))): c for c in report["against_control"]["changes"]}
+    grown = listed[("anchor_delay", (2,))]
+    assert grown["named_in"] == "both" and grown["change"]["meters"] == pytest.approx(0.15, abs=0.04)
+    assert grown["recording"]["meters"] - grown["control"]["meters"] == pytest.approx(grown["change"]["meters"])
+    assert listed[("anchor_delay", (6,))]["change"]["meters"] == pytest.approx(-0.25, abs=0.04)
+    assert "against the control: anchor_delay [2] named on both" in proc.stdout
+    assert "## Against the control recording" in (tmp_path / "d" / "report.md").read_text()
 
 
 def test_the_report_shows_a_rectification_against_the_vibration(tmp_path: Path, real) -> None:

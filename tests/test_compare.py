@@ -1,0 +1,64 @@
+"""What a recording adds to its control (rig.compare, `rig diagnose --control`), on
+findings written out by hand; the concealed-effect tests judge every real case
+through it (tests/test_diagnose.py), the CLI test runs it end to end."""
+
+from __future__ import annotations
+
+import pytest
+
+from rig.compare import by_size, change, changes
+
+
+def _finding(effect: str, params: dict, evidence: float = 50.0, std_err: dict | None = None, **extra) -> dict:
+    return {"effect": effect, "params": params, "evidence": evidence, "std_err": std_err or {}, **extra}
+
+
+def test_a_change_is_the_recordings_parameters_less_the_controls() -> None:
+    delay = change("anchor_delay", [5],
+                   _finding("anchor_delay", {"anchor": 5, "meters": 0.30}, std_err={"meters": 0.02}),
+                   _finding("anchor_delay", {"anchor": 5, "meters": 0.18}))
+    assert delay.named_in == "both" and delay.change["anchor"] == 5
+    assert delay.change["meters"] == pytest.approx(0.12)
+    assert delay.std_errs == pytest.approx(6.0)
+    scale = change("imu_accel_scale", [], _finding("imu_accel_scale", {"scale": [1.0, 1.01, 1.04]},
+                                                   std_err={"scale": [0.01, 0.01, 0.01]}),
+                   _finding("imu_accel_scale", {"scale": [1.0, 1.01, 1.01]}))
+    assert scale.change["scale"] == pytest.approx([1.0, 1.0, 1.03])        # a scale's change stays a scale
+    assert scale.std_errs == pytest.approx(3.0)                            # measured from one, not zero
+
+
+def test_a_delay_confined_to_a_window_on_one_recording_is_compared_outside_it() -> None:
+    confined = {"anchor": 2, "meters": 0.5, "during": [10.0, 20.0], "outside_m": 0.1}
+    got = change("anchor_delay", [2], _finding("anchor_delay", confined),
+                 _finding("anchor_delay", {"anchor": 2, "meters": 0.04}))
+    assert got.change == {"anchor": 2, "meters": pytest.approx(0.06)}
+
+
+def test_a_clock_effect_the_recording_cancels_changed_to_neutral() -> None:
+    """Named on the control only: the recording's own plus the added one is about none."""
+    offset = change("time_offset", [], None, _finding("time_offset", {"seconds": -0.05}))
+    assert offset.named_in == "control" and offset.change == {"seconds": pytest.approx(0.05)}
+    gone = change("anchor_position", [3], None, _finding("anchor_position", {"anchor": 3, "offset_m": [0.1, 0, 0]}))
+    assert gone.named_in == "control" and gone.change is None
+
+
+def test_noise_level_effects_are_listed_not_subtracted() -> None:
+    nlos = {"anchor": 6, "fraction": 0.5, "mean_excess_m": 0.3, "region": {"min": [0, 0, 0], "max": [1, 1, 1]}}
+    got = change("nlos", [6], _finding("nlos", nlos), _finding("nlos", {**nlos, "fraction": 0.2}))
+    assert got.change is None
+    assert got.recording["params"]["fraction"] == 0.5 and got.control["params"]["fraction"] == 0.2
+
+
+def test_changes_cover_both_recordings_and_list_the_telling_ones_first() -> None:
+    recording = [_finding("anchor_delay", {"anchor": 1, "meters": 0.2}, 90.0, {"meters": 0.1}, anchors=[1]),
+                 _finding("lever_arm", {"offset_m": [0.1, 0.0, 0.0]}, 40.0, {"offset_m": [0.01, 0.01, 0.01]}),
+                 _finding("imu_gyro_bias", {"bias_rps": [0.0, 0.0, 0.02]}, 30.0)]
+    control = [_finding("anchor_delay", {"anchor": 1, "meters": 0.1}, 80.0, anchors=[1]),
+               _finding("lever_arm", {"offset_m": [0.05, 0.0, 0.0]}, 20.0),
+               _finding("time_offset", {"seconds": 0.04}, 12.0)]
+    listed = changes(recording, control)
+    assert [(c.effect, c.named_in) for c in listed] == [("anchor_delay", "both"), ("lever_arm", "both"),
+                                                        ("imu_gyro_bias", "recording"), ("time_offset", "control")]
+    ordered = by_size([c.to_json() for c in listed])
+    assert [c["effect"] for c in ordered] == ["imu_gyro_bias", "time_offset", "lever_arm", "anchor_delay"]
+    assert ordered[2]["change_std_errs"] == pytest.approx(5.0) and ordered[3]["anchors"] == [1]
