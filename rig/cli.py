@@ -115,12 +115,12 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     from rig.diagnosis_report import CONTROL_DIR, REPORT_JSON, REPORT_MD, SENSORS, describe, write
     from rig.importer import load_any
 
+    rec = _flight_to_diagnose(args.recording, args.survey, load_any)      # both read before either is diagnosed
+    control_rec = _flight_to_diagnose(args.control, args.survey, load_any) if args.control is not None else None
     control = None
-    if args.control is not None:
-        control = write(diagnose(_flight_to_diagnose(args.control, args.survey, load_any),
-                                 progress=_progress(desc="diagnose the control")),
+    if control_rec is not None:
+        control = write(diagnose(control_rec, progress=_progress(desc="diagnose the control")),
                         args.out / CONTROL_DIR, str(args.control))
-    rec = _flight_to_diagnose(args.recording, args.survey, load_any)
     result = diagnose(rec, progress=_progress(desc="diagnose channels"))
     report = write(result, args.out, str(args.recording), control)
     for name, c in report["channels"].items():

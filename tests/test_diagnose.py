@@ -669,6 +669,10 @@ def test_cli_diagnoses_against_a_control_recording(tmp_path: Path, survey) -> No
     assert listed[("anchor_delay", (6,))]["change"]["meters"] == pytest.approx(-0.25, abs=0.04)
     assert "against the control: anchor_delay [2] named on both" in proc.stdout
     assert "## Against the control recording" in (tmp_path / "d" / "report.md").read_text()
+    missing = subprocess.run([*RIG, "diagnose", str(recording), "--control", str(tmp_path / "none.mcap"),
+                              "--out", str(tmp_path / "e")], capture_output=True, text=True)
+    assert missing.returncode == 2 and "none.mcap does not exist" in missing.stderr
+    assert not (tmp_path / "e").exists()          # neither diagnosed: both are read first
 
 
 def test_the_report_shows_a_rectification_against_the_vibration(tmp_path: Path, real) -> None:
