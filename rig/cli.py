@@ -109,9 +109,9 @@ def _effects_argument(text: str) -> list[dict]:
 
 
 def cmd_diagnose(args: argparse.Namespace) -> int:
+    from rig import compare
     from rig import effects as fx
     from rig.diagnose import diagnose
-    from rig import compare
     from rig.diagnosis_report import CONTROL_DIR, REPORT_JSON, REPORT_MD, SENSORS, describe, write
     from rig.importer import load_any
 

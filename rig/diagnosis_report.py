@@ -161,9 +161,8 @@ def _against_control_lines(against: dict | None) -> list[str]:
              "|---|---|---|---|---|---|---|"]
     for c in compare.by_size(against["changes"]):
         z = "—" if c["change_std_errs"] is None else f"{c['change_std_errs']:.1f}"
-        lines.append(f"| {c['effect']} | {', '.join(map(str, c.get('anchors', []))) or '—'} | "
-                     f"{c['named_in']} | {_params_text(c['change'])} | {z} | {_params_text(c['recording'])} | "
-                     f"{_params_text(c['control'])} |")
+        lines.append(f"| {c['effect']} | {_anchors(c)} | {c['named_in']} | {_params_text(c['change'])} | {z} | "
+                     f"{_params_text(c['recording'])} | {_params_text(c['control'])} |")
     if not against["changes"]:
         lines.append("| — | — | neither | — | — | — | — |")
     return lines + [""]
@@ -178,7 +177,7 @@ def _params_text(params: dict | None) -> str:
 
 def _amount(value) -> str:
     if isinstance(value, float):
-        return f"{value:.3g}"
+        return figures(value)
     if isinstance(value, list):
         return "[" + ", ".join(_amount(v) for v in value) + "]"
     if isinstance(value, dict):
