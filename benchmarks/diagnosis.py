@@ -23,7 +23,7 @@ sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
 import numpy as np  # noqa: E402
 
 from rig import effects as fx  # noqa: E402
-from rig import imu_spectrum, paths  # noqa: E402
+from rig import compare, imu_spectrum, paths  # noqa: E402
 from rig.diagnose import left_out_text, vibration_spread  # noqa: E402
 from rig.floor_error import ON_GROUND_M  # noqa: E402
 from rig.identifiability import figures  # noqa: E402
@@ -139,13 +139,19 @@ def identifiability(reports: dict) -> str:
     for effect, found in items.items():
         unit = f" {found[0]['unit']}" if found[0]["unit"] else ""
         apart = [i["smallest_told_apart"] for i in found if i["smallest_told_apart"] is not None]
-        case = CASES.get(effect)
-        neutral = 1.0 if found[0]["param"] == "scale" else 0.0
-        size = f"{figures(np.linalg.norm(np.subtract(case[0][found[0]['param']], neutral)))}{unit}" if case else "—"
         lines.append(f"| {effect} (`{found[0]['param']}`) | {_span([i['smallest_seen'] for i in found], 3, unit)} | "
-                     f"{_span(apart, 3, unit)} | {sum(i['told_apart'] for i in found)} of {len(found)} | {size} | "
+                     f"{_span(apart, 3, unit)} | {sum(i['told_apart'] for i in found)} of {len(found)} | "
+                     f"{_case_size(effect, found[0]['param'], unit)} | "
                      f"{', '.join(found[0]['look_alikes']) or '—'} |")
     return "\n".join(lines)
+
+
+def _case_size(effect: str, param: str, unit: str) -> str:
+    """The size of the suite's concealed case of `effect`: its parameter's change from neutral."""
+    if effect not in CASES:
+        return "—"
+    change = np.subtract(CASES[effect][0][param], compare.neutral(effect))
+    return f"{figures(np.linalg.norm(change))}{unit}"
 
 
 def _shape(height: float, fade: float) -> str:

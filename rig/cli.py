@@ -113,10 +113,9 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     from rig import effects as fx
     from rig.diagnose import diagnose
     from rig.diagnosis_report import CONTROL_DIR, REPORT_JSON, REPORT_MD, SENSORS, describe, write
-    from rig.importer import load_any
 
-    rec = _flight_to_diagnose(args.recording, args.survey, load_any)      # both read before either is diagnosed
-    control_rec = _flight_to_diagnose(args.control, args.survey, load_any) if args.control is not None else None
+    rec = _flight_to_diagnose(args.recording, args.survey)      # both read before either is diagnosed
+    control_rec = _flight_to_diagnose(args.control, args.survey) if args.control is not None else None
     control = None
     if control_rec is not None:
         control = write(diagnose(control_rec, progress=_progress(desc="diagnose the control")),
@@ -148,7 +147,9 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def _flight_to_diagnose(path: Path, survey: Path | None, load_any):
+def _flight_to_diagnose(path: Path, survey: Path | None):
+    from rig.importer import load_any
+
     rec = load_any(path, survey)
     if len(rec.truth) < 10:
         raise CliError(f"{path}: no ground truth to simulate the flight from")

@@ -67,13 +67,13 @@ class Identifiability:
         return out
 
 
-def smallest_sizes(columns: np.ndarray, bar: float, scale: float
-                   ) -> tuple[float | None, float | None, np.ndarray]:
-    """The smallest |a| for which ½‖columns a‖² reaches `bar` in the direction that
-    reaches it first, that direction, and the |a| at which it does in every direction
-    (the last one to); None where the columns are nothing against `scale` (the
-    largest eigenvalue of the effect's own MᵀM): the look-alikes fit all of it."""
-    values, vectors = np.linalg.eigh(columns.T @ columns)
+def smallest_sizes(gram: np.ndarray, bar: float, scale: float) -> tuple[float | None, float | None, np.ndarray]:
+    """For columns M with `gram` = MᵀM: the smallest |a| for which ½‖M a‖² reaches
+    `bar` in the direction that reaches it first, that direction, and the |a| at
+    which it does in every direction (the last one to); None where the columns are
+    nothing against `scale` (the largest eigenvalue of the effect's own MᵀM): the
+    look-alikes fit all of it."""
+    values, vectors = np.linalg.eigh(gram)
     best = vectors[:, -1] * np.sign(vectors[np.argmax(np.abs(vectors[:, -1])), -1])
     size = [float(np.sqrt(2.0 * bar / v)) if v > SINGULAR * scale else None for v in (values[-1], values[0])]
     return size[0], size[1], best
@@ -90,10 +90,11 @@ def assess(effect: str, anchors: list[int], param: str, columns: np.ndarray, loo
            bar: float, bound: float) -> Identifiability:
     """An effect with design `columns` (rows × parameter components, standardised)
     against its `look_alikes` (name: their columns), named at `bar`."""
-    own = float(np.linalg.eigvalsh(columns.T @ columns)[-1])
-    seen = smallest_sizes(columns, bar, own)[0]
-    stacked = np.hstack([columns[:, :0], *look_alikes.values()])
-    apart, every, direction = smallest_sizes(beyond(columns, stacked), bar, own)
+    gram = columns.T @ columns
+    own = float(np.linalg.eigvalsh(gram)[-1])
+    seen = smallest_sizes(gram, bar, own)[0]
+    left = beyond(columns, np.hstack([columns[:, :0], *look_alikes.values()]))
+    apart, every, direction = smallest_sizes(left.T @ left, bar, own)
     return Identifiability(effect, anchors, param, list(look_alikes), _rounded(seen), _rounded(apart),
                            _rounded(every), [round(float(v), 4) for v in direction], bound)
 

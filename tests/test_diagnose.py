@@ -77,8 +77,8 @@ def findings(result) -> dict[tuple, dict]:
 
 
 def keyed(listed: list[dict]) -> dict[tuple, dict]:
-    """Findings by (effect, anchors)."""
-    return {(f["effect"], tuple(f.get("anchors", []))): f for f in listed}
+    """Findings (or anything else keyed like them) by (effect, anchors)."""
+    return {compare.key(f): f for f in listed}
 
 
 def concealed(rec, effect: dict, predictor: Predictor | None = None) -> None:
@@ -147,8 +147,7 @@ def injected_axes(name: str, params: dict) -> list[str] | None:
     locate (None for the other effects)."""
     if name not in IMU_VECTOR:
         return None
-    neutral = 1.0 if "scale" in name else 0.0
-    return [axis for axis, value in zip("xyz", params[IMU_VECTOR[name]]) if value != neutral]
+    return [axis for axis, value in zip("xyz", params[IMU_VECTOR[name]]) if value != compare.neutral(name)]
 
 
 # An antenna pattern needs the anchor seen from a wide range of angles: over the few
@@ -626,7 +625,7 @@ def test_the_report_says_what_the_real_flight_cannot_tell_apart(tmp_path: Path, 
     displacement of the concealed case's size is told from a delay: report.json says
     so for every candidate, and report.md in words."""
     report = write_report(real_diagnosis, tmp_path, "0426-traj1")
-    items = {(i["effect"], tuple(i.get("anchors", []))): i for i in report["identifiability"]}
+    items = keyed(report["identifiability"])
     assert {(c.effect, tuple(c.fixed.values())) for c in candidates(real_diagnosis.problem)} == set(items)
     for item in items.values():
         assert {"param", "unit", "look_alikes", "smallest_seen", "smallest_told_apart",
@@ -662,7 +661,7 @@ def test_cli_diagnoses_against_a_control_recording(tmp_path: Path, survey) -> No
     assert own["recording"] == str(control) and "against_control" not in own
     report = json.loads((tmp_path / "d" / "report.json").read_text())
     assert report["against_control"]["recording"] == str(control)
-    listed = {(c["effect"], tuple(c.get("anchors", []))): c for c in report["against_control"]["changes"]}
+    listed = keyed(report["against_control"]["changes"])
     grown = listed[("anchor_delay", (2,))]
     assert grown["named_in"] == "both" and grown["change"]["meters"] == pytest.approx(0.15, abs=0.04)
     assert grown["recording"]["meters"] - grown["control"]["meters"] == pytest.approx(grown["change"]["meters"])
