@@ -9,7 +9,11 @@ By default the simulated flight and fourteen real ones (15–21 minutes on two c
 `sim` is the suite's simulated flight (or, for an effect the suite flies on its own
 circle or with its own shaking, that flight, with its own control). Prints a line per
 effect and flight (found or missed, the recovered parameters after subtracting the
-control) and a count per flight.
+control) and a count per flight. A case whose injected effect is smaller than the size
+from which the injected flight tells it from its look-alikes, along its direction
+(rig.identifiability), is marked "below what the flight tells apart": its own signal
+beyond the look-alikes does not pay for it, and it is found only as a change of the
+flight's own effect of that kind or reported in its look-alike's place.
 The findings themselves go to OUT with `.findings.json` for a suffix; `--rejudge` judges
 those again without diagnosing (after a change to the judging). `--variants` runs other
 sizes, signs, anchors and axes of the catalog effects (VARIANTS) on six real flights
@@ -21,6 +25,7 @@ import argparse
 import json
 import os
 import sys
+from dataclasses import asdict, dataclass
 from multiprocessing import Pool
 from pathlib import Path
 
@@ -30,7 +35,9 @@ sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
 
 import test_diagnose as cases  # noqa: E402  - the cases and their tolerances are the suite's
 
-from rig import paths  # noqa: E402
+import numpy as np  # noqa: E402
+
+from rig import compare, paths  # noqa: E402
 from rig.importer import load_any  # noqa: E402
 from rig.simulate import Predictor, inject, simulate  # noqa: E402
 
@@ -84,26 +91,58 @@ def case_set(variants: bool) -> dict[str, tuple]:
     return {name: (name, params, check) for name, (params, check) in cases.CASES.items()}
 
 
-def diagnosed(job: tuple[str, str, str, dict]) -> tuple[str, str, list, list | None]:
-    """The findings on the flight with the effect injected, and on its own untouched
-    flight when it is not the flight's shared control (a simulated case with its own
-    circle or shaking)."""
+@dataclass
+class Shown:
+    """How large the injected effect is, and from which size along its direction the
+    injected recording tells it from its look-alikes (None: at no size)."""
+
+    size: float
+    told_apart_from: float | None
+
+    @property
+    def below(self) -> bool:
+        return self.told_apart_from is None or self.size < self.told_apart_from
+
+    def __str__(self) -> str:
+        limit = "at no size" if self.told_apart_from is None else f"from {self.told_apart_from:.3g}"
+        return f"below what the flight tells apart ({self.size:.3g}; told apart {limit})"
+
+
+def diagnosed(job: tuple[str, str, str, dict]) -> tuple[str, str, list, list | None, dict | None]:
+    """The findings on the flight with the effect injected, on its own untouched flight
+    when it is not the flight's shared control (a simulated case with its own circle or
+    shaking), and how well the injected flight shows the effect (`Shown`)."""
     flight, label, name, params = job
     effects = [] if label == "control" else [{"effect": name, "params": params}]
+    control = None
     if flight == "sim":
         survey = paths.data_dir() / "surveys" / "anchor_0425.txt"
-        found = _listed(cases.diagnose(simulate(cases.sim_case(survey, name, effects))))
-        own = cases.own_sim_control(name)
-        control = _listed(cases.diagnose(simulate(cases.sim_case(survey, name, [])))) if own else None
-        return flight, label, found, control
-    rec = load_any(paths.data_dir() / "flights" / flight)
-    if effects:
-        rec = inject(rec, effects, seed=1, predictor=Predictor(rec))
-    return flight, label, _listed(cases.diagnose(rec)), None
+        diagnosis = cases.diagnose(simulate(cases.sim_case(survey, name, effects)))
+        if cases.own_sim_control(name):
+            control = _listed(cases.diagnose(simulate(cases.sim_case(survey, name, []))))
+    else:
+        rec = load_any(paths.data_dir() / "flights" / flight)
+        if effects:
+            rec = inject(rec, effects, seed=1, predictor=Predictor(rec))
+        diagnosis = cases.diagnose(rec)
+    shown = shown_in(diagnosis, name, params) if effects else None
+    return flight, label, _listed(diagnosis), control, asdict(shown) if shown else None
 
 
 def _listed(diagnosis) -> list:
     return diagnosis.to_json()["findings"]
+
+
+def shown_in(diagnosis, name: str, params: dict) -> Shown | None:
+    """The injected effect's size and the size from which `diagnosis`'s recording tells
+    it apart along its direction (None for an effect without design columns: NLOS, the
+    floor's multipath)."""
+    anchors = [params["anchor"]] if "anchor" in params else []
+    for item in diagnosis.identifiability:
+        if item.effect == name and item.anchors == anchors:
+            amount = np.asarray(params[item.param], float) - compare.neutral(name)
+            return Shown(float(np.linalg.norm(amount)), item.told_apart_along(amount))
+    return None
 
 
 def judge(found: dict, control: dict, name: str, params: dict, check, real: bool) -> tuple[bool, str]:
@@ -140,7 +179,7 @@ def main() -> None:
         jobs = [(f, label, *(chosen[label][:2] if label != "control" else ("", {})))
                 for f in flights for label in ["control", *chosen]]
         with Pool(2) as pool:
-            done = {(f, n): (found, own) for f, n, found, own in pool.imap_unordered(diagnosed, jobs)}
+            done = {(f, n): rest for f, n, *rest in pool.imap_unordered(diagnosed, jobs)}
         results = {job[:2]: done[job[:2]] for job in jobs}     # in the order of the flights, for --rejudge
         raw.parent.mkdir(parents=True, exist_ok=True)
         raw.write_text(json.dumps({f"{f}|{n}": value for (f, n), value in results.items()}))
@@ -148,20 +187,35 @@ def main() -> None:
     for flight in flights:
         rows = {}
         for label, (name, params, check) in chosen.items():
-            found, own = results[(flight, label)]
+            found, own, shown = results[(flight, label)]
             control = cases.keyed(own or results[(flight, "control")][0])
             ok, how = judge(cases.keyed(found), control, name, params, check, real=flight != "sim")
-            rows[label] = {"found": ok, "detail": how}
-            print(f"{flight:12s} {label:28s} {'found ' if ok else 'MISSED'} {'' if ok else how}")
+            below = None if shown is None else Shown(**shown).below
+            rows[label] = {"found": ok, "detail": how, "below_told_apart": below}
+            print(f"{flight:12s} {label:28s} {'found ' if ok else 'MISSED'} {'' if ok else how}"
+                  + (f" [{Shown(**shown)}]" if below else ""))
         summary[flight] = {"found": sum(r["found"] for r in rows.values()), "of": len(rows), "cases": rows}
         print(f"{flight}: {summary[flight]['found']} of {len(rows)}")
     real = [flight for flight in flights if flight != "sim"]
     per_effect = {label: sum(summary[f]["cases"][label]["found"] for f in real) for label in chosen}
+    below = {label: below_told_apart([summary[f]["cases"][label] for f in real]) for label in chosen}
     for label, found in per_effect.items():
-        print(f"{label:28s} found on {found} of {len(real)} real flights")
+        print(f"{label:28s} found on {found:2d} of {len(real)} real flights"
+              + (f"; below what the flight tells apart on {below[label]['flights']}, found on "
+                 f"{below[label]['found']} of those" if below[label] and below[label]["flights"] else ""))
     print(f"real: {sum(per_effect.values())} of {len(real) * len(chosen)}")
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({"flights": summary, "real_flights_per_effect": per_effect}, indent=1))
+    args.out.write_text(json.dumps({"flights": summary, "real_flights_per_effect": per_effect,
+                                    "below_told_apart_per_effect": below}, indent=1))
+
+
+def below_told_apart(rows: list[dict]) -> dict | None:
+    """On how many flights a case is below what the flight tells apart, and on how many
+    of those it is found anyway (None for a case without design columns)."""
+    if any(r["below_told_apart"] is None for r in rows):
+        return None
+    below = [r for r in rows if r["below_told_apart"]]
+    return {"flights": len(below), "found": sum(r["found"] for r in below)}
 
 
 if __name__ == "__main__":

@@ -24,7 +24,7 @@ look-alikes."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -47,11 +47,25 @@ class Identifiability:
     every_direction: float | None       # |a| from which it does so in every direction (equal for one component)
     direction: list[float]              # of a, the one told apart best (unit vector)
     bound: float                        # the largest size it can physically have
+    bar: float = field(repr=False)                          # what naming it must remove
+    apart_gram: np.ndarray = field(repr=False, compare=False)  # RᵀR: the columns beyond the look-alikes'
+    own_scale: float = field(repr=False)                    # the largest eigenvalue of MᵀM
 
     @property
     def told_apart(self) -> bool:
         """Whether an effect of a physically possible size can be told from its look-alikes."""
         return self.smallest_told_apart is not None and self.smallest_told_apart <= self.bound
+
+    def told_apart_along(self, amount: list[float] | float) -> float | None:
+        """The size from which an effect of `amount`'s direction (its change from
+        neutral) is told from the look-alikes: √(2 bar / uᵀRᵀRu), u the unit direction;
+        None where the look-alikes fit it whole (or for no direction at all)."""
+        u = np.atleast_1d(np.asarray(amount, float))
+        norm = float(np.linalg.norm(u))
+        if norm == 0.0:
+            return None
+        shown = float((u / norm) @ self.apart_gram @ (u / norm))
+        return _rounded(np.sqrt(2.0 * self.bar / shown)) if shown > SINGULAR * self.own_scale else None
 
     @property
     def unit(self) -> str:
@@ -94,9 +108,10 @@ def assess(effect: str, anchors: list[int], param: str, columns: np.ndarray, loo
     own = float(np.linalg.eigvalsh(gram)[-1])
     seen = smallest_sizes(gram, bar, own)[0]
     left = beyond(columns, np.hstack([columns[:, :0], *look_alikes.values()]))
-    apart, every, direction = smallest_sizes(left.T @ left, bar, own)
+    apart_gram = left.T @ left
+    apart, every, direction = smallest_sizes(apart_gram, bar, own)
     return Identifiability(effect, anchors, param, list(look_alikes), _rounded(seen), _rounded(apart),
-                           _rounded(every), [round(float(v), 4) for v in direction], bound)
+                           _rounded(every), [round(float(v), 4) for v in direction], bound, bar, apart_gram, own)
 
 
 def _rounded(size: float | None) -> float | None:

@@ -52,3 +52,18 @@ def test_a_vector_is_told_apart_first_along_the_direction_it_shows_best() -> Non
     assert result.every_direction == pytest.approx(np.sqrt(2 * BAR / (a @ a)), rel=1e-3)
     assert np.abs(result.direction) == pytest.approx([0.0, 1.0], abs=1e-3)
     assert result.smallest_seen == result.smallest_told_apart           # no look-alike: seen is told apart
+
+
+def test_a_direction_between_the_best_and_the_worst_is_told_apart_in_between() -> None:
+    """Along a component the size is that component's alone; along the diagonal of two
+    orthogonal columns, √(2 BAR / ½(|a|² + |b|²)), between the best and the worst."""
+    rng = np.random.default_rng(3)
+    a = rng.normal(size=500)
+    b = 2.0 * _orthogonal(rng.normal(size=500), a)
+    result = assess("lever_arm", [], "offset_m", np.stack([a, b], axis=1), {}, BAR, 0.5)
+    assert result.told_apart_along([0.3, 0.0]) == pytest.approx(result.every_direction, rel=1e-3)
+    assert result.told_apart_along([0.0, -2.0]) == pytest.approx(result.smallest_told_apart, rel=1e-3)
+    assert result.told_apart_along([1.0, 1.0]) == pytest.approx(np.sqrt(4 * BAR / (a @ a + b @ b)), rel=1e-3)
+    assert result.told_apart_along([0.0, 0.0]) is None
+    whole = assess("antenna_pattern", [2], "coeffs_m", a[:, None], {"anchor_delay": a[:, None]}, BAR, 1.0)
+    assert whole.told_apart_along(0.3) is None
