@@ -25,7 +25,7 @@ import argparse
 import json
 import os
 import sys
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from multiprocessing import Pool
 from pathlib import Path
 
@@ -34,8 +34,6 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
 
 import test_diagnose as cases  # noqa: E402  - the cases and their tolerances are the suite's
-
-import numpy as np  # noqa: E402
 
 from rig import compare, paths  # noqa: E402
 from rig.importer import load_any  # noqa: E402
@@ -91,27 +89,15 @@ def case_set(variants: bool) -> dict[str, tuple]:
     return {name: (name, params, check) for name, (params, check) in cases.CASES.items()}
 
 
-@dataclass
-class Shown:
-    """How large the injected effect is, and from which size along its direction the
-    injected recording tells it from its look-alikes (None: at no size)."""
-
-    size: float
-    told_apart_from: float | None
-
-    @property
-    def below(self) -> bool:
-        return self.told_apart_from is None or self.size < self.told_apart_from
-
-    def __str__(self) -> str:
-        limit = "at no size" if self.told_apart_from is None else f"from {self.told_apart_from:.3g}"
-        return f"below what the flight tells apart ({self.size:.3g}; told apart {limit})"
+def describe(shown: compare.Shown) -> str:
+    limit = "at no size" if shown.told_apart_from is None else f"from {shown.told_apart_from:.3g}"
+    return f"below what the flight tells apart ({shown.size:.3g}; told apart {limit})"
 
 
 def diagnosed(job: tuple[str, str, str, dict]) -> tuple[str, str, list, list | None, dict | None]:
     """The findings on the flight with the effect injected, on its own untouched flight
     when it is not the flight's shared control (a simulated case with its own circle or
-    shaking), and how well the injected flight shows the effect (`Shown`)."""
+    shaking), and how well the injected flight shows the effect (rig.compare.Shown)."""
     flight, label, name, params = job
     effects = [] if label == "control" else [{"effect": name, "params": params}]
     control = None
@@ -125,24 +111,13 @@ def diagnosed(job: tuple[str, str, str, dict]) -> tuple[str, str, list, list | N
         if effects:
             rec = inject(rec, effects, seed=1, predictor=Predictor(rec))
         diagnosis = cases.diagnose(rec)
-    shown = shown_in(diagnosis, name, params) if effects else None
+    anchors = [params["anchor"]] if "anchor" in params else []
+    shown = compare.shown(diagnosis.identifiability, name, anchors, params) if effects else None
     return flight, label, _listed(diagnosis), control, asdict(shown) if shown else None
 
 
 def _listed(diagnosis) -> list:
     return diagnosis.to_json()["findings"]
-
-
-def shown_in(diagnosis, name: str, params: dict) -> Shown | None:
-    """The injected effect's size and the size from which `diagnosis`'s recording tells
-    it apart along its direction (None for an effect without design columns: NLOS, the
-    floor's multipath)."""
-    anchors = [params["anchor"]] if "anchor" in params else []
-    for item in diagnosis.identifiability:
-        if item.effect == name and item.anchors == anchors:
-            amount = np.asarray(params[item.param], float) - compare.neutral(name)
-            return Shown(float(np.linalg.norm(amount)), item.told_apart_along(amount))
-    return None
 
 
 def judge(found: dict, control: dict, name: str, params: dict, check, real: bool) -> tuple[bool, str]:
@@ -187,13 +162,14 @@ def main() -> None:
     for flight in flights:
         rows = {}
         for label, (name, params, check) in chosen.items():
-            found, own, shown = results[(flight, label)]
+            found, own, listed_shown = results[(flight, label)]
+            shown = listed_shown and compare.Shown(**listed_shown)
             control = cases.keyed(own or results[(flight, "control")][0])
             ok, how = judge(cases.keyed(found), control, name, params, check, real=flight != "sim")
-            below = None if shown is None else Shown(**shown).below
+            below = None if shown is None else shown.below
             rows[label] = {"found": ok, "detail": how, "below_told_apart": below}
             print(f"{flight:12s} {label:28s} {'found ' if ok else 'MISSED'} {'' if ok else how}"
-                  + (f" [{Shown(**shown)}]" if below else ""))
+                  + (f" [{describe(shown)}]" if below else ""))
         summary[flight] = {"found": sum(r["found"] for r in rows.values()), "of": len(rows), "cases": rows}
         print(f"{flight}: {summary[flight]['found']} of {len(rows)}")
     real = [flight for flight in flights if flight != "sim"]

@@ -12,7 +12,12 @@ the window. The noise-level effects (NLOS, the floor's multipath and error) are 
 differences of parameters; they are listed as each recording has them. A clock
 effect named on the control only was cancelled by the recording's (its own plus an
 opposite one adds up to about none): its change is from the control's value to
-neutral."""
+neutral.
+
+Each change of an effect with design columns also says from which size the recording
+tells a change of its direction from the effect's look-alikes (rig.identifiability):
+a change below it is not the effect's own signal, and may be a look-alike's moving
+(a flight's own pattern-like bias read as a displacement)."""
 
 from __future__ import annotations
 
@@ -22,6 +27,7 @@ import numpy as np
 
 from rig.diagnose import rounded_floats
 from rig.fitted_model import outside_window
+from rig.identifiability import Identifiability
 
 NOT_ADDITIVE = {"nlos", "multipath_floor", "on_ground_delay"}    # listed as they are, not as a difference
 CANCELLABLE = {"time_offset", "clock_drift"}                      # a clock's: the recording's may cancel the control's
@@ -37,6 +43,7 @@ class Change:
     change: dict | None              # the recording's parameters less the control's; None where not a difference
     recording: dict | None           # the finding on the recording (report.json's), if named there
     control: dict | None             # on the control, if named there
+    shown: Shown | None = None       # the change's size against what the recording tells apart; None: not assessed
 
     @property
     def std_errs(self) -> float | None:
@@ -54,9 +61,36 @@ class Change:
         out = {"effect": self.effect, "named_in": self.named_in, "change": rounded_floats(self.change),
                "change_std_errs": None if z is None else round(z, 2),
                "recording": _params(self.recording), "control": _params(self.control)}
+        if self.shown is not None:
+            out["size"], out["told_apart_from"] = round(self.shown.size, 6), self.shown.told_apart_from
         if self.anchors:
             out["anchors"] = self.anchors
         return out
+
+
+@dataclass
+class Shown:
+    """An amount of an effect (its change from neutral), its size, and the size from
+    which the recording tells an amount of its direction from the effect's
+    look-alikes (None: at no size)."""
+
+    size: float
+    told_apart_from: float | None
+
+    @property
+    def below(self) -> bool:
+        return self.told_apart_from is None or self.size < self.told_apart_from
+
+
+def shown(items: list[Identifiability], effect: str, anchors: list[int], params: dict) -> Shown | None:
+    """`params` (an effect's, or a change's) against the recording's identifiability
+    `items`; None for an effect without design columns (NLOS, the floor's) or a
+    parameter it does not hold."""
+    for item in items:
+        if item.effect == effect and item.anchors == anchors and item.param in params:
+            amount = np.asarray(params[item.param], float) - neutral(effect)
+            return Shown(float(np.linalg.norm(amount)), item.told_apart_along(amount))
+    return None
 
 
 def _params(finding: dict | None) -> dict | None:
@@ -110,16 +144,21 @@ def change(effect: str, anchors: list[int], found: dict | None, control: dict | 
     return Change(effect, anchors, named_in, difference, found, control)
 
 
-def changes(findings: list[dict], control: list[dict]) -> list[Change]:
+def changes(findings: list[dict], control: list[dict], identifiability: list[Identifiability] = ()) -> list[Change]:
     """Every effect reported on either recording, as it changed; the recording's
     findings first, by their evidence, then those on the control only. One reported
     in a look-alike's place (`alternative_to`) counts too: it carries that
-    explanation's value, which a change of the flight moves as well."""
+    explanation's value, which a change of the flight moves as well. With the
+    recording's `identifiability`, each difference is assessed against it."""
     named = {key(f): f for f in findings}
     own = {key(f): f for f in control}
     order = sorted(named, key=lambda k: -named[k]["evidence"]) + [k for k in own if k not in named]
-    return [change(effect, list(anchors), named.get((effect, anchors)), own.get((effect, anchors)))
-            for effect, anchors in order]
+    out = [change(effect, list(anchors), named.get((effect, anchors)), own.get((effect, anchors)))
+           for effect, anchors in order]
+    for c in out:
+        if c.change is not None:
+            c.shown = shown(list(identifiability), c.effect, c.anchors, c.change)
+    return out
 
 
 def by_size(listed: list[dict]) -> list[dict]:

@@ -85,7 +85,7 @@ def write(diagnosis: Diagnosis, out: Path, recording: str, control: dict | None 
     report["recording"] = recording
     if control is not None:
         report["against_control"] = {"recording": control["recording"], "changes": [
-            c.to_json() for c in compare.changes(report["findings"], control["findings"])]}
+            c.to_json() for c in compare.changes(report["findings"], control["findings"], diagnosis.identifiability)]}
     (out / REPORT_JSON).write_text(json.dumps(report, indent=2, allow_nan=False, default=_finite))
     (out / MODEL_JSON).write_text(json.dumps({"effects": report["model"],
                                               "vibration_rms_mps2": report["vibration_rms_mps2"]}, indent=2))
@@ -156,16 +156,27 @@ def _against_control_lines(against: dict | None) -> list[str]:
              "(`against_control` in report.json), and its largest component in the recording's standard "
              "errors (too large a yardstick for effects injected into the control, whose noise the two "
              "share). Those named on one only come first, then the largest changes. NLOS and the floor's "
-             "effects are listed as each has them.", "",
-             "| effect | anchors | named on | change | standard errors | on this recording | on the control |",
-             "|---|---|---|---|---|---|---|"]
+             "effects are listed as each has them. *Told apart from*: the size from which this recording "
+             "tells a change of that direction from the effect's look-alikes; a change below it is not the "
+             "effect's own signal and may be a look-alike's moving (marked ⚠).", "",
+             "| effect | anchors | named on | change | standard errors | told apart from | on this recording "
+             "| on the control |",
+             "|---|---|---|---|---|---|---|---|"]
     for c in compare.by_size(against["changes"]):
         z = "—" if c["change_std_errs"] is None else f"{c['change_std_errs']:.1f}"
         lines.append(f"| {c['effect']} | {_anchors(c)} | {c['named_in']} | {_params_text(c['change'])} | {z} | "
-                     f"{_params_text(c['recording'])} | {_params_text(c['control'])} |")
+                     f"{_told_apart_text(c)} | {_params_text(c['recording'])} | {_params_text(c['control'])} |")
     if not against["changes"]:
-        lines.append("| — | — | neither | — | — | — | — |")
+        lines.append("| — | — | neither | — | — | — | — | — |")
     return lines + [""]
+
+
+def _told_apart_text(change: dict) -> str:
+    if "size" not in change:
+        return "—"
+    limit = change["told_apart_from"]
+    below = limit is None or change["size"] < limit
+    return ("at no size" if limit is None else figures(limit)) + (" ⚠" if below else "")
 
 
 def _params_text(params: dict | None) -> str:

@@ -4,9 +4,11 @@ through it (tests/test_diagnose.py), the CLI test runs it end to end."""
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from rig.compare import by_size, change, changes
+from rig.identifiability import assess
 
 
 def _finding(effect: str, params: dict, evidence: float = 50.0, std_err: dict | None = None, **extra) -> dict:
@@ -62,3 +64,27 @@ def test_changes_cover_both_recordings_and_list_the_telling_ones_first() -> None
     ordered = by_size([c.to_json() for c in listed])
     assert [c["effect"] for c in ordered] == ["imu_gyro_bias", "time_offset", "lever_arm", "anchor_delay"]
     assert ordered[2]["change_std_errs"] == pytest.approx(5.0) and ordered[3]["anchors"] == [1]
+
+
+def test_each_change_is_assessed_against_what_the_recording_tells_apart() -> None:
+    """A delay's change against its own column (no look-alike): told apart from
+    √(2 bar / |column|²); a displacement whose look-alike, the delay, fits it whole:
+    at no size, so any change of it is below; NLOS: not assessed."""
+    rng = np.random.default_rng(4)
+    delay, bar = rng.normal(size=(400, 1)), 10.0
+    items = [assess("anchor_delay", [1], "meters", delay, {}, bar, 1.5),
+             assess("anchor_position", [1], "offset_m", delay @ np.array([[0.5, 0.0, 0.0]]),
+                    {"anchor_delay": delay}, bar, 1.0)]
+    nlos = {"anchor": 1, "fraction": 0.5, "mean_excess_m": 0.3, "region": {"min": [0, 0, 0], "max": [1, 1, 1]}}
+    recording = [_finding("anchor_delay", {"anchor": 1, "meters": 0.3}, anchors=[1]),
+                 _finding("anchor_position", {"anchor": 1, "offset_m": [0.2, 0.0, 0.0]}, anchors=[1]),
+                 _finding("nlos", nlos, anchors=[1])]
+    control = [_finding("anchor_delay", {"anchor": 1, "meters": 0.1}, anchors=[1])]
+    listed = {c.effect: c.to_json() for c in changes(recording, control, items)}
+    grown = listed["anchor_delay"]
+    assert grown["size"] == pytest.approx(0.2)
+    assert grown["told_apart_from"] == pytest.approx(np.sqrt(2 * bar / float(np.sum(delay ** 2))), rel=1e-3)
+    assert listed["anchor_position"]["size"] == pytest.approx(0.2)
+    assert listed["anchor_position"]["told_apart_from"] is None          # JSON null: at no size
+    assert "size" not in listed["nlos"] and "told_apart_from" not in listed["nlos"]
+    assert all("size" not in c.to_json() for c in changes(recording, control))       # without identifiability

@@ -666,8 +666,11 @@ def test_cli_diagnoses_against_a_control_recording(tmp_path: Path, survey) -> No
     assert grown["named_in"] == "both" and grown["change"]["meters"] == pytest.approx(0.15, abs=0.04)
     assert grown["recording"]["meters"] - grown["control"]["meters"] == pytest.approx(grown["change"]["meters"])
     assert listed[("anchor_delay", (6,))]["change"]["meters"] == pytest.approx(-0.25, abs=0.04)
+    assert grown["size"] == pytest.approx(abs(grown["change"]["meters"]))
+    assert 0 < grown["told_apart_from"] < grown["size"]       # a delay of 0.15 m over 20 s: well beyond the noise
     assert "against the control: anchor_delay [2] named on both" in proc.stdout
-    assert "## Against the control recording" in (tmp_path / "d" / "report.md").read_text()
+    markdown = (tmp_path / "d" / "report.md").read_text()
+    assert "## Against the control recording" in markdown and "| told apart from |" in markdown
     missing = subprocess.run([*RIG, "diagnose", str(recording), "--control", str(tmp_path / "none.mcap"),
                               "--out", str(tmp_path / "e")], capture_output=True, text=True)
     assert missing.returncode == 2 and "none.mcap does not exist" in missing.stderr
