@@ -21,6 +21,7 @@ a change below it is not the effect's own signal, and may be a look-alike's movi
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -82,7 +83,7 @@ class Shown:
         return self.told_apart_from is None or self.size < self.told_apart_from
 
 
-def shown(items: list[Identifiability], effect: str, anchors: list[int], params: dict) -> Shown | None:
+def shown(items: Sequence[Identifiability], effect: str, anchors: list[int], params: dict) -> Shown | None:
     """`params` (an effect's, or a change's) against the recording's identifiability
     `items`; None for an effect without design columns (NLOS, the floor's) or a
     parameter it does not hold."""
@@ -144,7 +145,8 @@ def change(effect: str, anchors: list[int], found: dict | None, control: dict | 
     return Change(effect, anchors, named_in, difference, found, control)
 
 
-def changes(findings: list[dict], control: list[dict], identifiability: list[Identifiability] = ()) -> list[Change]:
+def changes(findings: list[dict], control: list[dict],
+            identifiability: Sequence[Identifiability] = ()) -> list[Change]:
     """Every effect reported on either recording, as it changed; the recording's
     findings first, by their evidence, then those on the control only. One reported
     in a look-alike's place (`alternative_to`) counts too: it carries that
@@ -157,7 +159,7 @@ def changes(findings: list[dict], control: list[dict], identifiability: list[Ide
            for effect, anchors in order]
     for c in out:
         if c.change is not None:
-            c.shown = shown(list(identifiability), c.effect, c.anchors, c.change)
+            c.shown = shown(identifiability, c.effect, c.anchors, c.change)
     return out
 
 

@@ -175,7 +175,7 @@ def _told_apart_text(change: dict) -> str:
     if "size" not in change:
         return "—"
     limit = change["told_apart_from"]
-    below = limit is None or change["size"] < limit
+    below = compare.Shown(change["size"], limit).below
     return ("at no size" if limit is None else figures(limit)) + (" ⚠" if below else "")
 
 
