@@ -36,6 +36,8 @@ sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
 import test_diagnose as cases  # noqa: E402  - the cases and their tolerances are the suite's
 
 from rig import compare, paths  # noqa: E402
+from rig.diagnose import candidates, nlos_identifiability  # noqa: E402
+from rig.effects import Region  # noqa: E402
 from rig.importer import load_any  # noqa: E402
 from rig.simulate import Predictor, inject, simulate  # noqa: E402
 
@@ -111,9 +113,19 @@ def diagnosed(job: tuple[str, str, str, dict]) -> tuple[str, str, list, list | N
         if effects:
             rec = inject(rec, effects, seed=1, predictor=Predictor(rec))
         diagnosis = cases.diagnose(rec)
-    anchors = [params["anchor"]] if "anchor" in params else []
-    shown = compare.shown(diagnosis.identifiability, name, anchors, params) if effects else None
+    shown = shown_in(diagnosis, name, params) if effects else None
     return flight, label, _listed(diagnosis), control, asdict(shown) if shown else None
+
+
+def shown_in(diagnosis, name: str, params: dict) -> compare.Shown | None:
+    """The injected effect against what its recording tells apart; an NLOS by its mean
+    shift (fraction × mean excess) beyond every parametric candidate."""
+    anchors = [params["anchor"]] if "anchor" in params else []
+    if name != "nlos":
+        return compare.shown(diagnosis.identifiability, name, anchors, params)
+    problem = diagnosis.problem
+    item = nlos_identifiability(problem, candidates(problem), params["anchor"], Region.from_json(params["region"]))
+    return compare.shown([item], name, anchors, {"mean_shift_m": params["fraction"] * params["mean_excess_m"]})
 
 
 def _listed(diagnosis) -> list:

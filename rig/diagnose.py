@@ -1051,8 +1051,12 @@ def _nlos_trial(problem: Problem, channel: Channel, z: np.ndarray, folds: np.nda
     region = find_region(positions, sign * z, sign != 0)
     if region is None:
         return None
-    return gain, Term(Candidate("nlos", "tdoa", "mean_excess_m", 1, {"anchor": k}, prior=NLOS_PRIOR_M), column(region),
-                      {"region": region.to_json()})
+    return gain, Term(_nlos_candidate(k), column(region), {"region": region.to_json()})
+
+
+def _nlos_candidate(k: int) -> Candidate:
+    """The mean excess on anchor k's ranges in a region, as the search by mean shift fits it."""
+    return Candidate("nlos", "tdoa", "mean_excess_m", 1, {"anchor": k}, prior=NLOS_PRIOR_M)
 
 
 def find_region(positions: np.ndarray, s: np.ndarray, involved: np.ndarray) -> fx.Region | None:
@@ -1298,6 +1302,21 @@ def identifiability(pool: list[Candidate]) -> list[ident.Identifiability]:
         out.append(ident.assess(c.effect, anchors, c.param, c.columns, alikes,
                                 c.penalty * c.size + MIN_EVIDENCE, c.bound))
     return out
+
+
+def nlos_identifiability(problem: Problem, pool: list[Candidate], anchor: int,
+                         region: fx.Region) -> ident.Identifiability:
+    """How large a mean excess (fraction × mean excess) on `anchor`'s ranges inside
+    `region` must be to show at all, and to show beyond every parametric TDOA
+    candidate, which the search by mean shift fits first (method, step 7). The search
+    by shape sees a heavy tail besides, which this does not count."""
+    channel = problem.channel("tdoa")
+    column = region.contains(problem.tag_positions()) * problem.anchor_sign(anchor) / channel.scale
+    parametric = np.hstack([c.columns for c in pool if c.channel == "tdoa"])
+    nlos = _nlos_candidate(anchor)
+    return ident.assess("nlos", [anchor], "mean_shift_m", column[:, None],
+                        {"every parametric TDOA candidate": parametric},
+                        nlos.penalty * nlos.size + MIN_EVIDENCE, nlos.bound)
 
 
 def _effect_of(problem: Problem, channel: Channel, term: Term, theta: np.ndarray) -> fx.Effect:

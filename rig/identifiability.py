@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 # The unit of each fitted parameter; a scale's size is its change from 1.
-PARAM_UNITS = {"seconds": "s", "ppm": "ppm", "meters": "m", "offset_m": "m", "coeffs_m": "m",
+PARAM_UNITS = {"seconds": "s", "ppm": "ppm", "meters": "m", "offset_m": "m", "coeffs_m": "m", "mean_shift_m": "m",
                "bias_mps2": "m/s²", "bias_rps": "rad/s", "scale": "", "gain": ""}
 SINGULAR = 1e-12               # an eigenvalue this small against the largest of MᵀM: nothing is left
 

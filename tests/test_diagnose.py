@@ -24,7 +24,8 @@ from rig import compare
 from rig import effects as fx
 from rig import imu_spectrum
 from rig.diagnose import (ORDER, Candidate, Channel, Problem, Term, _confine_in_time, _estimate, _free_offset,
-                          candidates, diagnose, identifiability, locate, vibration_spread)
+                          candidates, diagnose, identifiability, locate, nlos_identifiability,
+                          vibration_spread)
 from rig.diagnosis_report import describe, write as write_report
 from rig.floor_error import ON_GROUND_M
 from rig.importer import load_any
@@ -563,6 +564,20 @@ def test_a_pattern_is_told_from_a_delay_and_a_displacement_only_where_the_anchor
     assert pattern["wide"].told_apart and pattern["wide"].smallest_told_apart < injected
     assert not pattern["narrow"].told_apart and pattern["narrow"].smallest_told_apart > pattern["narrow"].bound
     assert pattern["narrow"].smallest_seen < injected        # it shows: as its look-alikes
+
+
+def test_an_excess_over_all_of_an_anchors_ranges_is_never_told_from_its_delay(survey) -> None:
+    """The mean-shift NLOS against every parametric candidate: over half the room it is
+    told apart at a size under the concealed case's mean shift (0.15 m); over the
+    whole room it is the anchor's delay, told apart at no size."""
+    problem = Problem(simulate(sim_config(survey, [])))
+    pool = candidates(problem)
+    params = CASES["nlos"][0]
+    half = nlos_identifiability(problem, pool, params["anchor"], fx.Region.from_json(params["region"]))
+    everywhere = nlos_identifiability(problem, pool, params["anchor"], fx.Region.from_json(None))
+    assert half.smallest_told_apart < params["fraction"] * params["mean_excess_m"]
+    assert half.smallest_seen < half.smallest_told_apart and half.unit == "m"
+    assert everywhere.smallest_seen is not None and everywhere.smallest_told_apart is None
 
 
 def test_a_flight_that_cannot_tell_a_z_scale_from_a_z_bias_says_both(survey) -> None:
