@@ -152,6 +152,12 @@ class Candidate:
     def __post_init__(self) -> None:
         self.key = self.effect + "".join(f":{v}" for v in self.fixed.values())
 
+    @property
+    def naming_bar(self) -> float:
+        """The robust loss its fit must remove to be named, unconfined in time (Term.cost
+        and MIN_EVIDENCE)."""
+        return self.penalty * self.size + MIN_EVIDENCE
+
     def value(self, theta: np.ndarray) -> np.ndarray:
         """The parameter for fitted column weights θ. A scale s regressed on w × the
         recorded reading + (1 − w) × the predicted one (w: `recorded_weight`) has
@@ -1299,8 +1305,7 @@ def identifiability(pool: list[Candidate]) -> list[ident.Identifiability]:
         alikes = {a.effect: a.columns for a in pool if a.effect in LOOK_ALIKES.get(c.effect, ())
                   and ORDER[a.effect][1] <= rank and a.fixed.get("anchor") == c.fixed.get("anchor")}
         anchors = [c.fixed["anchor"]] if "anchor" in c.fixed else []
-        out.append(ident.assess(c.effect, anchors, c.param, c.columns, alikes,
-                                c.penalty * c.size + MIN_EVIDENCE, c.bound))
+        out.append(ident.assess(c.effect, anchors, c.param, c.columns, alikes, c.naming_bar, c.bound))
     return out
 
 
@@ -1315,8 +1320,7 @@ def nlos_identifiability(problem: Problem, pool: list[Candidate], anchor: int,
     parametric = np.hstack([c.columns for c in pool if c.channel == "tdoa"])
     nlos = _nlos_candidate(anchor)
     return ident.assess("nlos", [anchor], "mean_shift_m", column[:, None],
-                        {"every parametric TDOA candidate": parametric},
-                        nlos.penalty * nlos.size + MIN_EVIDENCE, nlos.bound)
+                        {"every parametric TDOA candidate": parametric}, nlos.naming_bar, nlos.bound)
 
 
 def _effect_of(problem: Problem, channel: Channel, term: Term, theta: np.ndarray) -> fx.Effect:

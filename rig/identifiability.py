@@ -64,8 +64,7 @@ class Identifiability:
         norm = float(np.linalg.norm(u))
         if norm == 0.0:
             return None
-        shown = float((u / norm) @ self.apart_gram @ (u / norm))
-        return _rounded(np.sqrt(2.0 * self.bar / shown)) if shown > SINGULAR * self.own_scale else None
+        return _rounded(_size_at(self.bar, float((u / norm) @ self.apart_gram @ (u / norm)), self.own_scale))
 
     @property
     def unit(self) -> str:
@@ -89,8 +88,13 @@ def smallest_sizes(gram: np.ndarray, bar: float, scale: float) -> tuple[float | 
     look-alikes fit all of it."""
     values, vectors = np.linalg.eigh(gram)
     best = vectors[:, -1] * np.sign(vectors[np.argmax(np.abs(vectors[:, -1])), -1])
-    size = [float(np.sqrt(2.0 * bar / v)) if v > SINGULAR * scale else None for v in (values[-1], values[0])]
-    return size[0], size[1], best
+    return _size_at(bar, values[-1], scale), _size_at(bar, values[0], scale), best
+
+
+def _size_at(bar: float, shown: float, scale: float) -> float | None:
+    """The |a| at which ½ shown |a|² reaches `bar` (`shown`: ‖M u‖² along a unit
+    direction u); None where that is nothing against `scale`."""
+    return float(np.sqrt(2.0 * bar / shown)) if shown > SINGULAR * scale else None
 
 
 def beyond(columns: np.ndarray, look_alikes: np.ndarray) -> np.ndarray:
