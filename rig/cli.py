@@ -112,7 +112,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     from rig import compare
     from rig import effects as fx
     from rig.diagnose import diagnose
-    from rig.diagnosis_report import CONTROL_DIR, REPORT_JSON, REPORT_MD, SENSORS, describe, write
+    from rig.diagnosis_report import CONTROL_DIR, REPORT_JSON, REPORT_MD, SENSORS, change_text, describe, write
 
     rec = _flight_to_diagnose(args.recording, args.survey)      # both read before either is diagnosed
     control_rec = _flight_to_diagnose(args.control, args.survey) if args.control is not None else None
@@ -139,7 +139,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     for c in listed[:CHANGES_PRINTED]:
         anchors = f" {c['anchors']}" if "anchors" in c else ""
         size = f" ({c['change_std_errs']:.1f} standard errors)" if c["change_std_errs"] is not None else ""
-        print(f"  against the control: {c['effect']}{anchors} named on {c['named_in']}, change {c['change']}{size}")
+        print(f"  against the control: {c['effect']}{anchors} named on {c['named_in']}, change {change_text(c)}{size}")
     if len(listed) > CHANGES_PRINTED:
         print(f"  against the control: {len(listed) - CHANGES_PRINTED} more in report.md")
     print(f"wrote {args.out / REPORT_JSON} and {args.out / REPORT_MD}"

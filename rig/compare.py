@@ -45,6 +45,7 @@ class Change:
     recording: dict | None           # the finding on the recording (report.json's), if named there
     control: dict | None             # on the control, if named there
     shown: Shown | None = None       # the change's size against what the recording tells apart; None: not assessed
+    lever_arm_share: float | None = None   # a delay's: the part of its change the lever arm's change carries
 
     @property
     def std_errs(self) -> float | None:
@@ -66,6 +67,8 @@ class Change:
             out["size"], out["told_apart_from"] = round(self.shown.size, 6), self.shown.told_apart_from
         if self.anchors:
             out["anchors"] = self.anchors
+        if self.lever_arm_share is not None:
+            out["lever_arm_share_m"] = round(self.lever_arm_share, 6)
         return out
 
 
@@ -145,22 +148,41 @@ def change(effect: str, anchors: list[int], found: dict | None, control: dict | 
     return Change(effect, anchors, named_in, difference, found, control)
 
 
-def changes(findings: list[dict], control: list[dict],
-            identifiability: Sequence[Identifiability] = ()) -> list[Change]:
+def changes(findings: list[dict], control: list[dict], identifiability: Sequence[Identifiability] = (),
+            cross_talk: dict[int, list[float]] | None = None) -> list[Change]:
     """Every effect reported on either recording, as it changed; the recording's
     findings first, by their evidence, then those on the control only. One reported
     in a look-alike's place (`alternative_to`) counts too: it carries that
     explanation's value, which a change of the flight moves as well. With the
-    recording's `identifiability`, each difference is assessed against it."""
+    recording's `identifiability`, each difference is assessed against it; with its
+    lever arm's `cross_talk` (rig.diagnose.lever_arm_cross_talk), each delay's change
+    gets the share of it that the lever arm's change carries."""
     named = {key(f): f for f in findings}
     own = {key(f): f for f in control}
     order = sorted(named, key=lambda k: -named[k]["evidence"]) + [k for k in own if k not in named]
     out = [change(effect, list(anchors), named.get((effect, anchors)), own.get((effect, anchors)))
            for effect, anchors in order]
+    lever = lever_arm_change(named, own)
     for c in out:
-        if c.change is not None:
-            c.shown = shown(identifiability, c.effect, c.anchors, c.change)
+        if c.change is None:
+            continue
+        c.shown = shown(identifiability, c.effect, c.anchors, c.change)
+        if c.effect == "anchor_delay" and lever is not None and cross_talk and c.anchors[0] in cross_talk:
+            c.lever_arm_share = float(np.dot(cross_talk[c.anchors[0]], lever))
     return out
+
+
+LEVER_ARM = ("lever_arm", ())
+
+
+def lever_arm_change(named: dict, own: dict) -> np.ndarray | None:
+    """The lever arm's change from the control (an unnamed one is none), None where
+    neither recording names it."""
+    if LEVER_ARM not in named and LEVER_ARM not in own:
+        return None
+    offsets = [np.asarray(f[LEVER_ARM]["params"]["offset_m"], float) if LEVER_ARM in f else np.zeros(3)
+               for f in (named, own)]
+    return offsets[0] - offsets[1]
 
 
 def by_size(listed: list[dict]) -> list[dict]:

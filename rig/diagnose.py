@@ -1158,6 +1158,7 @@ class Diagnosis:
     residual_before: dict[str, np.ndarray]
     residual_after: dict[str, np.ndarray]
     identifiability: list[ident.Identifiability] = field(default_factory=list)
+    cross_talk: dict[int, list[float]] = field(default_factory=dict)     # lever_arm_cross_talk
 
     def channel_fits(self) -> dict:
         return {name: {"samples": int(len(r)), "gross_errors_left_out": self.problem.left_out[name],
@@ -1173,7 +1174,9 @@ class Diagnosis:
                 "mismatch": locate(self.problem, self.residual_before),
                 "model": [e.to_json() for e in self.model] + self.noise_model,
                 "vibration_rms_mps2": self.vibration_rms(),
-                "identifiability": [i.to_json() for i in self.identifiability]}
+                "identifiability": [i.to_json() for i in self.identifiability],
+                "lever_arm_cross_talk": [{"anchor": k, "delay_m_per_m": rounded_floats(v)}
+                                         for k, v in self.cross_talk.items()]}
 
     def vibration_rms(self) -> list[float] | None:
         """The accelerometer's mean vibration RMS per axis over the compared rows: what
@@ -1291,7 +1294,7 @@ def diagnose(rec: Recording, progress=None) -> Diagnosis:
             findings.append(floor)
             model.append(fx.make_effect("multipath_floor", floor.params))
     findings.sort(key=lambda f: -f.evidence)
-    return Diagnosis(problem, findings, model, before, after, identifiability(pool))
+    return Diagnosis(problem, findings, model, before, after, identifiability(pool), lever_arm_cross_talk(pool))
 
 
 def identifiability(pool: list[Candidate]) -> list[ident.Identifiability]:
@@ -1307,6 +1310,26 @@ def identifiability(pool: list[Candidate]) -> list[ident.Identifiability]:
         anchors = [c.fixed["anchor"]] if "anchor" in c.fixed else []
         out.append(ident.assess(c.effect, anchors, c.param, c.columns, alikes, c.naming_bar, c.bound))
     return out
+
+
+def lever_arm_cross_talk(pool: list[Candidate]) -> dict[int, list[float]]:
+    """Per anchor, how its delay as reported moves with the lever arm when the two are
+    fitted together (both rank 0): d delay / d lever arm, in metres per metre, every
+    other delay refitted. A lever arm moved by a signal that is not its own (part of a
+    pattern on one anchor) moves every anchor's delay by this times its change, so a
+    delay's change against a control is partly the lever arm's (`rig diagnose
+    --control` shows that share). Linear and unweighted; the gauge, delays reported
+    about their centre, taken as their mean (delay_centre_slope with every delay near
+    it)."""
+    delays = [c for c in pool if c.effect == "anchor_delay"]
+    lever = next((c for c in pool if c.effect == "lever_arm"), None)
+    if lever is None or len(delays) < 2:
+        return {}
+    x = np.hstack([c.columns for c in delays])
+    ridge = np.diag([1.0 / c.prior ** 2 for c in delays])     # as irls: it fixes the gauge
+    slope = -np.linalg.solve(x.T @ x + ridge, x.T @ lever.columns)
+    slope -= slope.mean(axis=0)
+    return {c.fixed["anchor"]: slope[i].tolist() for i, c in enumerate(delays)}
 
 
 def nlos_identifiability(problem: Problem, pool: list[Candidate], anchor: int,

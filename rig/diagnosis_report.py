@@ -85,7 +85,8 @@ def write(diagnosis: Diagnosis, out: Path, recording: str, control: dict | None 
     report["recording"] = recording
     if control is not None:
         report["against_control"] = {"recording": control["recording"], "changes": [
-            c.to_json() for c in compare.changes(report["findings"], control["findings"], diagnosis.identifiability)]}
+            c.to_json() for c in compare.changes(report["findings"], control["findings"], diagnosis.identifiability,
+                                                 diagnosis.cross_talk)]}
     (out / REPORT_JSON).write_text(json.dumps(report, indent=2, allow_nan=False, default=_finite))
     (out / MODEL_JSON).write_text(json.dumps({"effects": report["model"],
                                               "vibration_rms_mps2": report["vibration_rms_mps2"]}, indent=2))
@@ -158,17 +159,26 @@ def _against_control_lines(against: dict | None) -> list[str]:
              "share). Those named on one only come first, then the largest changes. NLOS and the floor's "
              "effects are listed as each has them. *Told apart from*: the size from which this recording "
              "tells a change of that direction from the effect's look-alikes; a change below it is not the "
-             "effect's own signal and may be a look-alike's moving (marked ⚠).", "",
+             "effect's own signal and may be a look-alike's moving (marked ⚠). Where the lever arm changed, "
+             "a delay's change carries its share of it (the lever arm's change times how the delay moves "
+             "with it when the two are fitted together, `lever_arm_cross_talk`): a lever arm that took part "
+             "of another anchor's pattern moves every delay by that much.", "",
              "| effect | anchors | named on | change | standard errors | told apart from | on this recording "
              "| on the control |",
              "|---|---|---|---|---|---|---|---|"]
     for c in compare.by_size(against["changes"]):
         z = "—" if c["change_std_errs"] is None else f"{c['change_std_errs']:.1f}"
-        lines.append(f"| {c['effect']} | {_anchors(c)} | {c['named_in']} | {_params_text(c['change'])} | {z} | "
+        lines.append(f"| {c['effect']} | {_anchors(c)} | {c['named_in']} | {change_text(c)} | {z} | "
                      f"{_told_apart_text(c)} | {_params_text(c['recording'])} | {_params_text(c['control'])} |")
     if not against["changes"]:
         lines.append("| — | — | neither | — | — | — | — | — |")
     return lines + [""]
+
+
+def change_text(change: dict) -> str:
+    """A change's amounts, and a delay's share of the lever arm's change, if any."""
+    share = change.get("lever_arm_share_m")
+    return _params_text(change["change"]) + ("" if share is None else f" (the lever arm's share {figures(share)})")
 
 
 def _told_apart_text(change: dict) -> str:

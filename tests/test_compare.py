@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from rig.compare import by_size, change, changes
+from rig.diagnosis_report import change_text
 from rig.identifiability import assess
 
 
@@ -88,3 +89,24 @@ def test_each_change_is_assessed_against_what_the_recording_tells_apart() -> Non
     assert listed["anchor_position"]["told_apart_from"] is None          # JSON null: at no size
     assert "size" not in listed["nlos"] and "told_apart_from" not in listed["nlos"]
     assert all("size" not in c.to_json() for c in changes(recording, control))       # without identifiability
+
+
+def test_a_delays_change_carries_the_lever_arms_share() -> None:
+    """A lever arm changed by [0.05, −0.02, 0] m moves anchor 1's delay by its cross
+    talk times that; a delay on an anchor without cross talk, or with no lever arm
+    named on either recording, gets no share."""
+    cross_talk = {1: [0.8, 0.5, 0.1]}
+    recording = [_finding("anchor_delay", {"anchor": 1, "meters": 0.2}, anchors=[1]),
+                 _finding("anchor_delay", {"anchor": 4, "meters": 0.1}, anchors=[4]),
+                 _finding("lever_arm", {"offset_m": [0.07, -0.02, 0.0]})]
+    control = [_finding("anchor_delay", {"anchor": 1, "meters": 0.1}, anchors=[1]),
+               _finding("lever_arm", {"offset_m": [0.02, 0.0, 0.0]})]
+    listed = {tuple(c.anchors): c.to_json() for c in changes(recording, control, (), cross_talk)}
+    assert listed[(1,)]["lever_arm_share_m"] == pytest.approx(0.8 * 0.05 - 0.5 * 0.02)
+    assert "lever_arm_share_m" not in listed[(4,)]
+    assert change_text(listed[(1,)]) == "meters 0.1 (the lever arm's share 0.03)"      # report.md, the CLI
+    assert "lever_arm_share_m" not in listed[()]                          # the lever arm itself
+    gone = {tuple(c.anchors): c for c in changes(recording[:2], control, (), cross_talk)}
+    assert gone[(1,)].lever_arm_share == pytest.approx(-0.8 * 0.02)       # named on the control only: back to none
+    neither = {tuple(c.anchors): c for c in changes(recording[:2], control[:1], (), cross_talk)}
+    assert neither[(1,)].lever_arm_share is None

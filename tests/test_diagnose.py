@@ -24,13 +24,13 @@ from rig import compare
 from rig import effects as fx
 from rig import imu_spectrum
 from rig.diagnose import (ORDER, Candidate, Channel, Problem, Term, _confine_in_time, _estimate, _free_offset,
-                          candidates, diagnose, identifiability, locate, nlos_identifiability,
-                          vibration_spread)
+                          candidates, diagnose, identifiability, lever_arm_cross_talk, locate,
+                          nlos_identifiability, vibration_spread)
 from rig.diagnosis_report import describe, write as write_report
 from rig.floor_error import ON_GROUND_M
 from rig.importer import load_any
 from rig.recording import Recording, Vec3Series
-from rig.robust import delay_centre, mad_scale, robust_rms
+from rig.robust import delay_centre, irls, mad_scale, robust_rms
 from rig.simulate import Predictor, SimConfig, inject, simulate
 
 NOISE = [{"effect": "tdoa_noise", "params": {"std_m": 0.15}},
@@ -654,6 +654,26 @@ def test_the_report_says_what_the_real_flight_cannot_tell_apart(tmp_path: Path, 
     assert "## What this flight can tell apart" in markdown
     assert re.search(r"cannot tell apart from their look-alikes, at any size they can physically have: "
                      r"antenna_pattern on anchors 0, 1, 2, 3, 4, 5, 6, 7 \(told apart from [0-9.]+ m on", markdown)
+
+
+def test_the_lever_arms_cross_talk_is_how_the_fitted_delays_move_with_it(real_diagnosis) -> None:
+    """On the real flight: the ranges a lever arm of [2, −1, 1] cm moves, fitted with the
+    delays alone (the lever arm held at none, that much short of its own), move the
+    delays as reported (about their mean) by minus the cross talk times it: the share
+    that `rig diagnose --control` shows is what the joint fit does."""
+    pool = candidates(real_diagnosis.problem)
+    cross_talk = lever_arm_cross_talk(pool)
+    delays = [c for c in pool if c.effect == "anchor_delay"]
+    lever = next(c for c in pool if c.effect == "lever_arm")
+    assert sorted(cross_talk) == sorted(c.fixed["anchor"] for c in delays)
+    moved = np.array([0.02, -0.01, 0.01])
+    x = np.hstack([c.columns for c in delays])
+    fitted = irls(lever.columns @ moved, x, np.array([c.prior for c in delays]))
+    predicted = -np.array([cross_talk[c.fixed["anchor"]] for c in delays]) @ moved
+    assert np.abs(predicted).max() > 0.002                   # the flight's geometry couples them
+    assert fitted - fitted.mean() == pytest.approx(predicted, abs=2e-4)
+    reported = real_diagnosis.to_json()["lever_arm_cross_talk"]
+    assert [item["anchor"] for item in reported] == [c.fixed["anchor"] for c in delays]
 
 
 def test_cli_diagnoses_against_a_control_recording(tmp_path: Path, survey) -> None:
