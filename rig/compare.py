@@ -176,8 +176,10 @@ LEVER_ARM = ("lever_arm", ())
 
 
 def lever_arm_change(named: dict, own: dict) -> np.ndarray | None:
-    """The lever arm's change from the control (an unnamed one is none), None where
-    neither recording names it."""
+    """The lever arm's change from the control, None where neither recording names it.
+    Unlike `change`, where an effect the recording does not name is no difference
+    (it may be there below the bar), an unnamed lever arm counts as none: the share
+    is about the delays as fitted, and those were fitted without it."""
     if LEVER_ARM not in named and LEVER_ARM not in own:
         return None
     offsets = [np.asarray(f[LEVER_ARM]["params"]["offset_m"], float) if LEVER_ARM in f else np.zeros(3)
