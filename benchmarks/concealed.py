@@ -96,10 +96,11 @@ def describe(shown: compare.Shown) -> str:
     return f"below what the flight tells apart ({shown.size:.3g}; told apart {limit})"
 
 
-def diagnosed(job: tuple[str, str, str, dict]) -> tuple[str, str, list, list | None, dict | None]:
+def diagnosed(job: tuple[str, str, str, dict]) -> tuple[str, str, list, list | None, dict | None, dict | None]:
     """The findings on the flight with the effect injected, on its own untouched flight
     when it is not the flight's shared control (a simulated case with its own circle or
-    shaking), and how well the injected flight shows the effect (rig.compare.Shown)."""
+    shaking), how well the injected flight shows the effect (rig.compare.Shown), and
+    for an NLOS the injected flight's TDOA samples, which its change is averaged over."""
     flight, label, name, params = job
     effects = [] if label == "control" else [{"effect": name, "params": params}]
     control = None
@@ -114,7 +115,8 @@ def diagnosed(job: tuple[str, str, str, dict]) -> tuple[str, str, list, list | N
             rec = inject(rec, effects, seed=1, predictor=Predictor(rec))
         diagnosis = cases.diagnose(rec)
     shown = shown_in(diagnosis, name, params) if effects else None
-    return flight, label, _listed(diagnosis), control, asdict(shown) if shown else None
+    samples = compare.TdoaSamples.of(diagnosis.problem).to_json() if name == compare.NLOS else None
+    return flight, label, _listed(diagnosis), control, asdict(shown) if shown else None, samples
 
 
 def shown_in(diagnosis, name: str, params: dict) -> compare.Shown | None:
@@ -125,16 +127,17 @@ def shown_in(diagnosis, name: str, params: dict) -> compare.Shown | None:
         return compare.shown(diagnosis.identifiability, name, anchors, params)
     problem = diagnosis.problem
     item = nlos_identifiability(problem, candidates(problem), params["anchor"], Region.from_json(params["region"]))
-    return compare.shown([item], name, anchors, {"mean_shift_m": params["fraction"] * params["mean_excess_m"]})
+    return compare.shown([item], name, anchors, {"mean_shift_m": compare.mean_shift(params)})
 
 
 def _listed(diagnosis) -> list:
     return diagnosis.to_json()["findings"]
 
 
-def judge(found: dict, control: dict, name: str, params: dict, check, real: bool) -> tuple[bool, str]:
+def judge(found: dict, control: dict, name: str, params: dict, check, real: bool,
+          samples: compare.TdoaSamples | None) -> tuple[bool, str]:
     try:
-        cases._check(found, control, name, params, check, real=real)
+        cases._check(found, control, name, params, check, real=real, samples=samples)
         return True, "found"
     except AssertionError as error:
         return False, str(error).split(";")[0][:160]
@@ -161,6 +164,7 @@ def main() -> None:
     if args.rejudge:
         results = {tuple(key.split("|")): value for key, value in json.loads(raw.read_text()).items()}
         flights = list(dict.fromkeys(flight for flight, _ in results))
+        chosen = {label: case for label, case in chosen.items() if (flights[0], label) in results}   # the run's
     else:
         flights = args.flights or (VARIANT_FLIGHTS if args.variants else ["sim", *FLIGHTS])
         jobs = [(f, label, *(chosen[label][:2] if label != "control" else ("", {})))
@@ -174,10 +178,11 @@ def main() -> None:
     for flight in flights:
         rows = {}
         for label, (name, params, check) in chosen.items():
-            found, own, listed_shown = results[(flight, label)]
+            found, own, listed_shown, listed_samples = results[(flight, label)]
             shown = listed_shown and compare.Shown(**listed_shown)
+            samples = listed_samples and compare.TdoaSamples.from_json(listed_samples)
             control = cases.keyed(own or results[(flight, "control")][0])
-            ok, how = judge(cases.keyed(found), control, name, params, check, real=flight != "sim")
+            ok, how = judge(cases.keyed(found), control, name, params, check, flight != "sim", samples)
             below = None if shown is None else shown.below
             rows[label] = {"found": ok, "detail": how, "below_told_apart": below}
             print(f"{flight:12s} {label:28s} {'found ' if ok else 'MISSED'} {'' if ok else how}"

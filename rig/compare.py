@@ -8,8 +8,11 @@ explanations only (rig.diagnose, method step 4): what an effect added to a recor
 changes in them is mostly that effect. For an effect named on both, the change is
 the recording's parameters less the control's (a scale's ratio less one added to
 one); a delay confined to a window on one and not on the other is compared outside
-the window. The noise-level effects (NLOS, the floor's multipath and error) are not
-differences of parameters; they are listed as each recording has them. A clock
+the window. An NLOS changes by its mean shift (fraction × mean excess) over the
+recording's region, less what the control's NLOS on that anchor puts on the same
+samples: its region and the control's need not be the same box. The floor's
+multipath and error are not differences of parameters; they are listed as each
+recording has them. A clock
 effect named on the control only was cancelled by the recording's (its own plus an
 opposite one adds up to about none): its change is from the control's value to
 neutral.
@@ -26,11 +29,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rig.diagnose import rounded_floats
+from rig.diagnose import Problem, rounded_floats
+from rig.effects import Region
 from rig.fitted_model import outside_window
 from rig.identifiability import Identifiability
 
-NOT_ADDITIVE = {"nlos", "multipath_floor", "on_ground_delay"}    # listed as they are, not as a difference
+NOT_ADDITIVE = {"multipath_floor", "on_ground_delay"}       # listed as they are, not as a difference
+NLOS = "nlos"                                                  # changes by its mean shift over the samples
 CANCELLABLE = {"time_offset", "clock_drift"}                      # a clock's: the recording's may cancel the control's
 
 
@@ -70,6 +75,32 @@ class Change:
         if self.lever_arm_share is not None:
             out["lever_arm_share_m"] = round(self.lever_arm_share, 6)
         return out
+
+
+@dataclass
+class TdoaSamples:
+    """The recording's compared TDOA samples: where the tag was and which two anchors
+    each one paired. An NLOS's change is averaged over them."""
+
+    positions: np.ndarray          # (n, 3) m
+    anchor_ids: np.ndarray         # (n, 2): id_a, id_b
+
+    @classmethod
+    def of(cls, problem: Problem) -> "TdoaSamples":
+        d, rows = problem.rec.tdoa, problem.tdoa_rows
+        return cls(problem.tag_positions(), np.column_stack([d.id_a[rows], d.id_b[rows]]))
+
+    @classmethod
+    def from_json(cls, listed: dict) -> "TdoaSamples":
+        return cls(np.asarray(listed["positions"], float).reshape(-1, 3),
+                   np.asarray(listed["anchor_ids"], int).reshape(-1, 2))
+
+    def to_json(self) -> dict:
+        return {"positions": np.round(self.positions, 3).tolist(), "anchor_ids": self.anchor_ids.tolist()}
+
+    def inside(self, anchor: int, region: dict | None) -> np.ndarray:
+        """Which samples pair `anchor` with the tag inside `region` (JSON; None: anywhere)."""
+        return (self.anchor_ids == anchor).any(axis=1) & Region.from_json(region).contains(self.positions)
 
 
 @dataclass
@@ -134,11 +165,36 @@ def cancelled(effect: str, own: dict) -> dict:
             for field, value in own.items()}
 
 
-def change(effect: str, anchors: list[int], found: dict | None, control: dict | None) -> Change:
-    """The effect's change from `control` (its finding there, or None) to `found`."""
+def mean_shift(nlos: dict) -> float:
+    """What an NLOS adds to a range inside its region, on average."""
+    return nlos["fraction"] * nlos["mean_excess_m"]
+
+
+def nlos_change(found: dict | None, own: dict | None, samples: TdoaSamples | None) -> dict | None:
+    """An NLOS's change of mean shift: over the recording's region, less the share of
+    those samples that the control's region holds times the control's mean shift;
+    gone from the control's region if named there only. None where named on both and
+    the samples are not at hand."""
+    if found is None:
+        return {"mean_shift_m": -mean_shift(own)}
+    if own is None:
+        return {"mean_shift_m": mean_shift(found)}
+    if samples is None:
+        return None
+    inside = samples.inside(found["anchor"], found.get("region"))
+    held = float(np.mean(samples.inside(own["anchor"], own.get("region"))[inside])) if inside.any() else 0.0
+    return {"mean_shift_m": mean_shift(found) - held * mean_shift(own)}
+
+
+def change(effect: str, anchors: list[int], found: dict | None, control: dict | None,
+           samples: TdoaSamples | None = None) -> Change:
+    """The effect's change from `control` (its finding there, or None) to `found`;
+    an NLOS's over the recording's TDOA `samples`."""
     named_in = "both" if found and control else "recording" if found else "control"
     if effect in NOT_ADDITIVE:
         difference = None
+    elif effect == NLOS:
+        difference = nlos_change(found and found["params"], control and control["params"], samples)
     elif named_in == "both":
         difference = added(effect, found["params"], control["params"])
     elif named_in == "recording":
@@ -149,18 +205,19 @@ def change(effect: str, anchors: list[int], found: dict | None, control: dict | 
 
 
 def changes(findings: list[dict], control: list[dict], identifiability: Sequence[Identifiability] = (),
-            cross_talk: dict[int, list[float]] | None = None) -> list[Change]:
+            cross_talk: dict[int, list[float]] | None = None, samples: TdoaSamples | None = None) -> list[Change]:
     """Every effect reported on either recording, as it changed; the recording's
     findings first, by their evidence, then those on the control only. One reported
     in a look-alike's place (`alternative_to`) counts too: it carries that
     explanation's value, which a change of the flight moves as well. With the
     recording's `identifiability`, each difference is assessed against it; with its
     lever arm's `cross_talk` (rig.diagnose.lever_arm_cross_talk), each delay's change
-    gets the share of it that the lever arm's change carries."""
+    gets the share of it that the lever arm's change carries; with the recording's
+    TDOA `samples`, an NLOS named on both gets its change too."""
     named = {key(f): f for f in findings}
     own = {key(f): f for f in control}
     order = sorted(named, key=lambda k: -named[k]["evidence"]) + [k for k in own if k not in named]
-    out = [change(effect, list(anchors), named.get((effect, anchors)), own.get((effect, anchors)))
+    out = [change(effect, list(anchors), named.get((effect, anchors)), own.get((effect, anchors)), samples)
            for effect, anchors in order]
     lever = lever_arm_change(named, own)
     for c in out:

@@ -86,7 +86,7 @@ def write(diagnosis: Diagnosis, out: Path, recording: str, control: dict | None 
     if control is not None:
         report["against_control"] = {"recording": control["recording"], "changes": [
             c.to_json() for c in compare.changes(report["findings"], control["findings"], diagnosis.identifiability,
-                                                 diagnosis.cross_talk)]}
+                                                 diagnosis.cross_talk, compare.TdoaSamples.of(diagnosis.problem))]}
     (out / REPORT_JSON).write_text(json.dumps(report, indent=2, allow_nan=False, default=_finite))
     (out / MODEL_JSON).write_text(json.dumps({"effects": report["model"],
                                               "vibration_rms_mps2": report["vibration_rms_mps2"]}, indent=2))
@@ -156,8 +156,9 @@ def _against_control_lines(against: dict | None) -> list[str]:
              "the recording's parameters less the control's, where both name it; as named, where one does "
              "(`against_control` in report.json), and its largest component in the recording's standard "
              "errors (too large a yardstick for effects injected into the control, whose noise the two "
-             "share). Those named on one only come first, then the largest changes. NLOS and the floor's "
-             "effects are listed as each has them. *Told apart from*: the size from which this recording "
+             "share). Those named on one only come first, then the largest changes. An NLOS changes by its "
+             "mean shift (fraction × mean excess) over the recording's region, less the control's NLOS on the "
+             "same samples; the floor's effects are listed as each has them. *Told apart from*: the size from which this recording "
              "tells a change of that direction from the effect's look-alikes; a change below it is not the "
              "effect's own signal and may be a look-alike's moving (marked ⚠). Where the lever arm changed, "
              "a delay's change carries its share of it (the lever arm's change times how the delay moves "

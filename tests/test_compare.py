@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rig.compare import by_size, change, changes
+from rig.compare import TdoaSamples, by_size, change, changes
 from rig.diagnosis_report import change_text
 from rig.identifiability import assess
 
@@ -45,11 +45,31 @@ def test_a_clock_effect_the_recording_cancels_changed_to_neutral() -> None:
     assert gone.named_in == "control" and gone.change is None
 
 
-def test_noise_level_effects_are_listed_not_subtracted() -> None:
-    nlos = {"anchor": 6, "fraction": 0.5, "mean_excess_m": 0.3, "region": {"min": [0, 0, 0], "max": [1, 1, 1]}}
-    got = change("nlos", [6], _finding("nlos", nlos), _finding("nlos", {**nlos, "fraction": 0.2}))
+def test_the_floors_effects_are_listed_not_subtracted() -> None:
+    floor = {"height_m": 0.6, "std_m": 0.2}
+    got = change("multipath_floor", [], _finding("multipath_floor", floor),
+                 _finding("multipath_floor", {**floor, "std_m": 0.1}))
     assert got.change is None
-    assert got.recording["params"]["fraction"] == 0.5 and got.control["params"]["fraction"] == 0.2
+    assert got.recording["params"]["std_m"] == 0.2 and got.control["params"]["std_m"] == 0.1
+
+
+def test_an_nlos_changes_by_its_mean_shift_less_the_controls_on_the_same_samples() -> None:
+    """The recording's box holds ten samples on anchor 6, four of them inside the
+    control's box too: the control's mean shift counts for 4/10 of them. Samples on
+    other anchors, or outside the recording's box, do not count."""
+    wide = {"anchor": 6, "fraction": 0.5, "mean_excess_m": 0.3, "region": {"min": [0, 0, 0], "max": [2, 2, 2]}}
+    corner = {"anchor": 6, "fraction": 0.2, "mean_excess_m": 0.3, "region": {"min": [0, 0, 0], "max": [1, 1, 1]}}
+    positions = np.array([[0.5, 0.5, 0.5]] * 4 + [[1.5, 1.5, 1.5]] * 6       # anchor 6, inside the wide box
+                         + [[0.5, 0.5, 0.5]] * 5                              # the corner, other anchors
+                         + [[3.0, 0.5, 0.5]] * 5)                             # anchor 6, outside both
+    pairs = np.array([[6, 1]] * 4 + [[2, 6]] * 6 + [[1, 2]] * 5 + [[6, 3]] * 5)
+    samples = TdoaSamples(positions, pairs)
+    both = change("nlos", [6], _finding("nlos", wide, anchors=[6]), _finding("nlos", corner, anchors=[6]), samples)
+    assert both.change == {"mean_shift_m": pytest.approx(0.15 - 0.4 * 0.06)}
+    assert change("nlos", [6], _finding("nlos", wide), None).change == {"mean_shift_m": pytest.approx(0.15)}
+    assert change("nlos", [6], None, _finding("nlos", corner)).change == {"mean_shift_m": pytest.approx(-0.06)}
+    assert change("nlos", [6], _finding("nlos", wide), _finding("nlos", corner)).change is None   # no samples
+    assert TdoaSamples.from_json(samples.to_json()).inside(6, wide["region"]).sum() == 10
 
 
 def test_changes_cover_both_recordings_and_list_the_telling_ones_first() -> None:

@@ -125,8 +125,9 @@ CASES = {
     "anchor_delay": ({"anchor": 5, "meters": 0.12}, _scalar_close("meters", 0.25)),
     "anchor_position": ({"anchor": 3, "offset_m": [0.2, 0.2, 0.0]}, _vector_close("offset_m", 0.06)),
     "antenna_pattern": ({"anchor": 2, "coeffs_m": [0.3, 0.2, 0.0]}, _vector_close("coeffs_m", 0.15)),
+    # its mean shift (fraction × mean excess) over the region found, less the control's there
     "nlos": ({"anchor": 6, "fraction": 0.5, "mean_excess_m": 0.3, "region": {"min": [-5, 0, -1], "max": [5, 5, 5]}},
-             lambda got, want, slack=1.0: 0.05 <= got["fraction"] * got["mean_excess_m"] <= 0.3),
+             lambda got, want, slack=1.0: 0.05 <= got["mean_shift_m"] <= 0.3),
     "multipath_floor": ({"height_m": 0.6, "std_m": 0.2},
                         lambda got, want, slack=1.0: 0.25 <= got["height_m"] <= 1.0 and 0.1 <= got["std_m"] <= 0.35),
     "imu_accel_bias": ({"bias_mps2": [0.0, 0.15, 0.0]}, _vector_close("bias_mps2", 0.03)),
@@ -181,15 +182,18 @@ def _mark(name: str, known: dict) -> list:
     return [pytest.mark.xfail(strict=True, reason=known[name])] if name in known else []
 
 
-def _check(found: dict, control: dict, name: str, params: dict, check, real: bool = False) -> None:
+def _check(found: dict, control: dict, name: str, params: dict, check, real: bool = False,
+           samples: compare.TdoaSamples | None = None) -> None:
     """The injected effect named, located and measured: on a real flight, as its
-    change from the control recording (rig.compare, as `rig diagnose --control`)."""
+    change from the control recording (rig.compare, as `rig diagnose --control`; an
+    NLOS's over the injected recording's TDOA `samples`)."""
     key = (name, (params["anchor"],) if "anchor" in params else ())
     if key not in found and key in control and name in CANCELLABLE:
         _check_cancelled(control[key], name, params, check, real)
         return
     assert key in found, f"{name} not named; found {sorted(found)}"
-    got = compare.change(name, list(key[1]), found[key], control.get(key)).change or dict(found[key]["params"])
+    got = compare.change(name, list(key[1]), found[key], control.get(key), samples).change \
+        or dict(found[key]["params"])
     _check_unidentified(found[key], got, params)
     assert check(got, params, REAL_SLACK if real else 1.0), f"{name}: got {got}, injected {params}"
     assert found[key]["fit_after"] < found[key]["fit_before"]
@@ -199,6 +203,20 @@ def _check(found: dict, control: dict, name: str, params: dict, check, real: boo
         assert set(expected) <= set(located) if real else located == expected
     if "anchor" in params:
         assert found[key]["where"]["anchors"] == [params["anchor"]]
+    if "region" in params:
+        _check_region(found[key]["params"], params, samples)
+
+
+NLOS_LOCATED = 0.5      # of the samples in the region found, at least this share inside the injected one
+
+
+def _check_region(got: dict, params: dict, samples: compare.TdoaSamples | None) -> None:
+    """An NLOS is located where most of the samples its region holds (the tag inside,
+    the anchor in the pair) are inside the injected region."""
+    assert samples is not None, "an NLOS is judged over the injected recording's TDOA samples"
+    found = samples.inside(params["anchor"], got["region"])
+    share = float(np.mean(samples.inside(params["anchor"], params["region"])[found])) if found.any() else 0.0
+    assert share >= NLOS_LOCATED, f"nlos: {share:.0%} of the region found {got['region']} is in the injected one"
 
 
 # A global clock effect the injection cancels: the real flight's own (its control's
@@ -246,7 +264,8 @@ def test_a_concealed_effect_in_a_simulated_flight_is_named_located_and_measured(
     concealed(untouched, effect)
     control = findings(diagnose(untouched)) if own_sim_control(name) else sim_control
     assert all(k[0] != name for k in control)
-    _check(findings(diagnose(rec)), control, name, params, check)
+    diagnosis = diagnose(rec)
+    _check(findings(diagnosis), control, name, params, check, samples=compare.TdoaSamples.of(diagnosis.problem))
 
 
 @pytest.mark.parametrize("name", [pytest.param(n, marks=_mark(n, NOT_ON_REAL)) for n in CASES])
@@ -256,7 +275,9 @@ def test_a_concealed_effect_in_a_real_flight_is_found_against_its_control(name, 
     effect = {"effect": name, "params": params}
     concealed(rec, effect, predictor)
     injected = inject(rec, [effect], seed=1, predictor=predictor)
-    _check(findings(diagnose(injected)), real_control, name, params, check, real=True)
+    diagnosis = diagnose(injected)
+    _check(findings(diagnosis), real_control, name, params, check, real=True,
+           samples=compare.TdoaSamples.of(diagnosis.problem))
 
 
 def test_a_gyro_scale_is_not_shrunk_by_the_ground_truths_attitude_noise(survey) -> None:
