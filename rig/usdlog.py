@@ -164,7 +164,7 @@ def decode(data: bytes, *, salvage: bool = False, source: str = "<bytes>") -> De
     if not crc_ok:
         message = f"{source}: CRC-32 mismatch or missing (file truncated or corrupted)"
         if not salvage:
-            raise LogFormatError(message + "; use --salvage to import the valid prefix")
+            raise LogFormatError(message + "; `rig import --salvage` imports its valid prefix")
         dropped.append(message)
     # Without a valid CRC we cannot know where the events end, so scan to the end of file.
     end = len(data) - CRC_SIZE if crc_ok else len(data)

@@ -40,7 +40,9 @@ def test_unsupported_version_is_rejected() -> None:
 
 @pytest.mark.parametrize("cut", [1, 7, 100, 1000])
 def test_truncated_log_fails_clearly(cut: int) -> None:
-    with pytest.raises(LogFormatError, match="CRC-32"):
+    """And says how to keep what is left: any command reading a log stops here, and
+    only `rig import` salvages."""
+    with pytest.raises(LogFormatError, match=r"CRC-32.*`rig import --salvage` imports its valid prefix"):
         decode(crafted_log()[:-cut])
 
 
