@@ -130,14 +130,19 @@ def shown_in(diagnosis, name: str, params: dict) -> compare.Shown | None:
     return compare.shown([item], name, anchors, {"mean_shift_m": compare.mean_shift(params)})
 
 
-def _listed(diagnosis) -> list:
-    return diagnosis.to_json()["findings"]
+def _listed(diagnosis) -> dict:
+    """What the judge reads of a diagnosis: its findings and the simplest effects it
+    does not name, as it estimates them."""
+    report = diagnosis.to_json()
+    return {"findings": report["findings"], "unnamed": report["unnamed_estimates"]}
 
 
 def judge(found: dict, control: dict, name: str, params: dict, check, real: bool,
           samples: compare.TdoaSamples | None) -> tuple[bool, str]:
+    """`found`: the injected flight's findings, keyed; `control`: its control's, as listed."""
     try:
-        cases._check(found, control, name, params, check, real=real, samples=samples)
+        cases._check(found, cases.keyed(control["findings"]), name, params, check, real=real, samples=samples,
+                     control_unnamed=cases.keyed(control["unnamed"]))
         return True, "found"
     except AssertionError as error:
         return False, str(error).split(";")[0][:160]
@@ -181,8 +186,8 @@ def main() -> None:
             found, own, listed_shown, listed_samples = results[(flight, label)]
             shown = listed_shown and compare.Shown(**listed_shown)
             samples = listed_samples and compare.TdoaSamples.from_json(listed_samples)
-            control = cases.keyed(own or results[(flight, "control")][0])
-            ok, how = judge(cases.keyed(found), control, name, params, check, flight != "sim", samples)
+            control = own or results[(flight, "control")][0]
+            ok, how = judge(cases.keyed(found["findings"]), control, name, params, check, flight != "sim", samples)
             below = None if shown is None else shown.below
             rows[label] = {"found": ok, "detail": how, "below_told_apart": below}
             print(f"{flight:12s} {label:28s} {'found ' if ok else 'MISSED'} {'' if ok else how}"

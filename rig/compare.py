@@ -12,10 +12,12 @@ the window. An NLOS changes by its mean shift (fraction × mean excess) over the
 recording's region, less what the control's NLOS on that anchor puts on the same
 samples: its region and the control's need not be the same box. The floor's
 multipath and error are not differences of parameters; they are listed as each
-recording has them. A clock
-effect named on the control only was cancelled by the recording's (its own plus an
-opposite one adds up to about none): its change is from the control's value to
-neutral.
+recording has them. An effect named on the recording only changes from the
+control's estimate of it where the control has one (the simplest TDOA effects it
+does not name, `unnamed_estimates`: a flight's own effect below the bar is still
+there), else from neutral. A clock effect named on the control only was cancelled
+by the recording's (its own plus an opposite one adds up to about none): its change
+is from the control's value to neutral.
 
 Each change of an effect with design columns also says from which size the recording
 tells a change of its direction from the effect's look-alikes (rig.identifiability):
@@ -51,6 +53,7 @@ class Change:
     control: dict | None             # on the control, if named there
     shown: Shown | None = None       # the change's size against what the recording tells apart; None: not assessed
     lever_arm_share: float | None = None   # a delay's: the part of its change the lever arm's change carries
+    control_unnamed: dict | None = None    # named on the recording only: the control's estimate, unnamed there
 
     @property
     def std_errs(self) -> float | None:
@@ -74,6 +77,8 @@ class Change:
             out["anchors"] = self.anchors
         if self.lever_arm_share is not None:
             out["lever_arm_share_m"] = round(self.lever_arm_share, 6)
+        if self.control_unnamed is not None:
+            out["control_unnamed"] = _params(self.control_unnamed)
         return out
 
 
@@ -187,10 +192,13 @@ def nlos_change(found: dict | None, own: dict | None, samples: TdoaSamples | Non
 
 
 def change(effect: str, anchors: list[int], found: dict | None, control: dict | None,
-           samples: TdoaSamples | None = None) -> Change:
+           samples: TdoaSamples | None = None, control_unnamed: dict | None = None) -> Change:
     """The effect's change from `control` (its finding there, or None) to `found`;
-    an NLOS's over the recording's TDOA `samples`."""
+    an NLOS's over the recording's TDOA `samples`. Named on the recording only, from
+    `control_unnamed`, the control's estimate of it (report.json's
+    `unnamed_estimates`), if it has one: the flight's own effect below the bar."""
     named_in = "both" if found and control else "recording" if found else "control"
+    own = control_unnamed if named_in == "recording" else None
     if effect in NOT_ADDITIVE:
         difference = None
     elif effect == NLOS:
@@ -198,14 +206,15 @@ def change(effect: str, anchors: list[int], found: dict | None, control: dict | 
     elif named_in == "both":
         difference = added(effect, found["params"], control["params"])
     elif named_in == "recording":
-        difference = dict(found["params"])
+        difference = dict(found["params"]) if own is None else added(effect, found["params"], own["params"])
     else:
         difference = cancelled(effect, control["params"]) if effect in CANCELLABLE else None
-    return Change(effect, anchors, named_in, difference, found, control)
+    return Change(effect, anchors, named_in, difference, found, control, control_unnamed=own)
 
 
 def changes(findings: list[dict], control: list[dict], identifiability: Sequence[Identifiability] = (),
-            cross_talk: dict[int, list[float]] | None = None, samples: TdoaSamples | None = None) -> list[Change]:
+            cross_talk: dict[int, list[float]] | None = None, samples: TdoaSamples | None = None,
+            control_unnamed: Sequence[dict] = ()) -> list[Change]:
     """Every effect reported on either recording, as it changed; the recording's
     findings first, by their evidence, then those on the control only. One reported
     in a look-alike's place (`alternative_to`) counts too: it carries that
@@ -213,12 +222,15 @@ def changes(findings: list[dict], control: list[dict], identifiability: Sequence
     recording's `identifiability`, each difference is assessed against it; with its
     lever arm's `cross_talk` (rig.diagnose.lever_arm_cross_talk), each delay's change
     gets the share of it that the lever arm's change carries; with the recording's
-    TDOA `samples`, an NLOS named on both gets its change too."""
+    TDOA `samples`, an NLOS named on both gets its change too; with the control's
+    `unnamed_estimates`, an effect named on the recording only changes from the
+    control's estimate of it."""
     named = {key(f): f for f in findings}
     own = {key(f): f for f in control}
+    below_bar = {key(u): u for u in control_unnamed}
     order = sorted(named, key=lambda k: -named[k]["evidence"]) + [k for k in own if k not in named]
-    out = [change(effect, list(anchors), named.get((effect, anchors)), own.get((effect, anchors)), samples)
-           for effect, anchors in order]
+    out = [change(effect, list(anchors), named.get((effect, anchors)), own.get((effect, anchors)), samples,
+                  below_bar.get((effect, anchors))) for effect, anchors in order]
     lever = lever_arm_change(named, own)
     for c in out:
         if c.change is None:

@@ -659,6 +659,42 @@ def _free_offset(named: list[Term], pool: list[Term]) -> list[Term]:
     return [Term(t.candidate, t.candidate.columns) for t in pool if t.candidate.effect == "time_offset"]
 
 
+@dataclass
+class Unnamed:
+    """A simplest TDOA effect the recording does not name, measured as a named one
+    would be (report.json's `unnamed_estimates`)."""
+
+    effect: str
+    anchors: list[int]
+    params: dict
+    std_err: dict
+
+    def to_json(self) -> dict:
+        out = {"effect": self.effect, "params": self.params, "std_err": self.std_err}
+        return out | ({"anchors": self.anchors} if self.anchors else {})
+
+
+def unnamed_simplest(problem: Problem, channel: Channel, named: list[Term], pool: list[Candidate]) -> list[Unnamed]:
+    """The simplest TDOA candidates (rank 0: timing, delays, lever arm) that the
+    recording does not name, each estimated as it would be named: in the joint fit
+    of the named simplest effects and it, on the channel as recorded (a drift about
+    a free offset). A real flight's own effect below the bar is still there: on
+    0425-traj5 a drift of −1126 ± 433 ppm, which an injected +2000 ppm brought to a
+    named +720; compared with another recording of the flight that names it, this is
+    what the flight had (rig.compare)."""
+    simplest = [Term(t.candidate, t.columns, t.extra) for t in named if _rank(t) == 0]
+    keys = {t.key for t in simplest}
+    fresh = _fresh_terms(pool, "tdoa")
+    out = []
+    for term in (t for t in fresh if _rank(t) == 0 and t.key not in keys):
+        _estimate(channel.z, [*simplest, term], channel.z, _free_offset([*simplest, term], fresh))
+        anchors = [term.candidate.fixed["anchor"]] if "anchor" in term.candidate.fixed else []
+        out.append(Unnamed(term.candidate.effect, anchors,
+                           rounded_floats(_effect_of(problem, channel, term, term.estimate).params()),
+                           _uncertainty(term)[0]))
+    return out
+
+
 GAUGE_WEIGHT = 1e6             # pins the sum of a delay family: TDOA sees delays relative to each other
 
 
@@ -1159,6 +1195,7 @@ class Diagnosis:
     residual_after: dict[str, np.ndarray]
     identifiability: list[ident.Identifiability] = field(default_factory=list)
     cross_talk: dict[int, list[float]] = field(default_factory=dict)     # lever_arm_cross_talk
+    unnamed: list[Unnamed] = field(default_factory=list)                # unnamed_simplest
 
     def channel_fits(self) -> dict:
         return {name: {"samples": int(len(r)), "gross_errors_left_out": self.problem.left_out[name],
@@ -1176,7 +1213,8 @@ class Diagnosis:
                 "vibration_rms_mps2": self.vibration_rms(),
                 "identifiability": [i.to_json() for i in self.identifiability],
                 "lever_arm_cross_talk": [{"anchor": k, "delay_m_per_m": rounded_floats(v)}
-                                         for k, v in self.cross_talk.items()]}
+                                         for k, v in self.cross_talk.items()],
+                "unnamed_estimates": [u.to_json() for u in self.unnamed]}
 
     def vibration_rms(self) -> list[float] | None:
         """The accelerometer's mean vibration RMS per axis over the compared rows: what
@@ -1257,10 +1295,12 @@ def diagnose(rec: Recording, progress=None) -> Diagnosis:
     problem = Problem(rec)
     pool = candidates(problem)
     before = problem.residual_before
-    findings, model, names = [], [], list(before)
+    findings, model, names, unnamed = [], [], list(before), []
     for name in progress(names) if progress else names:
         as_recorded = problem.channel(name)
         terms, channel, shapes = select(problem, as_recorded, pool)     # fitted jointly
+        if name == "tdoa":
+            unnamed = unnamed_simplest(problem, as_recorded, terms, pool)
         for fit in shapes:
             findings.append(_shape_finding(problem, fit))
             model.append(fit.effect())
@@ -1294,7 +1334,8 @@ def diagnose(rec: Recording, progress=None) -> Diagnosis:
             findings.append(floor)
             model.append(fx.make_effect("multipath_floor", floor.params))
     findings.sort(key=lambda f: -f.evidence)
-    return Diagnosis(problem, findings, model, before, after, identifiability(pool), lever_arm_cross_talk(pool))
+    return Diagnosis(problem, findings, model, before, after, identifiability(pool), lever_arm_cross_talk(pool),
+                     unnamed)
 
 
 def identifiability(pool: list[Candidate]) -> list[ident.Identifiability]:

@@ -86,7 +86,8 @@ def write(diagnosis: Diagnosis, out: Path, recording: str, control: dict | None 
     if control is not None:
         report["against_control"] = {"recording": control["recording"], "changes": [
             c.to_json() for c in compare.changes(report["findings"], control["findings"], diagnosis.identifiability,
-                                                 diagnosis.cross_talk, compare.TdoaSamples.of(diagnosis.problem))]}
+                                                 diagnosis.cross_talk, compare.TdoaSamples.of(diagnosis.problem),
+                                                 control.get("unnamed_estimates", ()))]}
     (out / REPORT_JSON).write_text(json.dumps(report, indent=2, allow_nan=False, default=_finite))
     (out / MODEL_JSON).write_text(json.dumps({"effects": report["model"],
                                               "vibration_rms_mps2": report["vibration_rms_mps2"]}, indent=2))
@@ -153,7 +154,9 @@ def _against_control_lines(against: dict | None) -> list[str]:
         return []
     lines = ["## Against the control recording", "",
              f"Each effect as it changed from the control, {against['recording']} (the same flight as it was): "
-             "the recording's parameters less the control's, where both name it; as named, where one does "
+             "the recording's parameters less the control's, where both name it; where only the recording does, "
+             "less the control's estimate of it below its bar if it has one (the simplest TDOA effects), "
+             "else as named; as the control names it, where only the control does "
              "(`against_control` in report.json), and its largest component in the recording's standard "
              "errors (too large a yardstick for effects injected into the control, whose noise the two "
              "share). Those named on one only come first, then the largest changes. An NLOS changes by its "
@@ -170,7 +173,7 @@ def _against_control_lines(against: dict | None) -> list[str]:
     for c in compare.by_size(against["changes"]):
         z = "—" if c["change_std_errs"] is None else f"{c['change_std_errs']:.1f}"
         lines.append(f"| {c['effect']} | {_anchors(c)} | {c['named_in']} | {change_text(c)} | {z} | "
-                     f"{_told_apart_text(c)} | {_params_text(c['recording'])} | {_params_text(c['control'])} |")
+                     f"{_told_apart_text(c)} | {_params_text(c['recording'])} | {_control_text(c)} |")
     if not against["changes"]:
         lines.append("| — | — | neither | — | — | — | — | — |")
     return lines + [""]
@@ -180,6 +183,14 @@ def change_text(change: dict) -> str:
     """A change's amounts, and a delay's share of the lever arm's change, if any."""
     share = change.get("lever_arm_share_m")
     return _params_text(change["change"]) + ("" if share is None else f" (the lever arm's share {figures(share)})")
+
+
+def _control_text(change: dict) -> str:
+    """The control's parameters, or its estimate of an effect it does not name."""
+    unnamed = change.get("control_unnamed")
+    if unnamed is None:
+        return _params_text(change["control"])
+    return f"{_params_text(unnamed)} (estimated, below the bar)"
 
 
 def _told_apart_text(change: dict) -> str:

@@ -45,6 +45,22 @@ def test_a_clock_effect_the_recording_cancels_changed_to_neutral() -> None:
     assert gone.named_in == "control" and gone.change is None
 
 
+def test_an_effect_the_control_does_not_name_changes_from_its_estimate_there() -> None:
+    """The flight's own drift, −1100 ppm below the control's bar, plus an added 2000
+    reads +900 ppm named: a change of 2000 from the control's estimate. Without one
+    (an effect not among the estimated), from neutral."""
+    drift = _finding("clock_drift", {"ppm": 900.0})
+    got = change("clock_drift", [], drift, None, control_unnamed=_finding("clock_drift", {"ppm": -1100.0}))
+    assert got.named_in == "recording" and got.change == {"ppm": pytest.approx(2000.0)}
+    assert got.to_json()["control_unnamed"] == {"ppm": -1100.0}
+    assert change("clock_drift", [], drift, None).change == {"ppm": 900.0}
+    listed = changes([drift], [], control_unnamed=[{"effect": "clock_drift", "params": {"ppm": -1100.0}}])
+    assert listed[0].change == {"ppm": pytest.approx(2000.0)}
+    named_on_both = change("clock_drift", [], drift, _finding("clock_drift", {"ppm": 100.0}),
+                           control_unnamed=_finding("clock_drift", {"ppm": -1100.0}))
+    assert named_on_both.change == {"ppm": pytest.approx(800.0)} and named_on_both.control_unnamed is None
+
+
 def test_the_floors_effects_are_listed_not_subtracted() -> None:
     floor = {"height_m": 0.6, "std_m": 0.2}
     got = change("multipath_floor", [], _finding("multipath_floor", floor),

@@ -25,7 +25,7 @@ from rig import effects as fx
 from rig import imu_spectrum
 from rig.diagnose import (ORDER, Candidate, Channel, Problem, Term, _confine_in_time, _estimate, _free_offset,
                           candidates, diagnose, identifiability, lever_arm_cross_talk, locate,
-                          nlos_identifiability, vibration_spread)
+                          nlos_identifiability, select, unnamed_simplest, vibration_spread)
 from rig.diagnosis_report import describe, write as write_report
 from rig.floor_error import ON_GROUND_M
 from rig.importer import load_any
@@ -53,8 +53,13 @@ def survey(data_dir: Path) -> Path:
 
 
 @pytest.fixture(scope="module")
-def sim_control(survey):
-    return findings(diagnose(simulate(sim_config(survey, []))))
+def sim_diagnosis(survey):
+    return diagnose(simulate(sim_config(survey, [])))
+
+
+@pytest.fixture(scope="module")
+def sim_control(sim_diagnosis):
+    return findings(sim_diagnosis)
 
 
 @pytest.fixture(scope="module")
@@ -75,6 +80,11 @@ def real_control(real_diagnosis):
 
 def findings(result) -> dict[tuple, dict]:
     return keyed(result.to_json()["findings"])
+
+
+def unnamed(result) -> dict[tuple, dict]:
+    """The simplest effects a diagnosis does not name, as it estimates them."""
+    return keyed(result.to_json()["unnamed_estimates"])
 
 
 def keyed(listed: list[dict]) -> dict[tuple, dict]:
@@ -183,17 +193,18 @@ def _mark(name: str, known: dict) -> list:
 
 
 def _check(found: dict, control: dict, name: str, params: dict, check, real: bool = False,
-           samples: compare.TdoaSamples | None = None) -> None:
+           samples: compare.TdoaSamples | None = None, control_unnamed: dict | None = None) -> None:
     """The injected effect named, located and measured: on a real flight, as its
     change from the control recording (rig.compare, as `rig diagnose --control`; an
-    NLOS's over the injected recording's TDOA `samples`)."""
+    NLOS's over the injected recording's TDOA `samples`; one the control does not
+    name, from its estimate there, `control_unnamed`, keyed like the findings)."""
     key = (name, (params["anchor"],) if "anchor" in params else ())
     if key not in found and key in control and name in CANCELLABLE:
         _check_cancelled(control[key], name, params, check, real)
         return
     assert key in found, f"{name} not named; found {sorted(found)}"
-    got = compare.change(name, list(key[1]), found[key], control.get(key), samples).change \
-        or dict(found[key]["params"])
+    got = compare.change(name, list(key[1]), found[key], control.get(key), samples,
+                         (control_unnamed or {}).get(key)).change or dict(found[key]["params"])
     _check_unidentified(found[key], got, params)
     assert check(got, params, REAL_SLACK if real else 1.0), f"{name}: got {got}, injected {params}"
     assert found[key]["fit_after"] < found[key]["fit_before"]
@@ -256,28 +267,29 @@ def _check_unidentified(finding: dict, got: dict, params: dict) -> None:
 
 
 @pytest.mark.parametrize("name", [pytest.param(n, marks=_mark(n, NOT_ON_SIM)) for n in CASES])
-def test_a_concealed_effect_in_a_simulated_flight_is_named_located_and_measured(name, survey, sim_control) -> None:
+def test_a_concealed_effect_in_a_simulated_flight_is_named_located_and_measured(name, survey, sim_diagnosis) -> None:
     params, check = CASES[name]
     effect = {"effect": name, "params": params}
     rec = simulate(sim_case(survey, name, [effect]))
     untouched = simulate(sim_case(survey, name, []))
     concealed(untouched, effect)
-    control = findings(diagnose(untouched)) if own_sim_control(name) else sim_control
-    assert all(k[0] != name for k in control)
+    control = diagnose(untouched) if own_sim_control(name) else sim_diagnosis
+    assert all(k[0] != name for k in findings(control))
     diagnosis = diagnose(rec)
-    _check(findings(diagnosis), control, name, params, check, samples=compare.TdoaSamples.of(diagnosis.problem))
+    _check(findings(diagnosis), findings(control), name, params, check,
+           samples=compare.TdoaSamples.of(diagnosis.problem), control_unnamed=unnamed(control))
 
 
 @pytest.mark.parametrize("name", [pytest.param(n, marks=_mark(n, NOT_ON_REAL)) for n in CASES])
-def test_a_concealed_effect_in_a_real_flight_is_found_against_its_control(name, real, real_control) -> None:
+def test_a_concealed_effect_in_a_real_flight_is_found_against_its_control(name, real, real_diagnosis) -> None:
     params, check = CASES[name]
     rec, predictor = real
     effect = {"effect": name, "params": params}
     concealed(rec, effect, predictor)
     injected = inject(rec, [effect], seed=1, predictor=predictor)
     diagnosis = diagnose(injected)
-    _check(findings(diagnosis), real_control, name, params, check, real=True,
-           samples=compare.TdoaSamples.of(diagnosis.problem))
+    _check(findings(diagnosis), findings(real_diagnosis), name, params, check, real=True,
+           samples=compare.TdoaSamples.of(diagnosis.problem), control_unnamed=unnamed(real_diagnosis))
 
 
 def test_a_gyro_scale_is_not_shrunk_by_the_ground_truths_attitude_noise(survey) -> None:
@@ -379,6 +391,25 @@ def test_time_offset_and_clock_drift_are_told_apart(survey) -> None:
     offset = findings(diagnose(simulate(sim_config(survey, [{"effect": "time_offset", "params": {"seconds": 0.06}}]))))
     assert ("clock_drift", ()) in drift and ("time_offset", ()) not in drift
     assert ("time_offset", ()) in offset and ("clock_drift", ()) not in offset
+
+
+def test_a_simplest_effect_left_unnamed_is_estimated_as_it_would_be_named(survey) -> None:
+    """`unnamed_estimates`: a control that does not name an effect still has its own
+    below the bar, and a comparison starts from there. Taken out of the named
+    effects, the drift a flight names is estimated at the value and standard error
+    it was named with; every simplest candidate not named has an estimate."""
+    problem = Problem(simulate(sim_config(survey, [{"effect": "clock_drift", "params": {"ppm": 2000.0}}])))
+    pool, channel = candidates(problem), problem.channel("tdoa")
+    named, _, _ = select(problem, channel, pool)
+    drift = next(t for t in named if t.key == "clock_drift")
+    left_out = unnamed_simplest(problem, channel, [t for t in named if t is not drift], pool)
+    named_keys = {t.key for t in named if ORDER[t.candidate.effect][1] == 0} - {"clock_drift"}
+    assert len(left_out) == sum(ORDER[c.effect] == ("tdoa", 0) and c.key not in named_keys for c in pool)
+    estimate = next(u for u in left_out if u.effect == "clock_drift")
+    assert estimate.params["ppm"] == pytest.approx(float(drift.candidate.value(drift.estimate)[0]), rel=1e-3)
+    assert estimate.params["ppm"] == pytest.approx(2000.0, rel=0.25)
+    c = drift.candidate
+    assert estimate.std_err["ppm"] == pytest.approx(float(drift.std_err[0] * c.value_slope(drift.estimate)[0]), rel=1e-3)
 
 
 def _clock_started_earlier(rec: Recording, seconds: float) -> Recording:
@@ -495,7 +526,8 @@ def test_a_timing_effect_that_pays_only_once_the_nlos_shapes_are_out_is_named(da
     injected = inject(rec, [{"effect": "time_offset", "params": params}], seed=1, predictor=Predictor(rec))
     diagnosis = findings(diagnose(injected))
     assert _found_by_shape(diagnosis)
-    _check(diagnosis, findings(diagnose(rec)), "time_offset", params, check, real=True)
+    control = diagnose(rec)
+    _check(diagnosis, findings(control), "time_offset", params, check, real=True, control_unnamed=unnamed(control))
 
 
 def test_ranges_that_read_long_with_the_tag_on_the_floor_are_located_on_their_anchor(real) -> None:
