@@ -24,7 +24,9 @@ Method, per channel (TDOA, accelerometer, gyroscope):
    simpler ones (a comparison with a control recording needs that); a richer TDOA
    effect is fitted given every simplest candidate too, named or not, so neither
    does a simplest one named on one recording and not on another. Each estimate
-   carries its standard error (the posterior's, in that fit); a parameter whose
+   carries its standard error (the posterior's, in that fit). Every simplest TDOA
+   candidate not named is estimated as it would be named too (unnamed_simplest), a
+   flight's own effect below the bar that a comparison starts from. A parameter whose
    standard error is more than half its prior's is reported as not identified by
    this trajectory: the data hardly told it apart from the simpler explanations.
    An IMU bias and scale that the flight cannot tell apart on an axis (the
