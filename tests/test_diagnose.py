@@ -732,14 +732,16 @@ def test_the_lever_arms_cross_talk_is_how_the_fitted_delays_move_with_it(real_di
 def test_cli_diagnoses_against_a_control_recording(tmp_path: Path, survey) -> None:
     """`rig diagnose REC --control CONTROL`: the control's own report in DIR/control/,
     and each effect's change from it: a delay the control already has, grown on the
-    recording, is reported as its growth; one on the recording only, as it is."""
+    recording, is reported as its growth; a time offset named on the recording only,
+    from the control's own estimate of it below its bar."""
     simulated, control, recording = (tmp_path / name for name in ("sim.mcap", "control.mcap", "rec.mcap"))
     subprocess.run([*RIG, "simulate", "--trajectory", "circle-sine", "--survey", str(survey), "--duration", "20",
                     "-o", str(simulated)], check=True, capture_output=True)
     for source, target, effects in (
             (simulated, control, [{"effect": "anchor_delay", "params": {"anchor": 2, "meters": 0.3}}]),
             (control, recording, [{"effect": "anchor_delay", "params": {"anchor": 2, "meters": 0.15}},
-                                  {"effect": "anchor_delay", "params": {"anchor": 6, "meters": -0.25}}])):
+                                  {"effect": "anchor_delay", "params": {"anchor": 6, "meters": -0.25}},
+                                  {"effect": "time_offset", "params": {"seconds": 0.05}}])):
         subprocess.run([*RIG, "inject", str(source), "--effects", json.dumps(effects), "-o", str(target)],
                        check=True, capture_output=True)
     proc = subprocess.run([*RIG, "diagnose", str(recording), "--control", str(control), "--out", str(tmp_path / "d")],
@@ -753,7 +755,13 @@ def test_cli_diagnoses_against_a_control_recording(tmp_path: Path, survey) -> No
     grown = listed[("anchor_delay", (2,))]
     assert grown["named_in"] == "both" and grown["change"]["meters"] == pytest.approx(0.15, abs=0.04)
     assert grown["recording"]["meters"] - grown["control"]["meters"] == pytest.approx(grown["change"]["meters"])
-    assert listed[("anchor_delay", (6,))]["change"]["meters"] == pytest.approx(-0.25, abs=0.04)
+    added = listed[("anchor_delay", (6,))]
+    assert added["change"]["meters"] == pytest.approx(-0.25, abs=0.04)
+    late = listed[("time_offset", ())]            # on the recording only: from the control's own, unnamed
+    below_bar = keyed(own["unnamed_estimates"])[("time_offset", ())]
+    assert late["named_in"] == "recording" and late["control_unnamed"] == below_bar["params"]
+    assert late["change"]["seconds"] == pytest.approx(late["recording"]["seconds"] - below_bar["params"]["seconds"])
+    assert late["change"]["seconds"] == pytest.approx(0.05, rel=0.35)
     assert grown["size"] == pytest.approx(abs(grown["change"]["meters"]))
     assert 0 < grown["told_apart_from"] < grown["size"]       # a delay of 0.15 m over 20 s: well beyond the noise
     assert "against the control: anchor_delay [2] named on both" in proc.stdout
