@@ -15,9 +15,10 @@ multipath and error are not differences of parameters; they are listed as each
 recording has them. An effect named on the recording only changes from the
 control's estimate of it where the control has one (the simplest TDOA effects it
 does not name, `unnamed_estimates`: a flight's own effect below the bar is still
-there), else from neutral. A clock effect named on the control only was cancelled
-by the recording's (its own plus an opposite one adds up to about none): its change
-is from the control's value to neutral.
+there), else from neutral; one named on the control only changes to the
+recording's estimate of it where the recording has one. Else a clock effect named
+on the control only was cancelled by the recording's (its own plus an opposite one
+adds up to about none): its change is from the control's value to neutral.
 
 Each change of an effect with design columns also says from which size the recording
 tells a change of its direction from the effect's look-alikes (rig.identifiability):
@@ -54,6 +55,7 @@ class Change:
     shown: Shown | None = None       # the change's size against what the recording tells apart; None: not assessed
     lever_arm_share: float | None = None   # a delay's: the part of its change the lever arm's change carries
     control_unnamed: dict | None = None    # named on the recording only: the control's estimate, unnamed there
+    recording_unnamed: dict | None = None  # named on the control only: the recording's estimate, unnamed there
 
     @property
     def std_errs(self) -> float | None:
@@ -79,6 +81,8 @@ class Change:
             out["lever_arm_share_m"] = round(self.lever_arm_share, 6)
         if self.control_unnamed is not None:
             out["control_unnamed"] = _params(self.control_unnamed)
+        if self.recording_unnamed is not None:
+            out["recording_unnamed"] = _params(self.recording_unnamed)
         return out
 
 
@@ -192,13 +196,16 @@ def nlos_change(found: dict | None, own: dict | None, samples: TdoaSamples | Non
 
 
 def change(effect: str, anchors: list[int], found: dict | None, control: dict | None,
-           samples: TdoaSamples | None = None, control_unnamed: dict | None = None) -> Change:
+           samples: TdoaSamples | None = None, control_unnamed: dict | None = None,
+           recording_unnamed: dict | None = None) -> Change:
     """The effect's change from `control` (its finding there, or None) to `found`;
-    an NLOS's over the recording's TDOA `samples`. Named on the recording only, from
-    `control_unnamed`, the control's estimate of it (report.json's
-    `unnamed_estimates`), if it has one: the flight's own effect below the bar."""
+    an NLOS's over the recording's TDOA `samples`. Named on one recording only, from
+    or to the other's estimate of it (`control_unnamed`, `recording_unnamed`: its
+    report.json's `unnamed_estimates`), where it has one: the flight's effect below
+    the bar."""
     named_in = "both" if found and control else "recording" if found else "control"
     own = control_unnamed if named_in == "recording" else None
+    left = recording_unnamed if named_in == "control" else None
     if effect in NOT_ADDITIVE:
         difference = None
     elif effect == NLOS:
@@ -207,14 +214,17 @@ def change(effect: str, anchors: list[int], found: dict | None, control: dict | 
         difference = added(effect, found["params"], control["params"])
     elif named_in == "recording":
         difference = dict(found["params"]) if own is None else added(effect, found["params"], own["params"])
+    elif left is not None:
+        difference = added(effect, left["params"], control["params"])
     else:
         difference = cancelled(effect, control["params"]) if effect in CANCELLABLE else None
-    return Change(effect, anchors, named_in, difference, found, control, control_unnamed=own)
+    return Change(effect, anchors, named_in, difference, found, control, control_unnamed=own,
+                  recording_unnamed=left)
 
 
 def changes(findings: list[dict], control: list[dict], identifiability: Sequence[Identifiability] = (),
             cross_talk: dict[int, list[float]] | None = None, samples: TdoaSamples | None = None,
-            control_unnamed: Sequence[dict] = ()) -> list[Change]:
+            control_unnamed: Sequence[dict] = (), recording_unnamed: Sequence[dict] = ()) -> list[Change]:
     """Every effect reported on either recording, as it changed; the recording's
     findings first, by their evidence, then those on the control only. One reported
     in a look-alike's place (`alternative_to`) counts too: it carries that
@@ -222,15 +232,15 @@ def changes(findings: list[dict], control: list[dict], identifiability: Sequence
     recording's `identifiability`, each difference is assessed against it; with its
     lever arm's `cross_talk` (rig.diagnose.lever_arm_cross_talk), each delay's change
     gets the share of it that the lever arm's change carries; with the recording's
-    TDOA `samples`, an NLOS named on both gets its change too; with the control's
-    `unnamed_estimates`, an effect named on the recording only changes from the
-    control's estimate of it."""
+    TDOA `samples`, an NLOS named on both gets its change too; with either's
+    `unnamed_estimates`, an effect named on the other only changes from or to its
+    estimate there."""
     named = {key(f): f for f in findings}
     own = {key(f): f for f in control}
-    below_bar = {key(u): u for u in control_unnamed}
+    own_below, named_below = ({key(u): u for u in listed} for listed in (control_unnamed, recording_unnamed))
     order = sorted(named, key=lambda k: -named[k]["evidence"]) + [k for k in own if k not in named]
-    out = [change(effect, list(anchors), named.get((effect, anchors)), own.get((effect, anchors)), samples,
-                  below_bar.get((effect, anchors))) for effect, anchors in order]
+    out = [change(k[0], list(k[1]), named.get(k), own.get(k), samples, own_below.get(k), named_below.get(k))
+           for k in order]
     lever = lever_arm_change(named, own)
     for c in out:
         if c.change is None:

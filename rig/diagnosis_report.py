@@ -87,7 +87,7 @@ def write(diagnosis: Diagnosis, out: Path, recording: str, control: dict | None 
         report["against_control"] = {"recording": control["recording"], "changes": [
             c.to_json() for c in compare.changes(report["findings"], control["findings"], diagnosis.identifiability,
                                                  diagnosis.cross_talk, compare.TdoaSamples.of(diagnosis.problem),
-                                                 control.get("unnamed_estimates", ()))]}
+                                                 control.get("unnamed_estimates", ()), report["unnamed_estimates"])]}
     (out / REPORT_JSON).write_text(json.dumps(report, indent=2, allow_nan=False, default=_finite))
     (out / MODEL_JSON).write_text(json.dumps({"effects": report["model"],
                                               "vibration_rms_mps2": report["vibration_rms_mps2"]}, indent=2))
@@ -156,12 +156,14 @@ def _against_control_lines(against: dict | None) -> list[str]:
              f"Each effect as it changed from the control, {against['recording']} (the same flight as it was): "
              "the recording's parameters less the control's, where both name it; where only the recording does, "
              "less the control's estimate of it below its bar if it has one (the simplest TDOA effects), "
-             "else as named; as the control names it, where only the control does "
+             "else as named; where only the control does, the recording's estimate below its bar less the "
+             "control's (a clock effect without one: to neutral, the recording's own cancelled it) "
              "(`against_control` in report.json), and its largest component in the recording's standard "
              "errors (too large a yardstick for effects injected into the control, whose noise the two "
              "share). Those named on one only come first, then the largest changes. An NLOS changes by its "
              "mean shift (fraction × mean excess) over the recording's region, less the control's NLOS on the "
-             "same samples; the floor's effects are listed as each has them. *Told apart from*: the size from which this recording "
+             "same samples; the floor's effects are listed as each has them. *Told apart from*: the size from "
+             "which this recording "
              "tells a change of that direction from the effect's look-alikes; a change below it is not the "
              "effect's own signal and may be a look-alike's moving (marked ⚠). Where the lever arm changed, "
              "a delay's change carries its share of it (the lever arm's change times how the delay moves "
@@ -173,7 +175,7 @@ def _against_control_lines(against: dict | None) -> list[str]:
     for c in compare.by_size(against["changes"]):
         z = "—" if c["change_std_errs"] is None else f"{c['change_std_errs']:.1f}"
         lines.append(f"| {c['effect']} | {_anchors(c)} | {c['named_in']} | {change_text(c)} | {z} | "
-                     f"{_told_apart_text(c)} | {_params_text(c['recording'])} | {_control_text(c)} |")
+                     f"{_told_apart_text(c)} | {_side_text(c, 'recording')} | {_side_text(c, 'control')} |")
     if not against["changes"]:
         lines.append("| — | — | neither | — | — | — | — | — |")
     return lines + [""]
@@ -185,11 +187,12 @@ def change_text(change: dict) -> str:
     return _params_text(change["change"]) + ("" if share is None else f" (the lever arm's share {figures(share)})")
 
 
-def _control_text(change: dict) -> str:
-    """The control's parameters, or its estimate of an effect it does not name."""
-    unnamed = change.get("control_unnamed")
+def _side_text(change: dict, side: str) -> str:
+    """One recording's parameters (`side`: "recording" or "control"), or its estimate
+    of an effect it does not name."""
+    unnamed = change.get(f"{side}_unnamed")
     if unnamed is None:
-        return _params_text(change["control"])
+        return _params_text(change[side])
     return f"{_params_text(unnamed)} (estimated, below the bar)"
 
 

@@ -61,6 +61,22 @@ def test_an_effect_the_control_does_not_name_changes_from_its_estimate_there() -
     assert named_on_both.change == {"ppm": pytest.approx(800.0)} and named_on_both.control_unnamed is None
 
 
+def test_an_effect_named_on_the_control_only_changes_to_the_recordings_estimate_of_it() -> None:
+    """The control's offset, −50 ms, plus an added +60 ms is +10 ms, below the
+    recording's bar: a change of +60 ms to its estimate there; without one, a clock
+    effect's change is to neutral, and any other effect's is none."""
+    own = _finding("time_offset", {"seconds": -0.05})
+    got = change("time_offset", [], None, own, recording_unnamed=_finding("time_offset", {"seconds": 0.01}))
+    assert got.named_in == "control" and got.change == {"seconds": pytest.approx(0.06)}
+    assert got.to_json()["recording_unnamed"] == {"seconds": 0.01}
+    assert change("time_offset", [], None, own).change == {"seconds": pytest.approx(0.05)}
+    delay = _finding("anchor_delay", {"anchor": 3, "meters": 0.2})
+    assert change("anchor_delay", [3], None, delay).change is None
+    gone = changes([], [{**delay, "anchors": [3]}],
+                   recording_unnamed=[{"effect": "anchor_delay", "anchors": [3], "params": {"anchor": 3, "meters": 0.05}}])
+    assert gone[0].change == {"anchor": 3, "meters": pytest.approx(-0.15)}
+
+
 def test_the_floors_effects_are_listed_not_subtracted() -> None:
     floor = {"height_m": 0.6, "std_m": 0.2}
     got = change("multipath_floor", [], _finding("multipath_floor", floor),
