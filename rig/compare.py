@@ -204,8 +204,8 @@ def change(effect: str, anchors: list[int], found: dict | None, control: dict | 
     report.json's `unnamed_estimates`), where it has one: the flight's effect below
     the bar."""
     named_in = "both" if found and control else "recording" if found else "control"
-    own = control_unnamed if named_in == "recording" else None
-    left = recording_unnamed if named_in == "control" else None
+    control_estimate = control_unnamed if named_in == "recording" else None
+    recording_estimate = recording_unnamed if named_in == "control" else None
     if effect in NOT_ADDITIVE:
         difference = None
     elif effect == NLOS:
@@ -213,13 +213,14 @@ def change(effect: str, anchors: list[int], found: dict | None, control: dict | 
     elif named_in == "both":
         difference = added(effect, found["params"], control["params"])
     elif named_in == "recording":
-        difference = dict(found["params"]) if own is None else added(effect, found["params"], own["params"])
-    elif left is not None:
-        difference = added(effect, left["params"], control["params"])
+        difference = (dict(found["params"]) if control_estimate is None
+                      else added(effect, found["params"], control_estimate["params"]))
+    elif recording_estimate is not None:
+        difference = added(effect, recording_estimate["params"], control["params"])
     else:
         difference = cancelled(effect, control["params"]) if effect in CANCELLABLE else None
-    return Change(effect, anchors, named_in, difference, found, control, control_unnamed=own,
-                  recording_unnamed=left)
+    return Change(effect, anchors, named_in, difference, found, control, control_unnamed=control_estimate,
+                  recording_unnamed=recording_estimate)
 
 
 def changes(findings: list[dict], control: list[dict], identifiability: Sequence[Identifiability] = (),

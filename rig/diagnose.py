@@ -155,6 +155,11 @@ class Candidate:
         self.key = self.effect + "".join(f":{v}" for v in self.fixed.values())
 
     @property
+    def anchors(self) -> list[int]:
+        """The anchor it is on, as report.json lists it (none for a global effect)."""
+        return [self.fixed["anchor"]] if "anchor" in self.fixed else []
+
+    @property
     def naming_bar(self) -> float:
         """The robust loss its fit must remove to be named, unconfined in time (Term.cost
         and MIN_EVIDENCE)."""
@@ -690,8 +695,7 @@ def unnamed_simplest(problem: Problem, channel: Channel, named: list[Term], pool
     out = []
     for term in (t for t in fresh if _rank(t) == 0 and t.key not in keys):
         _estimate(channel.z, [*simplest, term], channel.z, _free_offset([*simplest, term], fresh))
-        anchors = [term.candidate.fixed["anchor"]] if "anchor" in term.candidate.fixed else []
-        out.append(Unnamed(term.candidate.effect, anchors,
+        out.append(Unnamed(term.candidate.effect, term.candidate.anchors,
                            rounded_floats(_effect_of(problem, channel, term, term.estimate).params()),
                            _uncertainty(term)[0]))
     return out
@@ -1350,8 +1354,7 @@ def identifiability(pool: list[Candidate]) -> list[ident.Identifiability]:
         rank = ORDER[c.effect][1]
         alikes = {a.effect: a.columns for a in pool if a.effect in LOOK_ALIKES.get(c.effect, ())
                   and ORDER[a.effect][1] <= rank and a.fixed.get("anchor") == c.fixed.get("anchor")}
-        anchors = [c.fixed["anchor"]] if "anchor" in c.fixed else []
-        out.append(ident.assess(c.effect, anchors, c.param, c.columns, alikes, c.naming_bar, c.bound))
+        out.append(ident.assess(c.effect, c.anchors, c.param, c.columns, alikes, c.naming_bar, c.bound))
     return out
 
 
@@ -1432,9 +1435,9 @@ def _finding(problem: Problem, channel: Channel, term: Term, effect: fx.Effect, 
     rows = np.any(term.columns != 0, axis=1)
     scale = channel.scale[rows]
     z_without = z_with + term.columns @ theta
-    anchors = [term.candidate.fixed["anchor"]] if "anchor" in term.candidate.fixed else []
     std_err, not_identified = _uncertainty(term)
-    return Finding(effect.name, channel.name, anchors, rounded_floats(effect.params()), round(float(term.evidence), 2),
+    return Finding(effect.name, channel.name, term.candidate.anchors, rounded_floats(effect.params()),
+                   round(float(term.evidence), 2),
                    robust_rms(z_without[rows] * scale, scale), robust_rms(z_with[rows] * scale, scale),
                    _where(problem, channel, term, rows, z_with, theta, peers),
                    [{"candidate": key, "evidence": gain} for key, gain in term.look_alikes],
