@@ -36,7 +36,8 @@ sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
 import test_diagnose as cases  # noqa: E402  - the cases and their tolerances are the suite's
 
 from rig import compare, paths  # noqa: E402
-from rig.diagnose import candidates, nlos_identifiability  # noqa: E402
+from rig.candidates import candidates  # noqa: E402
+from rig.diagnose import nlos_identifiability  # noqa: E402
 from rig.effects import Region  # noqa: E402
 from rig.importer import load_any  # noqa: E402
 from rig.simulate import Predictor, inject, simulate  # noqa: E402

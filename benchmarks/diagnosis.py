@@ -24,7 +24,8 @@ import numpy as np  # noqa: E402
 
 from rig import effects as fx  # noqa: E402
 from rig import compare, imu_spectrum, paths  # noqa: E402
-from rig.diagnose import left_out_text, vibration_spread  # noqa: E402
+from rig.channels import left_out_text  # noqa: E402
+from rig.diagnose import vibration_spread  # noqa: E402
 from rig.floor_error import ON_GROUND_M  # noqa: E402
 from rig.identifiability import figures  # noqa: E402
 from rig.importer import load_any  # noqa: E402

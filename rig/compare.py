@@ -32,7 +32,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rig.diagnose import Problem, rounded_floats
+from rig.channels import Problem
+from rig.diagnose import rounded_floats
 from rig.effects import Region
 from rig.fitted_model import outside_window
 from rig.identifiability import Identifiability

@@ -16,7 +16,8 @@ import numpy as np  # noqa: E402
 from rig import compare  # noqa: E402
 from rig import effects as fx  # noqa: E402
 from rig import imu_spectrum  # noqa: E402
-from rig.diagnose import AXES, GROSS_Z, Diagnosis, Finding, left_out_text, vibration_spread  # noqa: E402
+from rig.channels import AXES, GROSS_Z, left_out_text  # noqa: E402
+from rig.diagnose import Diagnosis, Finding, vibration_spread  # noqa: E402
 from rig.floor_error import ON_GROUND_M  # noqa: E402
 from rig.identifiability import figures  # noqa: E402
 

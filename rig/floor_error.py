@@ -20,7 +20,7 @@ from rig.effects import on_ground_weight
 from rig.robust import MIN_SAMPLES, delay_centre, huber_loss, irls, mad_scale, robust_nll
 
 if TYPE_CHECKING:
-    from rig.diagnose import Problem
+    from rig.channels import Problem
 
 ON_GROUND_M = 0.2              # a tag this low sits on the floor or is taking off or landing: left out of the
 #                                NLOS search and the floor multipath (transients); located on its own (locate)

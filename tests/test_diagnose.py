@@ -23,14 +23,16 @@ from conftest import RIG
 from rig import compare
 from rig import effects as fx
 from rig import imu_spectrum
-from rig.diagnose import (ORDER, Candidate, Channel, Problem, Term, _confine_in_time, _estimate, _free_offset,
-                          candidates, diagnose, identifiability, lever_arm_cross_talk, locate,
-                          nlos_identifiability, select, unnamed_simplest, vibration_spread)
+from rig.candidates import Candidate, candidates
+from rig.channels import Channel, Problem
+from rig.diagnose import (diagnose, identifiability, lever_arm_cross_talk, locate, nlos_identifiability,
+                          unnamed_simplest, vibration_spread)
 from rig.diagnosis_report import describe, write as write_report
 from rig.floor_error import ON_GROUND_M
 from rig.importer import load_any
 from rig.recording import Recording, Vec3Series
 from rig.robust import delay_centre, irls, mad_scale, robust_rms
+from rig.selection import ORDER, Term, confine_in_time, estimate_terms, free_offset_terms, select
 from rig.simulate import Predictor, SimConfig, inject, simulate
 
 NOISE = [{"effect": "tdoa_noise", "params": {"std_m": 0.15}},
@@ -319,7 +321,7 @@ def test_a_yaw_wobble_is_kept_in_short_gyroscope_blocks(survey, monkeypatch) -> 
     assert Problem(rec).gyro_block_s == 0.2
     short = findings(diagnose(rec))[("imu_gyro_scale", ())]
     assert abs(short["params"]["scale"][2] - 1.1) < 0.03
-    monkeypatch.setattr("rig.diagnose.GYRO_BLOCKS_S", (0.5,))
+    monkeypatch.setattr("rig.channels.GYRO_BLOCKS_S", (0.5,))
     long = findings(diagnose(rec))[("imu_gyro_scale", ())]
     assert short["std_err"]["scale"][2] < 0.5 * long["std_err"]["scale"][2]
 
@@ -380,7 +382,7 @@ def test_a_bias_of_a_place_the_tag_returns_to_is_not_confined_in_time() -> None:
     def window(excess: np.ndarray, tag_positions: np.ndarray | None) -> list | None:
         channel = Channel("tdoa", t, noise + 2.0 * excess, np.ones(len(t)))
         term = Term(Candidate("anchor_delay", "tdoa", "meters", 1, {"anchor": 0}), np.ones((len(t), 1)))
-        _confine_in_time(channel, [term], tag_positions)
+        confine_in_time(channel, [term], tag_positions)
         return term.extra.get("during")
 
     assert window(at_place, None) is not None
@@ -454,9 +456,9 @@ def test_a_drift_is_measured_about_a_free_time_offset_named_or_not(survey) -> No
     pool = [Term(c, c.columns) for c in candidates(problem) if c.channel == "tdoa"]
     drift = [t for t in pool if t.candidate.effect == "clock_drift"]
     z = problem.channel("tdoa").z
-    _estimate(z, drift, nuisance=_free_offset(drift, pool))
+    estimate_terms(z, drift, nuisance=free_offset_terms(drift, pool))
     assert abs(drift[0].estimate[0] - 2000.0) < 500.0
-    _estimate(z, drift)
+    estimate_terms(z, drift)
     assert drift[0].estimate[0] > 3000.0, "without the free offset the drift takes it (the test can fail)"
 
 
@@ -473,12 +475,12 @@ def test_a_richer_effect_is_measured_given_every_simplest_one_named_or_not(surve
     displaced, = (t for t in pool if t.key == "anchor_position:3")
     simplest = [t for t in pool if t.key in ("time_offset", "clock_drift", "lever_arm")]
     z = problem.channel("tdoa").z
-    _estimate(z, [displaced, offset], simplest_unnamed=simplest)
+    estimate_terms(z, [displaced, offset], simplest_unnamed=simplest)
     with_offset = displaced.estimate.copy()
-    _estimate(z, [displaced], simplest_unnamed=simplest)
+    estimate_terms(z, [displaced], simplest_unnamed=simplest)
     np.testing.assert_allclose(displaced.estimate, with_offset, atol=1e-9)
     assert np.allclose(displaced.estimate, [0.2, 0.2, 0.0], atol=0.06)
-    _estimate(z, [displaced])
+    estimate_terms(z, [displaced])
     assert np.abs(displaced.estimate - with_offset).max() > 0.01, "without the offset it moves (the test can fail)"
 
 
@@ -514,7 +516,7 @@ def test_nlos_found_by_its_shape_leaves_the_simplest_effects_as_they_were(real, 
     to drop the flight's own lever arm and time offset). The shapes may add one; on
     this flight they add none, so these are the same with and without the shapes."""
     assert _found_by_shape(real_control)
-    monkeypatch.setattr("rig.diagnose._nlos_shapes", lambda *args: [])
+    monkeypatch.setattr("rig.selection._nlos_shapes", lambda *args: [])
     assert _simplest_tdoa(diagnose(real[0])) == _simplest_tdoa(real_diagnosis)
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from rig.diagnose import find_region
+from rig.selection import find_region
 from rig.region_scan import GRID_BINS, BoxScan
 
 N = 3000
