@@ -116,12 +116,16 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
 
     rec = _flight_to_diagnose(args.recording, args.survey)      # both read before either is diagnosed
     control_rec = _flight_to_diagnose(args.control, args.survey) if args.control is not None else None
-    control = None
+    control, differs = None, None
     if control_rec is not None:
+        differs = compare.flight_difference(rec, control_rec)
+        if differs:
+            print(f"warning: {args.control} does not look like a control recording of the same flight: {differs}",
+                  file=sys.stderr)
         control = write(diagnose(control_rec, progress=_progress(desc="diagnose the control")),
                         args.out / CONTROL_DIR, str(args.control))
     result = diagnose(rec, progress=_progress(desc="diagnose channels"))
-    report = write(result, args.out, str(args.recording), control)
+    report = write(result, args.out, str(args.recording), control, differs)
     for name, c in report["channels"].items():
         print(f"{name}: mismatch {c['fit_before']:.4g} -> {c['fit_after']:.4g} ({c['samples']} samples)")
     for f in result.findings:

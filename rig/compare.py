@@ -37,10 +37,40 @@ from rig.diagnose import rounded_floats
 from rig.effects import Region
 from rig.fitted_model import outside_window
 from rig.identifiability import Identifiability
+from rig.recording import Recording
 
 NOT_ADDITIVE = {"multipath_floor", "on_ground_delay"}       # listed as they are, not as a difference
 NLOS = "nlos"                                                  # changes by its mean shift over the samples
 CANCELLABLE = {"time_offset", "clock_drift"}                      # a clock's: the recording's may cancel the control's
+
+
+SAME_FLIGHT_M = 0.05    # a control's ground truth this close to the recording's (median): the same flight
+SAME_SURVEY_M = 0.01    # its anchors surveyed this close: the same room
+SAME_SPAN = 0.9         # and its ground truth covering this share of the recording's
+
+
+def flight_difference(rec: Recording, control: Recording) -> str | None:
+    """Why `control` does not look like a recording of the same flight as `rec` (None
+    when it does): other anchors or survey, or a ground truth elsewhere or elsewhen.
+    Its changes would then compare two flights, not a change of one."""
+    reasons = []
+    own, its = rec.anchor_map(), control.anchor_map()
+    if set(own) != set(its):
+        reasons.append(f"anchors {sorted(its)} against the recording's {sorted(own)}")
+    elif own:
+        moved = max(float(np.linalg.norm(np.subtract(own[k].position, its[k].position))) for k in own)
+        if moved > SAME_SURVEY_M:
+            reasons.append(f"anchors surveyed up to {moved:.2f} m from the recording's")
+    t, truth = rec.truth.t, control.truth
+    inside = (t >= truth.t[0]) & (t <= truth.t[-1]) if len(truth) else np.zeros(len(t), bool)
+    if inside.mean() < SAME_SPAN:
+        reasons.append(f"a ground truth over {inside.mean():.1%} of the recording's time")
+    if inside.any():
+        at = np.column_stack([np.interp(t[inside], truth.t, truth.position[:, i]) for i in range(3)])
+        apart = float(np.median(np.linalg.norm(at - rec.truth.position[inside], axis=1)))
+        if apart > SAME_FLIGHT_M:
+            reasons.append(f"a ground truth {apart:.2f} m from the recording's (median)")
+    return "; ".join(reasons) or None
 
 
 @dataclass

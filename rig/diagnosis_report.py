@@ -77,18 +77,23 @@ def describe(finding: Finding) -> str:
     return text
 
 
-def write(diagnosis: Diagnosis, out: Path, recording: str, control: dict | None = None) -> dict:
+def write(diagnosis: Diagnosis, out: Path, recording: str, control: dict | None = None,
+          control_differs: str | None = None) -> dict:
     """report.json, model.json, report.md and its plots into `out`; with `control`
     (the report.json of a control recording of the same flight), what changed
-    against it too (`against_control`)."""
+    against it too (`against_control`), and, when the control does not look like
+    the same flight, how it differs (`control_differs`, compare.flight_difference)."""
     out.mkdir(parents=True, exist_ok=True)
     report = diagnosis.to_json()
     report["recording"] = recording
     if control is not None:
-        report["against_control"] = {"recording": control["recording"], "changes": [
+        report["against_control"] = {"recording": control["recording"], "same_flight": control_differs is None}
+        if control_differs is not None:
+            report["against_control"]["how_it_differs"] = control_differs
+        report["against_control"]["changes"] = [
             c.to_json() for c in compare.changes(report["findings"], control["findings"], diagnosis.identifiability,
                                                  diagnosis.cross_talk, compare.TdoaSamples.of(diagnosis.problem),
-                                                 control.get("unnamed_estimates", ()), report["unnamed_estimates"])]}
+                                                 control.get("unnamed_estimates", ()), report["unnamed_estimates"])]
     (out / REPORT_JSON).write_text(json.dumps(report, indent=2, allow_nan=False, default=_finite))
     (out / MODEL_JSON).write_text(json.dumps({"effects": report["model"],
                                               "vibration_rms_mps2": report["vibration_rms_mps2"]}, indent=2))
@@ -153,26 +158,30 @@ def _against_control_lines(against: dict | None) -> list[str]:
     """What changed against the control recording, effect by effect."""
     if against is None:
         return []
-    lines = ["## Against the control recording", "",
-             f"Each effect as it changed from the control, {against['recording']} (the same flight as it was): "
-             "the recording's parameters less the control's, where both name it; where only the recording does, "
-             "less the control's estimate of it below its bar if it has one (the simplest TDOA effects), "
-             "else as named; where only the control does, the recording's estimate below its bar less the "
-             "control's (a clock effect without one: to neutral, the recording's own cancelled it) "
-             "(`against_control` in report.json), and its largest component in the recording's standard "
-             "errors (too large a yardstick for effects injected into the control, whose noise the two "
-             "share). Those named on one only come first, then the largest changes. An NLOS changes by its "
-             "mean shift (fraction × mean excess) over the recording's region, less the control's NLOS on the "
-             "same samples; the floor's effects are listed as each has them. *Told apart from*: the size from "
-             "which this recording "
-             "tells a change of that direction from the effect's look-alikes; a change below it is not the "
-             "effect's own signal and may be a look-alike's moving (marked ⚠). Where the lever arm changed, "
-             "a delay's change carries its share of it (the lever arm's change times how the delay moves "
-             "with it when the two are fitted together, `lever_arm_cross_talk`): a lever arm that took part "
-             "of another anchor's pattern moves every delay by that much.", "",
-             "| effect | anchors | named on | change | standard errors | told apart from | on this recording "
-             "| on the control |",
-             "|---|---|---|---|---|---|---|---|"]
+    lines = ["## Against the control recording", ""]
+    if not against.get("same_flight", True):
+        lines += [f"⚠ **The control does not look like the same flight**: {against['how_it_differs']}. The "
+                  "changes below compare two flights, not a change of one.", ""]
+    lines += [
+              f"Each effect as it changed from the control, {against['recording']} (the same flight as it was): "
+              "the recording's parameters less the control's, where both name it; where only the recording does, "
+              "less the control's estimate of it below its bar if it has one (the simplest TDOA effects), "
+              "else as named; where only the control does, the recording's estimate below its bar less the "
+              "control's (a clock effect without one: to neutral, the recording's own cancelled it) "
+              "(`against_control` in report.json), and its largest component in the recording's standard "
+              "errors (too large a yardstick for effects injected into the control, whose noise the two "
+              "share). Those named on one only come first, then the largest changes. An NLOS changes by its "
+              "mean shift (fraction × mean excess) over the recording's region, less the control's NLOS on the "
+              "same samples; the floor's effects are listed as each has them. *Told apart from*: the size from "
+              "which this recording "
+              "tells a change of that direction from the effect's look-alikes; a change below it is not the "
+              "effect's own signal and may be a look-alike's moving (marked ⚠). Where the lever arm changed, "
+              "a delay's change carries its share of it (the lever arm's change times how the delay moves "
+              "with it when the two are fitted together, `lever_arm_cross_talk`): a lever arm that took part "
+              "of another anchor's pattern moves every delay by that much.", "",
+              "| effect | anchors | named on | change | standard errors | told apart from | on this recording "
+              "| on the control |",
+              "|---|---|---|---|---|---|---|---|"]
     for c in compare.by_size(against["changes"]):
         z = "—" if c["change_std_errs"] is None else f"{c['change_std_errs']:.1f}"
         lines.append(f"| {c['effect']} | {_anchors(c)} | {c['named_in']} | {change_text(c)} | {z} | "

@@ -4,12 +4,16 @@ through it (tests/test_diagnose.py), the CLI test runs it end to end."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
-from rig.compare import TdoaSamples, by_size, change, changes
+from rig.compare import TdoaSamples, by_size, change, changes, flight_difference
 from rig.diagnosis_report import change_text
 from rig.identifiability import assess
+from rig.paths import default_recording
+from rig.recording import read_recording
 
 
 def _finding(effect: str, params: dict, evidence: float = 50.0, std_err: dict | None = None, **extra) -> dict:
@@ -162,3 +166,20 @@ def test_a_delays_change_carries_the_lever_arms_share() -> None:
     assert gone[(1,)].lever_arm_share == pytest.approx(-0.8 * 0.02)       # named on the control only: back to none
     neither = {tuple(c.anchors): c for c in changes(recording[:2], control[:1], (), cross_talk)}
     assert neither[(1,)].lever_arm_share is None
+
+
+def test_a_control_of_another_flight_is_told_apart_from_one_of_the_same() -> None:
+    """A control must be the same flight (an injected copy keeps its ground truth and
+    anchors): another trajectory, survey or span is named, not compared silently."""
+    rec = read_recording(default_recording())
+    assert flight_difference(rec, rec) is None
+    truth = rec.truth
+    elsewhere = replace(rec, truth=replace(truth, position=truth.position + [0.3, 0.0, 0.0]))
+    assert "ground truth 0.30 m from the recording's" in flight_difference(rec, elsewhere)
+    shorter = replace(rec, truth=truth.select(truth.t <= np.median(truth.t)))
+    assert "ground truth over 50" in flight_difference(rec, shorter)
+    moved = [replace(a, position=(a.position[0] + 0.2, *a.position[1:])) if a.id == 3 else a for a in rec.anchors]
+    assert "anchors surveyed up to 0.20 m" in flight_difference(rec, replace(rec, anchors=moved))
+    fewer = replace(rec, anchors=[a for a in rec.anchors if a.id != 3])
+    assert "anchors [0, 1, 2, 4, 5, 6, 7] against the recording's [0, 1, 2, 3, 4, 5, 6, 7]" \
+        in flight_difference(rec, fewer)

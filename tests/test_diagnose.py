@@ -30,6 +30,7 @@ from rig.diagnose import (diagnose, identifiability, lever_arm_cross_talk, locat
 from rig.diagnosis_report import describe, write as write_report
 from rig.floor_error import ON_GROUND_M
 from rig.importer import load_any
+from rig.paths import default_recording
 from rig.recording import Recording, Vec3Series
 from rig.robust import delay_centre, irls, mad_scale, robust_rms
 from rig.selection import ORDER, Term, confine_in_time, estimate_terms, free_offset_terms, select
@@ -756,6 +757,7 @@ def test_cli_diagnoses_against_a_control_recording(tmp_path: Path, survey) -> No
     assert own["recording"] == str(control) and "against_control" not in own
     report = json.loads((tmp_path / "d" / "report.json").read_text())
     assert report["against_control"]["recording"] == str(control)
+    assert report["against_control"]["same_flight"] and "does not look like" not in proc.stderr   # injected: same truth
     listed = keyed(report["against_control"]["changes"])
     grown = listed[("anchor_delay", (2,))]
     assert grown["named_in"] == "both" and grown["change"]["meters"] == pytest.approx(0.15, abs=0.04)
@@ -772,6 +774,13 @@ def test_cli_diagnoses_against_a_control_recording(tmp_path: Path, survey) -> No
     assert "against the control: anchor_delay [2] named on both" in proc.stdout
     markdown = (tmp_path / "d" / "report.md").read_text()
     assert "## Against the control recording" in markdown and "| told apart from |" in markdown
+    other = subprocess.run([*RIG, "diagnose", str(recording), "--control", str(default_recording()),
+                            "--out", str(tmp_path / "o")], capture_output=True, text=True)
+    assert other.returncode == 0, other.stderr                  # another flight: compared, and said so
+    assert "does not look like a control recording of the same flight" in other.stderr
+    against = json.loads((tmp_path / "o" / "report.json").read_text())["against_control"]
+    assert not against["same_flight"] and "m from the recording's (median)" in against["how_it_differs"]
+    assert "The control does not look like the same flight" in (tmp_path / "o" / "report.md").read_text()
     missing = subprocess.run([*RIG, "diagnose", str(recording), "--control", str(tmp_path / "none.mcap"),
                               "--out", str(tmp_path / "e")], capture_output=True, text=True)
     assert missing.returncode == 2 and "none.mcap does not exist" in missing.stderr
