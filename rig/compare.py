@@ -52,7 +52,9 @@ SAME_SPAN = 0.9         # and its ground truth covering this share of the record
 def flight_difference(rec: Recording, control: Recording) -> str | None:
     """Why `control` does not look like a recording of the same flight as `rec` (None
     when it does): other anchors or survey, or a ground truth elsewhere or elsewhen.
-    Its changes would then compare two flights, not a change of one."""
+    Its changes then include what differs between two flights (one flown again has
+    pose-dependent errors of its own, and a survey redone moves every anchor's
+    reference), not only a change made to one."""
     reasons = []
     own, its = rec.anchor_map(), control.anchor_map()
     if set(own) != set(its):

@@ -161,7 +161,8 @@ def _against_control_lines(against: dict | None) -> list[str]:
     lines = ["## Against the control recording", ""]
     if not against.get("same_flight", True):
         lines += [f"⚠ **The control does not look like the same flight**: {against['how_it_differs']}. The "
-                  "changes below compare two flights, not a change of one.", ""]
+                  "changes below include what differs between two flights (a flight flown again has pose-"
+                  "dependent errors of its own), not only a change made to one.", ""]
     lines += [
               f"Each effect as it changed from the control, {against['recording']} (the same flight as it was): "
               "the recording's parameters less the control's, where both name it; where only the recording does, "
