@@ -37,6 +37,7 @@ from rig.diagnose import rounded_floats
 from rig.effects import Region
 from rig.fitted_model import outside_window
 from rig.identifiability import Identifiability
+from rig.metrics import interpolate_positions
 from rig.recording import Recording
 
 NOT_ADDITIVE = {"multipath_floor", "on_ground_delay"}       # listed as they are, not as a difference
@@ -68,7 +69,7 @@ def flight_difference(rec: Recording, control: Recording) -> str | None:
     if inside.mean() < SAME_SPAN:
         reasons.append(f"a ground truth over {inside.mean():.1%} of the recording's time")
     if inside.any():
-        at = np.column_stack([np.interp(t[inside], truth.t, truth.position[:, i]) for i in range(3)])
+        at = interpolate_positions(truth, t[inside])
         apart = float(np.median(np.linalg.norm(at - rec.truth.position[inside], axis=1)))
         if apart > SAME_FLIGHT_M:
             reasons.append(f"a ground truth {apart:.2f} m from the recording's (median)")

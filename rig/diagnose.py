@@ -69,7 +69,7 @@ from rig.recording import Recording, Vec3Series
 from rig.robust import delay_centre, huber_loss, huber_mean, irls, mad_scale, robust_nll, robust_rms
 from rig.selection import (LOOK_ALIKES, ORDER, Alternative, Term, axis_alternatives, estimate_terms, free_offset_terms,
                            fresh_terms, nlos_candidate, nlos_shape, rank_of, refit, remainder, select, simpler_than,
-                           stacked)
+                           stacked, unnamed_simplest_terms)
 
 log = logging.getLogger(__name__)
 
@@ -207,10 +207,9 @@ def unnamed_simplest(problem: Problem, channel: Channel, named: list[Term], pool
     named +720; compared with another recording of the flight that names it, this is
     what the flight had (rig.compare)."""
     simplest = [Term(t.candidate, t.columns, t.extra) for t in named if rank_of(t) == 0]
-    keys = {t.key for t in simplest}
     fresh = fresh_terms(pool, "tdoa")
     out = []
-    for term in (t for t in fresh if rank_of(t) == 0 and t.key not in keys):
+    for term in unnamed_simplest_terms(fresh, simplest):
         estimate_terms(channel.z, [*simplest, term], channel.z, free_offset_terms([*simplest, term], fresh))
         out.append(Unnamed(term.candidate.effect, term.candidate.anchors,
                            rounded_floats(_effect_of(problem, channel, term, term.estimate).params()),

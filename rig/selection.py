@@ -392,9 +392,7 @@ def select(problem: Problem, channel: Channel, pool: list[Candidate]
     positions = problem.tag_positions() if channel.name == "tdoa" else None
     if confine_in_time(channel, named, positions):
         named = _name(z, named, terms, simplest)      # leaves them fitted jointly
-    named_keys = {t.key for t in named}
-    unnamed = [Term(t.candidate, t.candidate.columns) for t in terms
-               if rank_of(t) == 0 and t.key not in named_keys and channel.name == "tdoa"]
+    unnamed = unnamed_simplest_terms(terms, named) if channel.name == "tdoa" else []
     estimate_terms(z, named, z_before_shapes, free_offset_terms(named, terms), unnamed)
     _note_look_alikes(z, named, terms)
     return named, channel, shapes
@@ -403,6 +401,12 @@ def select(problem: Problem, channel: Channel, pool: list[Candidate]
 def fresh_terms(pool: list[Candidate], channel: str) -> list[Term]:
     """The channel's candidates as unfitted terms, with their catalog columns."""
     return [Term(c, c.columns) for c in pool if c.channel == channel]
+
+
+def unnamed_simplest_terms(terms: list[Term], named: list[Term]) -> list[Term]:
+    """The simplest (rank 0) of `terms` that are not among `named`, as unfitted terms."""
+    named_keys = {t.key for t in named}
+    return [Term(t.candidate, t.candidate.columns) for t in terms if rank_of(t) == 0 and t.key not in named_keys]
 
 
 def _nlos_terms(problem: Problem, channel: Channel, folds: np.ndarray, kept: list[Term]) -> list[Term]:
