@@ -101,7 +101,8 @@ def diagnosed(job: tuple[str, str, str, dict]) -> tuple[str, str, list, list | N
     """The findings on the flight with the effect injected, on its own untouched flight
     when it is not the flight's shared control (a simulated case with its own circle or
     shaking), how well the injected flight shows the effect (rig.compare.Shown), and
-    for an NLOS the injected flight's TDOA samples, which its change is averaged over."""
+    for an NLOS and for the control their TDOA samples, over which an NLOS's change is
+    estimated."""
     flight, label, name, params = job
     effects = [] if label == "control" else [{"effect": name, "params": params}]
     control = None
@@ -116,7 +117,7 @@ def diagnosed(job: tuple[str, str, str, dict]) -> tuple[str, str, list, list | N
             rec = inject(rec, effects, seed=1, predictor=Predictor(rec))
         diagnosis = cases.diagnose(rec)
     shown = shown_in(diagnosis, name, params) if effects else None
-    samples = compare.TdoaSamples.of(diagnosis.problem).to_json() if name == compare.NLOS else None
+    samples = compare.TdoaSamples.of(diagnosis).to_json() if name == compare.NLOS or not effects else None
     return flight, label, _listed(diagnosis), control, asdict(shown) if shown else None, samples
 
 
@@ -139,10 +140,11 @@ def _listed(diagnosis) -> dict:
 
 
 def judge(found: dict, control: dict, name: str, params: dict, check, real: bool,
-          samples: compare.TdoaSamples | None) -> tuple[bool, str]:
+          samples: compare.TdoaSamples | None, control_samples: compare.TdoaSamples | None) -> tuple[bool, str]:
     """`found`: the injected flight's findings, keyed; `control`: its control's, as listed."""
     try:
         cases._check(found, cases.keyed(control["findings"]), name, params, check, real=real, samples=samples,
+                     control_samples=control_samples,
                      control_unnamed=cases.keyed(control["unnamed"]))
         return True, "found"
     except AssertionError as error:
@@ -187,8 +189,10 @@ def main() -> None:
             found, own, listed_shown, listed_samples = results[(flight, label)]
             shown = listed_shown and compare.Shown(**listed_shown)
             samples = listed_samples and compare.TdoaSamples.from_json(listed_samples)
-            control = own or results[(flight, "control")][0]
-            ok, how = judge(cases.keyed(found["findings"]), control, name, params, check, flight != "sim", samples)
+            control, _, _, control_samples = results[(flight, "control")]
+            control_samples = control_samples and compare.TdoaSamples.from_json(control_samples)
+            ok, how = judge(cases.keyed(found["findings"]), own or control, name, params, check, flight != "sim",
+                            samples, control_samples)
             below = None if shown is None else shown.below
             rows[label] = {"found": ok, "detail": how, "below_told_apart": below}
             print(f"{flight:12s} {label:28s} {'found ' if ok else 'MISSED'} {'' if ok else how}"

@@ -95,10 +95,11 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 # ----------------------------------------------------------------------------- diagnosis
 
 def _effects_argument(text: str) -> list[dict]:
-    """Effects as JSON text or a JSON file: a list, one effect, or {"effects": [...]}."""
-    path = Path(text)
+    """Effects as JSON text or a JSON file: a list, one effect, or {"effects": [...]}.
+    Text that starts as JSON does is JSON (a long list is no file name: asking the file
+    system about it fails)."""
     try:
-        data = json.loads(path.read_text() if path.is_file() else text)
+        data = json.loads(text if text.lstrip()[:1] in ("[", "{") else Path(text).read_text())
     except (OSError, json.JSONDecodeError) as exc:
         raise CliError(f"--effects: neither a JSON file nor JSON text ({exc})") from exc
     if isinstance(data, dict):
@@ -116,16 +117,17 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
 
     rec = _flight_to_diagnose(args.recording, args.survey)      # both read before either is diagnosed
     control_rec = _flight_to_diagnose(args.control, args.survey) if args.control is not None else None
-    control, differs = None, None
+    control, differs, control_samples = None, None, None
     if control_rec is not None:
         differs = compare.flight_difference(rec, control_rec)
         if differs:
             print(f"warning: {args.control} does not look like a control recording of the same flight: {differs}",
                   file=sys.stderr)
-        control = write(diagnose(control_rec, progress=_progress(desc="diagnose the control")),
-                        args.out / CONTROL_DIR, str(args.control))
+        control_result = diagnose(control_rec, progress=_progress(desc="diagnose the control"))
+        control = write(control_result, args.out / CONTROL_DIR, str(args.control))
+        control_samples = compare.TdoaSamples.of(control_result)
     result = diagnose(rec, progress=_progress(desc="diagnose channels"))
-    report = write(result, args.out, str(args.recording), control, differs)
+    report = write(result, args.out, str(args.recording), control, differs, control_samples)
     for name, c in report["channels"].items():
         print(f"{name}: mismatch {c['fit_before']:.4g} -> {c['fit_after']:.4g} ({c['samples']} samples)")
     for f in result.findings:

@@ -9,8 +9,10 @@ changes in them is mostly that effect. For an effect named on both, the change i
 the recording's parameters less the control's (a scale's ratio less one added to
 one); a delay confined to a window on one and not on the other is compared outside
 the window. An NLOS changes by its mean shift (fraction × mean excess) over the
-recording's region, less what the control's NLOS on that anchor puts on the same
-samples: its region and the control's need not be the same box. The floor's
+recording's region (the control's, where only the control names one), each
+recording's estimated there as the search that found it estimates, whether the
+control names one there or not: a flight has excess paths of its own, below the bar
+or in a box of its own. The floor's
 multipath and error are not differences of parameters; they are listed as each
 recording has them. An effect named on the recording only changes from the
 control's estimate of it where the control has one (the simplest TDOA effects it
@@ -32,13 +34,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rig.channels import Problem
-from rig.diagnose import rounded_floats
+from rig import nlos_mixture
+from rig.diagnose import Diagnosis, rounded_floats
 from rig.effects import Region
 from rig.fitted_model import outside_window
+from rig.floor_error import ON_GROUND_M
 from rig.identifiability import Identifiability
 from rig.metrics import interpolate_positions
 from rig.recording import Recording
+from rig.robust import MIN_SAMPLES, irls
+from rig.selection import NLOS_PRIOR_M
 
 NOT_ADDITIVE = {"multipath_floor", "on_ground_delay"}       # listed as they are, not as a difference
 NLOS = "nlos"                                                  # changes by its mean shift over the samples
@@ -122,28 +127,42 @@ class Change:
 
 @dataclass
 class TdoaSamples:
-    """The recording's compared TDOA samples: where the tag was and which two anchors
-    each one paired. An NLOS's change is averaged over them."""
+    """The recording's compared TDOA samples: where the tag was, which two anchors each
+    one paired and what the named effects other than NLOS leave of it. An NLOS's change
+    is estimated over them."""
 
     positions: np.ndarray          # (n, 3) m
     anchor_ids: np.ndarray         # (n, 2): id_a, id_b
+    left: np.ndarray               # (n,) in noise deviations (Diagnosis.tdoa_left)
+    scale: float                   # the noise deviation, m
 
     @classmethod
-    def of(cls, problem: Problem) -> "TdoaSamples":
+    def of(cls, diagnosis: Diagnosis) -> "TdoaSamples":
+        problem = diagnosis.problem
         d, rows = problem.rec.tdoa, problem.tdoa_rows
-        return cls(problem.tag_positions(), np.column_stack([d.id_a[rows], d.id_b[rows]]))
+        left = diagnosis.tdoa_left if diagnosis.tdoa_left is not None else np.full(len(rows), np.nan)
+        return cls(problem.tag_positions(), np.column_stack([d.id_a[rows], d.id_b[rows]]), left,
+                   float(problem.scales["tdoa"][0]) if len(rows) else 1.0)
 
     @classmethod
     def from_json(cls, listed: dict) -> "TdoaSamples":
         return cls(np.asarray(listed["positions"], float).reshape(-1, 3),
-                   np.asarray(listed["anchor_ids"], int).reshape(-1, 2))
+                   np.asarray(listed["anchor_ids"], int).reshape(-1, 2), np.asarray(listed["left"], float),
+                   float(listed["scale"]))
 
     def to_json(self) -> dict:
-        return {"positions": np.round(self.positions, 3).tolist(), "anchor_ids": self.anchor_ids.tolist()}
+        return {"positions": np.round(self.positions, 3).tolist(), "anchor_ids": self.anchor_ids.tolist(),
+                "left": np.round(self.left, 4).tolist(), "scale": self.scale}
 
     def inside(self, anchor: int, region: dict | None) -> np.ndarray:
         """Which samples pair `anchor` with the tag inside `region` (JSON; None: anywhere)."""
         return (self.anchor_ids == anchor).any(axis=1) & Region.from_json(region).contains(self.positions)
+
+    def signed(self, anchor: int) -> np.ndarray:
+        """What is left of each sample as `anchor`'s range reads it (0 where it is not in
+        the pair): a longer range raises the TDOA whose id_b it is."""
+        sign = (self.anchor_ids[:, 1] == anchor).astype(float) - (self.anchor_ids[:, 0] == anchor)
+        return sign * self.left
 
 
 @dataclass
@@ -213,27 +232,46 @@ def mean_shift(nlos: dict) -> float:
     return nlos["fraction"] * nlos["mean_excess_m"]
 
 
-def nlos_change(found: dict | None, own: dict | None, samples: TdoaSamples | None) -> dict | None:
-    """An NLOS's change of mean shift: over the recording's region, less the share of
-    those samples that the control's region holds times the control's mean shift;
-    gone from the control's region if named there only. None where named on both and
-    the samples are not at hand."""
-    if found is None:
-        return {"mean_shift_m": -mean_shift(own)}
-    if own is None:
-        return {"mean_shift_m": mean_shift(found)}
-    if samples is None:
+def nlos_estimate(samples: TdoaSamples, nlos: dict, by_shape: bool) -> float | None:
+    """The mean shift (m) that an NLOS on `nlos`'s anchor and region has on these
+    samples, with the tag in the air, estimated as the search that found it estimates:
+    by shape (the excess's mixture inside the region against the anchor's ranges
+    outside it), or by mean shift. None: too few samples, or none left to estimate on."""
+    s = samples.signed(nlos["anchor"])
+    rows = (s != 0) & np.isfinite(s) & (samples.positions[:, 2] >= ON_GROUND_M)
+    region = Region.from_json(nlos.get("region"))
+    if by_shape:
+        shape = nlos_mixture.shape_in_region(samples.positions[rows], s[rows], samples.scale, region)
+        return None if shape is None else shape[0] * shape[1]
+    inside = rows & region.contains(samples.positions)
+    if inside.sum() < MIN_SAMPLES:
         return None
-    inside = samples.inside(found["anchor"], found.get("region"))
-    held = float(np.mean(samples.inside(own["anchor"], own.get("region"))[inside])) if inside.any() else 0.0
-    return {"mean_shift_m": mean_shift(found) - held * mean_shift(own)}
+    return float(irls(s[inside], np.full((inside.sum(), 1), 1.0 / samples.scale), np.array([NLOS_PRIOR_M]))[0])
+
+
+def nlos_change(found: dict | None, own: dict | None, samples: TdoaSamples | None,
+                control_samples: TdoaSamples | None) -> dict | None:
+    """An NLOS's change of mean shift over the region the recording found (the
+    control's, where only the control names one): both recordings' estimates there,
+    made as the search that found it makes them, the recording's less the control's. A
+    flight's own excess there counts on both sides, named on the control or not, and
+    in whatever region the control found its own. None where either recording's
+    samples are not at hand."""
+    named = found or own
+    if samples is None or control_samples is None:
+        return None
+    by_shape = "found_by" in named.get("where", {})
+    estimates = [nlos_estimate(on, named["params"], by_shape) for on in (samples, control_samples)]
+    if None in estimates:
+        return None
+    return {"mean_shift_m": estimates[0] - estimates[1]}
 
 
 def change(effect: str, anchors: list[int], found: dict | None, control: dict | None,
            samples: TdoaSamples | None = None, control_unnamed: dict | None = None,
-           recording_unnamed: dict | None = None) -> Change:
+           recording_unnamed: dict | None = None, control_samples: TdoaSamples | None = None) -> Change:
     """The effect's change from `control` (its finding there, or None) to `found`;
-    an NLOS's over the recording's TDOA `samples`. Named on one recording only, from
+    an NLOS's over both recordings' TDOA samples. Named on one recording only, from
     or to the other's estimate of it (`control_unnamed`, `recording_unnamed`: its
     report.json's `unnamed_estimates`), where it has one: the flight's effect below
     the bar."""
@@ -243,7 +281,7 @@ def change(effect: str, anchors: list[int], found: dict | None, control: dict | 
     if effect in NOT_ADDITIVE:
         difference = None
     elif effect == NLOS:
-        difference = nlos_change(found and found["params"], control and control["params"], samples)
+        difference = nlos_change(found, control, samples, control_samples)
     elif named_in == "both":
         difference = added(effect, found["params"], control["params"])
     elif named_in == "recording":
@@ -259,23 +297,24 @@ def change(effect: str, anchors: list[int], found: dict | None, control: dict | 
 
 def changes(findings: list[dict], control: list[dict], identifiability: Sequence[Identifiability] = (),
             cross_talk: dict[int, list[float]] | None = None, samples: TdoaSamples | None = None,
-            control_unnamed: Sequence[dict] = (), recording_unnamed: Sequence[dict] = ()) -> list[Change]:
+            control_unnamed: Sequence[dict] = (), recording_unnamed: Sequence[dict] = (),
+            control_samples: TdoaSamples | None = None) -> list[Change]:
     """Every effect reported on either recording, as it changed; the recording's
     findings first, by their evidence, then those on the control only. One reported
     in a look-alike's place (`alternative_to`) counts too: it carries that
     explanation's value, which a change of the flight moves as well. With the
     recording's `identifiability`, each difference is assessed against it; with its
     lever arm's `cross_talk` (rig.diagnose.lever_arm_cross_talk), each delay's change
-    gets the share of it that the lever arm's change carries; with the recording's
-    TDOA `samples`, an NLOS named on both gets its change too; with either's
+    gets the share of it that the lever arm's change carries; with both recordings'
+    TDOA `samples` and `control_samples`, an NLOS gets its change; with either's
     `unnamed_estimates`, an effect named on the other only changes from or to its
     estimate there."""
     named = {key(f): f for f in findings}
     own = {key(f): f for f in control}
     own_below, named_below = ({key(u): u for u in listed} for listed in (control_unnamed, recording_unnamed))
     order = sorted(named, key=lambda k: -named[k]["evidence"]) + [k for k in own if k not in named]
-    out = [change(k[0], list(k[1]), named.get(k), own.get(k), samples, own_below.get(k), named_below.get(k))
-           for k in order]
+    out = [change(k[0], list(k[1]), named.get(k), own.get(k), samples, own_below.get(k), named_below.get(k),
+                  control_samples) for k in order]
     lever = lever_arm_change(named, own)
     for c in out:
         if c.change is None:

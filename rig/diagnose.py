@@ -120,6 +120,9 @@ class Diagnosis:
     identifiability: list[ident.Identifiability] = field(default_factory=list)
     cross_talk: dict[int, list[float]] = field(default_factory=dict)     # lever_arm_cross_talk
     unnamed: list[Unnamed] = field(default_factory=list)                # unnamed_simplest
+    # the TDOA's standardised residual less the named effects other than NLOS, as
+    # fitted: where an NLOS of this recording or another of the flight is estimated
+    tdoa_left: np.ndarray | None = None
 
     def channel_fits(self) -> dict:
         return {name: {"samples": int(len(r)), "gross_errors_left_out": self.problem.left_out[name],
@@ -253,12 +256,13 @@ def diagnose(rec: Recording, progress=None) -> Diagnosis:
     problem = Problem(rec)
     pool = candidates(problem)
     before = problem.residual_before
-    findings, model, names, unnamed = [], [], list(before), []
+    findings, model, names, unnamed, tdoa_left = [], [], list(before), [], None
     for name in progress(names) if progress else names:
         as_recorded = problem.channel(name)
         terms, channel, shapes = select(problem, as_recorded, pool)     # fitted jointly
         if name == "tdoa":
             unnamed = unnamed_simplest(problem, as_recorded, terms, pool)
+            tdoa_left = remainder(as_recorded.z, [t for t in terms if t.candidate.effect != "nlos"])
         for fit in shapes:
             findings.append(_shape_finding(problem, fit))
             model.append(fit.effect())
@@ -293,7 +297,7 @@ def diagnose(rec: Recording, progress=None) -> Diagnosis:
             model.append(fx.make_effect("multipath_floor", floor.params))
     findings.sort(key=lambda f: -f.evidence)
     return Diagnosis(problem, findings, model, before, after, identifiability(pool), lever_arm_cross_talk(pool),
-                     unnamed)
+                     unnamed, tdoa_left)
 
 
 def identifiability(pool: list[Candidate]) -> list[ident.Identifiability]:

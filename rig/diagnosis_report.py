@@ -78,11 +78,12 @@ def describe(finding: Finding) -> str:
 
 
 def write(diagnosis: Diagnosis, out: Path, recording: str, control: dict | None = None,
-          control_differs: str | None = None) -> dict:
+          control_differs: str | None = None, control_samples: compare.TdoaSamples | None = None) -> dict:
     """report.json, model.json, report.md and its plots into `out`; with `control`
-    (the report.json of a control recording of the same flight), what changed
-    against it too (`against_control`), and, when the control does not look like
-    the same flight, how it differs (`control_differs`, compare.flight_difference)."""
+    (the report.json of a control recording of the same flight) and its TDOA samples,
+    what changed against it too (`against_control`), and, when the control does not
+    look like the same flight, how it differs (`control_differs`,
+    compare.flight_difference)."""
     out.mkdir(parents=True, exist_ok=True)
     report = diagnosis.to_json()
     report["recording"] = recording
@@ -92,8 +93,9 @@ def write(diagnosis: Diagnosis, out: Path, recording: str, control: dict | None 
             report["against_control"]["how_it_differs"] = control_differs
         report["against_control"]["changes"] = [
             c.to_json() for c in compare.changes(report["findings"], control["findings"], diagnosis.identifiability,
-                                                 diagnosis.cross_talk, compare.TdoaSamples.of(diagnosis.problem),
-                                                 control.get("unnamed_estimates", ()), report["unnamed_estimates"])]
+                                                 diagnosis.cross_talk, compare.TdoaSamples.of(diagnosis),
+                                                 control.get("unnamed_estimates", ()), report["unnamed_estimates"],
+                                                 control_samples)]
     (out / REPORT_JSON).write_text(json.dumps(report, indent=2, allow_nan=False, default=_finite))
     (out / MODEL_JSON).write_text(json.dumps({"effects": report["model"],
                                               "vibration_rms_mps2": report["vibration_rms_mps2"]}, indent=2))

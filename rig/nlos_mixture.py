@@ -226,14 +226,38 @@ def _fit_in(positions: np.ndarray, s: np.ndarray):
     """Box, base, both shapes and the binned samples inside, on these samples (None:
     no box)."""
     region = scan_box(positions, s)
-    if region is None:
-        return None
+    fit = None if region is None else _fit_region(positions, s, region)
+    return None if fit is None else (region, *fit)
+
+
+def _fit_region(positions: np.ndarray, s: np.ndarray, region: fx.Region):
+    """Base (outside the region), both shapes and the binned samples inside (None: too
+    few samples on either side)."""
     inside = region.contains(positions)
     if inside.sum() < MIN_SIDE_SAMPLES or (~inside).sum() < MIN_SIDE_SAMPLES:
         return None
     base = Base.fit(Binned.of(s[~inside]))
     data = Binned.of(s[inside])
-    return (region, base, *fit_shapes(data, base), data)
+    return (base, *fit_shapes(data, base), data)
+
+
+def _sound(s: np.ndarray, scale: float) -> np.ndarray:
+    """The samples that are not corrupt measurements (GROSS_ERROR_M)."""
+    return np.abs(s) * scale <= GROSS_ERROR_M
+
+
+def shape_in_region(positions: np.ndarray, s: np.ndarray, scale: float, region: fx.Region
+                    ) -> tuple[float, float] | None:
+    """Fraction and mean excess (m) of the NLOS mixture of an anchor's standardised
+    signed residuals `s` (at `positions`) inside a given region, the base fitted
+    outside it: the search by shape's measure of the NLOS it finds, for a region found
+    on another recording of the flight. None: too few samples on either side."""
+    sound = _sound(s, scale)
+    fit = _fit_region(positions[sound], s[sound], region)
+    if fit is None:
+        return None
+    mixture = fit[2]
+    return mixture.fraction, mixture.mean_excess * scale
 
 
 def held_out_gain(positions: np.ndarray, s: np.ndarray, folds: np.ndarray) -> float:
@@ -255,7 +279,7 @@ def fit_anchor(anchor: int, positions: np.ndarray, s: np.ndarray, folds: np.ndar
                min_gain: float) -> NlosShapeFit | None:
     """The anchor's NLOS from its standardised signed residuals `s` (at `positions`),
     when the in-sample gain reaches min_gain (then judged on held-out blocks)."""
-    sound = np.abs(s) * scale <= GROSS_ERROR_M
+    sound = _sound(s, scale)
     positions, s, folds = positions[sound], s[sound], folds[sound]
     if len(s) < 2 * MIN_SIDE_SAMPLES:
         return None

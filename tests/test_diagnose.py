@@ -196,10 +196,11 @@ def _mark(name: str, known: dict) -> list:
 
 
 def _check(found: dict, control: dict, name: str, params: dict, check, real: bool = False,
-           samples: compare.TdoaSamples | None = None, control_unnamed: dict | None = None) -> None:
+           samples: compare.TdoaSamples | None = None, control_unnamed: dict | None = None,
+           control_samples: compare.TdoaSamples | None = None) -> None:
     """The injected effect named, located and measured: on a real flight, as its
     change from the control recording (rig.compare, as `rig diagnose --control`; an
-    NLOS's over the injected recording's TDOA `samples`; one the control does not
+    NLOS's over both recordings' TDOA `samples` and `control_samples`; one the control does not
     name, from its estimate there, `control_unnamed`, keyed like the findings)."""
     key = (name, (params["anchor"],) if "anchor" in params else ())
     if key not in found and key in control and name in CANCELLABLE:
@@ -207,7 +208,8 @@ def _check(found: dict, control: dict, name: str, params: dict, check, real: boo
         return
     assert key in found, f"{name} not named; found {sorted(found)}"
     got = compare.change(name, list(key[1]), found[key], control.get(key), samples,
-                         (control_unnamed or {}).get(key)).change or dict(found[key]["params"])
+                         (control_unnamed or {}).get(key), control_samples=control_samples).change
+    got = got or dict(found[key]["params"])
     _check_unidentified(found[key], got, params)
     assert check(got, params, REAL_SLACK if real else 1.0), f"{name}: got {got}, injected {params}"
     assert found[key]["fit_after"] < found[key]["fit_before"]
@@ -282,8 +284,8 @@ def test_a_concealed_effect_in_a_simulated_flight_is_named_located_and_measured(
     control = diagnose(untouched) if own_sim_control(name) else sim_diagnosis
     assert all(k[0] != name for k in findings(control))
     diagnosis = diagnose(rec)
-    _check(findings(diagnosis), findings(control), name, params, check,
-           samples=compare.TdoaSamples.of(diagnosis.problem), control_unnamed=unnamed(control))
+    _check(findings(diagnosis), findings(control), name, params, check, samples=compare.TdoaSamples.of(diagnosis),
+           control_unnamed=unnamed(control), control_samples=compare.TdoaSamples.of(control))
 
 
 @pytest.mark.parametrize("name", [pytest.param(n, marks=_mark(n, NOT_ON_REAL)) for n in CASES])
@@ -295,7 +297,8 @@ def test_a_concealed_effect_in_a_real_flight_is_found_against_its_control(name, 
     injected = inject(rec, [effect], seed=1, predictor=predictor)
     diagnosis = diagnose(injected)
     _check(findings(diagnosis), findings(real_diagnosis), name, params, check, real=True,
-           samples=compare.TdoaSamples.of(diagnosis.problem), control_unnamed=unnamed(real_diagnosis))
+           samples=compare.TdoaSamples.of(diagnosis), control_unnamed=unnamed(real_diagnosis),
+           control_samples=compare.TdoaSamples.of(real_diagnosis))
 
 
 def test_a_gyro_scale_is_not_shrunk_by_the_ground_truths_attitude_noise(survey) -> None:
@@ -739,7 +742,9 @@ def test_cli_diagnoses_against_a_control_recording(tmp_path: Path, survey) -> No
     """`rig diagnose REC --control CONTROL`: the control's own report in DIR/control/,
     and each effect's change from it: a delay the control already has, grown on the
     recording, is reported as its growth; a time offset named on the recording only,
-    from the control's own estimate of it below its bar."""
+    from the control's own estimate of it below its bar; an NLOS added over half of
+    the room (a list of effects too long for a file name, given inline), from the
+    control's estimate in the region found."""
     simulated, control, recording = (tmp_path / name for name in ("sim.mcap", "control.mcap", "rec.mcap"))
     subprocess.run([*RIG, "simulate", "--trajectory", "circle-sine", "--survey", str(survey), "--duration", "20",
                     "-o", str(simulated)], check=True, capture_output=True)
@@ -747,7 +752,8 @@ def test_cli_diagnoses_against_a_control_recording(tmp_path: Path, survey) -> No
             (simulated, control, [{"effect": "anchor_delay", "params": {"anchor": 2, "meters": 0.3}}]),
             (control, recording, [{"effect": "anchor_delay", "params": {"anchor": 2, "meters": 0.15}},
                                   {"effect": "anchor_delay", "params": {"anchor": 6, "meters": -0.25}},
-                                  {"effect": "time_offset", "params": {"seconds": 0.05}}])):
+                                  {"effect": "time_offset", "params": {"seconds": 0.05}},
+                                  {"effect": "nlos", "params": CASES["nlos"][0] | {"anchor": 4}}])):
         subprocess.run([*RIG, "inject", str(source), "--effects", json.dumps(effects), "-o", str(target)],
                        check=True, capture_output=True)
     proc = subprocess.run([*RIG, "diagnose", str(recording), "--control", str(control), "--out", str(tmp_path / "d")],
@@ -769,6 +775,8 @@ def test_cli_diagnoses_against_a_control_recording(tmp_path: Path, survey) -> No
     assert late["named_in"] == "recording" and late["control_unnamed"] == below_bar["params"]
     assert late["change"]["seconds"] == pytest.approx(late["recording"]["seconds"] - below_bar["params"]["seconds"])
     assert late["change"]["seconds"] == pytest.approx(0.05, rel=0.35)
+    excess = listed[("nlos", (4,))]
+    assert excess["named_in"] == "recording" and CASES["nlos"][1](excess["change"], None)
     assert grown["size"] == pytest.approx(abs(grown["change"]["meters"]))
     assert 0 < grown["told_apart_from"] < grown["size"]       # a delay of 0.15 m over 20 s: well beyond the noise
     assert "against the control: anchor_delay [2] named on both" in proc.stdout
