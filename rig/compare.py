@@ -15,8 +15,8 @@ control names one there or not: a flight has excess paths of its own, below the 
 or in a box of its own. The floor's
 multipath and error are not differences of parameters; they are listed as each
 recording has them. An effect named on the recording only changes from the
-control's estimate of it where the control has one (the simplest TDOA effects it
-does not name, `unnamed_estimates`: a flight's own effect below the bar is still
+control's estimate of it where the control has one (the parametric TDOA effects
+it does not name, `unnamed_estimates`: a flight's own effect below the bar is still
 there), else from neutral; one named on the control only changes to the
 recording's estimate of it where the recording has one. Else a clock effect named
 on the control only was cancelled by the recording's (its own plus an opposite one

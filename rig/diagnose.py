@@ -24,8 +24,8 @@ Method, per channel (TDOA, accelerometer, gyroscope), each step's module in brac
    simpler ones (a comparison with a control recording needs that); a richer TDOA
    effect is fitted given every simplest candidate too, named or not, so neither
    does a simplest one named on one recording and not on another. Each estimate
-   carries its standard error (the posterior's, in that fit). Every simplest TDOA
-   candidate not named is estimated as it would be named too (unnamed_simplest), a
+   carries its standard error (the posterior's, in that fit). Every parametric TDOA
+   candidate not named is estimated as it would be named too (unnamed_estimates), a
    flight's own effect below the bar that a comparison starts from. A parameter whose
    standard error is more than half its prior's is reported as not identified by
    this trajectory: the data hardly told it apart from the simpler explanations.
@@ -119,7 +119,7 @@ class Diagnosis:
     residual_after: dict[str, np.ndarray]
     identifiability: list[ident.Identifiability] = field(default_factory=list)
     cross_talk: dict[int, list[float]] = field(default_factory=dict)     # lever_arm_cross_talk
-    unnamed: list[Unnamed] = field(default_factory=list)                # unnamed_simplest
+    unnamed: list[Unnamed] = field(default_factory=list)                # unnamed_estimates
     # the TDOA's standardised residual less the named effects other than NLOS, as
     # fitted: where an NLOS of this recording or another of the flight is estimated
     tdoa_left: np.ndarray | None = None
@@ -188,8 +188,8 @@ class Diagnosis:
 
 @dataclass
 class Unnamed:
-    """A simplest TDOA effect the recording does not name, measured as a named one
-    would be (report.json's `unnamed_estimates`)."""
+    """A TDOA effect the recording does not name, measured as a named one would be
+    (report.json's `unnamed_estimates`)."""
 
     effect: str
     anchors: list[int]
@@ -201,19 +201,29 @@ class Unnamed:
         return out | ({"anchors": self.anchors} if self.anchors else {})
 
 
-def unnamed_simplest(problem: Problem, channel: Channel, named: list[Term], pool: list[Candidate]) -> list[Unnamed]:
-    """The simplest TDOA candidates (rank 0: timing, delays, lever arm) that the
-    recording does not name, each estimated as it would be named: in the joint fit
-    of the named simplest effects and it, on the channel as recorded (a drift about
-    a free offset). A real flight's own effect below the bar is still there: on
-    0425-traj5 a drift of −1126 ± 433 ppm, which an injected +2000 ppm brought to a
-    named +720; compared with another recording of the flight that names it, this is
-    what the flight had (rig.compare)."""
-    simplest = [Term(t.candidate, t.columns, t.extra) for t in named if rank_of(t) == 0]
+def unnamed_estimates(problem: Problem, channel: Channel, as_recorded: Channel, named: list[Term],
+                      pool: list[Candidate]) -> list[Unnamed]:
+    """The parametric TDOA candidates (all but NLOS) that the recording does not name,
+    each estimated as it would be named (see select): in the joint fit of the named
+    effects of its rank or a simpler one and it; the simplest (timing, delays, lever
+    arm) on the channel as recorded (a drift about a free offset), a richer one on
+    `channel` (the NLOS found by shape out) with every simplest candidate fitted
+    along. A real flight's own effect below the bar is still there: on 0425-traj5 a
+    drift of −1126 ± 433 ppm, which an injected +2000 ppm brought to a named +720;
+    on 0426-traj8 a pattern on anchor 2 of [1.03, −0.04, 0.12] ± 0.25 m, which an
+    injected [0.3, 0.2, 0] brought to a named [1.24, 0.15, 0.04]. Compared with
+    another recording of the flight that names it, this is what the flight had
+    (rig.compare)."""
     fresh = fresh_terms(pool, "tdoa")
+    parametric = [t for t in named if t.candidate.effect != "nlos"]
+    simplest_unnamed = unnamed_simplest_terms(fresh, parametric)
+    named_keys = {t.key for t in named}
     out = []
-    for term in unnamed_simplest_terms(fresh, simplest):
-        estimate_terms(channel.z, [*simplest, term], channel.z, free_offset_terms([*simplest, term], fresh))
+    for term in fresh:
+        if term.key in named_keys or term.candidate.effect == "nlos":
+            continue
+        terms = [Term(t.candidate, t.columns, t.extra) for t in parametric if rank_of(t) <= rank_of(term)] + [term]
+        estimate_terms(channel.z, terms, as_recorded.z, free_offset_terms(terms, fresh), simplest_unnamed)
         out.append(Unnamed(term.candidate.effect, term.candidate.anchors,
                            rounded_floats(_effect_of(problem, channel, term, term.estimate).params()),
                            _uncertainty(term)[0]))
@@ -261,7 +271,7 @@ def diagnose(rec: Recording, progress=None) -> Diagnosis:
         as_recorded = problem.channel(name)
         terms, channel, shapes = select(problem, as_recorded, pool)     # fitted jointly
         if name == "tdoa":
-            unnamed = unnamed_simplest(problem, as_recorded, terms, pool)
+            unnamed = unnamed_estimates(problem, channel, as_recorded, terms, pool)
             tdoa_left = remainder(as_recorded.z, [t for t in terms if t.candidate.effect != "nlos"])
         for fit in shapes:
             findings.append(_shape_finding(problem, fit))

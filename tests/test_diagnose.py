@@ -26,7 +26,7 @@ from rig import imu_spectrum
 from rig.candidates import Candidate, candidates
 from rig.channels import Channel, Problem
 from rig.diagnose import (diagnose, identifiability, lever_arm_cross_talk, locate, nlos_identifiability,
-                          unnamed_simplest, vibration_spread)
+                          unnamed_estimates, vibration_spread)
 from rig.diagnosis_report import describe, write as write_report
 from rig.floor_error import ON_GROUND_M
 from rig.importer import load_any
@@ -402,23 +402,27 @@ def test_time_offset_and_clock_drift_are_told_apart(survey) -> None:
     assert ("time_offset", ()) in offset and ("clock_drift", ()) not in offset
 
 
-def test_a_simplest_effect_left_unnamed_is_estimated_as_it_would_be_named(survey) -> None:
+@pytest.mark.parametrize("effect", [{"effect": "clock_drift", "params": {"ppm": 2000.0}},
+                                    {"effect": "anchor_position", "params": {"anchor": 3, "offset_m": [0.2, 0.2, 0.0]}}],
+                         ids=["a drift (simplest)", "a displacement (richer)"])
+def test_an_effect_left_unnamed_is_estimated_as_it_would_be_named(survey, effect: dict) -> None:
     """`unnamed_estimates`: a control that does not name an effect still has its own
     below the bar, and a comparison starts from there. Taken out of the named
-    effects, the drift a flight names is estimated at the value and standard error
-    it was named with; every simplest candidate not named has an estimate."""
-    problem = Problem(simulate(sim_config(survey, [{"effect": "clock_drift", "params": {"ppm": 2000.0}}])))
-    pool, channel = candidates(problem), problem.channel("tdoa")
-    named, _, _ = select(problem, channel, pool)
-    drift = next(t for t in named if t.key == "clock_drift")
-    left_out = unnamed_simplest(problem, channel, [t for t in named if t is not drift], pool)
-    named_keys = {t.key for t in named if ORDER[t.candidate.effect][1] == 0} - {"clock_drift"}
-    assert len(left_out) == sum(ORDER[c.effect] == ("tdoa", 0) and c.key not in named_keys for c in pool)
-    estimate = next(u for u in left_out if u.effect == "clock_drift")
-    assert estimate.params["ppm"] == pytest.approx(float(drift.candidate.value(drift.estimate)[0]), rel=1e-3)
-    assert estimate.params["ppm"] == pytest.approx(2000.0, rel=0.25)
-    c = drift.candidate
-    assert estimate.std_err["ppm"] == pytest.approx(float(drift.std_err[0] * c.value_slope(drift.estimate)[0]), rel=1e-3)
+    effects, an effect a flight names is estimated at the value and standard error
+    it was named with; every parametric TDOA candidate not named has an estimate."""
+    problem = Problem(simulate(sim_config(survey, [effect])))
+    pool, as_recorded = candidates(problem), problem.channel("tdoa")
+    named, channel, _ = select(problem, as_recorded, pool)
+    term = next(t for t in named if t.candidate.effect == effect["effect"])
+    left_out = unnamed_estimates(problem, channel, as_recorded, [t for t in named if t is not term], pool)
+    named_keys = {t.key for t in named} - {term.key}
+    assert len(left_out) == sum(c.channel == "tdoa" and c.effect != "nlos" and c.key not in named_keys for c in pool)
+    estimate = next(u for u in left_out if u.effect == term.candidate.effect and u.anchors == term.candidate.anchors)
+    c = term.candidate
+    assert np.ravel(estimate.params[c.param]) == pytest.approx(c.value(term.estimate), abs=1e-5)
+    assert np.ravel(estimate.params[c.param]) == pytest.approx(np.ravel(effect["params"][c.param]),
+                                                               rel=0.25, abs=0.06)
+    assert np.ravel(estimate.std_err[c.param]) == pytest.approx(term.std_err * c.value_slope(term.estimate), rel=1e-3)
 
 
 def _clock_started_earlier(rec: Recording, seconds: float) -> Recording:
