@@ -133,8 +133,8 @@ def shown_in(diagnosis, name: str, params: dict) -> compare.Shown | None:
 
 
 def _listed(diagnosis) -> dict:
-    """What the judge reads of a diagnosis: its findings and the simplest effects it
-    does not name, as it estimates them."""
+    """What the judge reads of a diagnosis: its findings and the parametric TDOA
+    effects it does not name, as it estimates them."""
     report = diagnosis.to_json()
     return {"findings": report["findings"], "unnamed": report["unnamed_estimates"]}
 

@@ -179,7 +179,7 @@ class Problem:
 
     def anchor_sign(self, k: int) -> np.ndarray:
         d = self.rec.tdoa
-        return (d.id_b[self.tdoa_rows] == k).astype(float) - (d.id_a[self.tdoa_rows] == k).astype(float)
+        return fx.anchor_sign(d.id_a[self.tdoa_rows], d.id_b[self.tdoa_rows], k)
 
     def recorded(self, name: str) -> np.ndarray:
         if name == "tdoa":

@@ -36,7 +36,7 @@ import numpy as np
 
 from rig import nlos_mixture
 from rig.diagnose import Diagnosis, rounded_floats
-from rig.effects import Region
+from rig.effects import Region, anchor_sign
 from rig.fitted_model import outside_window
 from rig.floor_error import ON_GROUND_M
 from rig.identifiability import Identifiability
@@ -161,8 +161,7 @@ class TdoaSamples:
     def signed(self, anchor: int) -> np.ndarray:
         """What is left of each sample as `anchor`'s range reads it (0 where it is not in
         the pair): a longer range raises the TDOA whose id_b it is."""
-        sign = (self.anchor_ids[:, 1] == anchor).astype(float) - (self.anchor_ids[:, 0] == anchor)
-        return sign * self.left
+        return anchor_sign(self.anchor_ids[:, 0], self.anchor_ids[:, 1], anchor) * self.left
 
 
 @dataclass

@@ -534,9 +534,13 @@ class Outliers(Effect):
         tdoa.value += np.where(hit, sign * excess, 0.0)
 
 
-def _anchor_sign(tdoa: TdoaBatch, anchor: int) -> np.ndarray:
+def anchor_sign(id_a: np.ndarray, id_b: np.ndarray, anchor: int) -> np.ndarray:
     """+1 where `anchor` is B (its range adds to distance_diff), -1 where it is A, else 0."""
-    return (tdoa.id_b == anchor).astype(float) - (tdoa.id_a == anchor).astype(float)
+    return (id_b == anchor).astype(float) - (id_a == anchor).astype(float)
+
+
+def _anchor_sign(tdoa: TdoaBatch, anchor: int) -> np.ndarray:
+    return anchor_sign(tdoa.id_a, tdoa.id_b, anchor)
 
 
 def _anchor_id(anchor) -> int:
