@@ -139,10 +139,12 @@ def shown_in(diagnosis, name: str, params: dict) -> compare.Shown | None:
 
 
 def _listed(diagnosis) -> dict:
-    """What the judge reads of a diagnosis: its findings and the parametric TDOA
-    effects it does not name, as it estimates them."""
+    """What the judge reads of a diagnosis: its findings, the parametric TDOA effects
+    it does not name and the look-alikes in its named effects' places, as it estimates
+    them."""
     report = diagnosis.to_json()
-    return {"findings": report["findings"], "unnamed": report["unnamed_estimates"]}
+    return {"findings": report["findings"], "unnamed": report["unnamed_estimates"],
+            "in_place": report["in_place_estimates"]}
 
 
 def judge(found: dict, control: dict, name: str, params: dict, check, real: bool,
@@ -157,7 +159,8 @@ def judge(found: dict, control: dict, name: str, params: dict, check, real: bool
             judge_alone(found, own, name, params, check, real, samples)
         else:
             cases._check(found, own, name, params, check, real=real, samples=samples,
-                         control_samples=control_samples, control_unnamed=cases.keyed(control["unnamed"]))
+                         control_samples=control_samples, control_unnamed=cases.keyed(control["unnamed"]),
+                         control_in_place=control.get("in_place", ()))
         return True, "found"
     except AssertionError as error:
         return False, str(error).split(";")[0][:160]

@@ -35,6 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from rig import nlos_mixture
+from rig.channels import AXES
 from rig.diagnose import Diagnosis, rounded_floats
 from rig.effects import Region, anchor_sign
 from rig.fitted_model import outside_window
@@ -95,6 +96,9 @@ class Change:
     lever_arm_share: float | None = None   # a delay's: the part of its change the lever arm's change carries
     control_unnamed: dict | None = None    # named on the recording only: the control's estimate, unnamed there
     recording_unnamed: dict | None = None  # named on the control only: the recording's estimate, unnamed there
+    # reported in a look-alike's place on one only: the other's estimate in that place
+    control_in_place: dict | None = None
+    recording_in_place: dict | None = None
 
     @property
     def std_errs(self) -> float | None:
@@ -122,6 +126,9 @@ class Change:
             out["control_unnamed"] = _params(self.control_unnamed)
         if self.recording_unnamed is not None:
             out["recording_unnamed"] = _params(self.recording_unnamed)
+        for side, estimate in (("control", self.control_in_place), ("recording", self.recording_in_place)):
+            if estimate is not None:
+                out[f"{side}_in_place"] = _params(estimate)
         return out
 
 
@@ -268,19 +275,28 @@ def nlos_change(found: dict | None, own: dict | None, samples: TdoaSamples | Non
 
 def change(effect: str, anchors: list[int], found: dict | None, control: dict | None,
            samples: TdoaSamples | None = None, control_unnamed: dict | None = None,
-           recording_unnamed: dict | None = None, control_samples: TdoaSamples | None = None) -> Change:
+           recording_unnamed: dict | None = None, control_samples: TdoaSamples | None = None,
+           control_in_place: Sequence[dict] = (), recording_in_place: Sequence[dict] = ()) -> Change:
     """The effect's change from `control` (its finding there, or None) to `found`;
     an NLOS's over both recordings' TDOA samples. Named on one recording only, from
     or to the other's estimate of it (`control_unnamed`, `recording_unnamed`: its
     report.json's `unnamed_estimates`), where it has one: the flight's effect below
-    the bar."""
+    the bar. Reported in a look-alike's place (`alternative_to`) on one recording
+    only, from or to the other's estimate of it in that place (`control_in_place`,
+    `recording_in_place`: report.json's `in_place_estimates`) on the axes it takes."""
     named_in = "both" if found and control else "recording" if found else "control"
     control_estimate = control_unnamed if named_in == "recording" else None
     recording_estimate = recording_unnamed if named_in == "control" else None
+    control_place, recording_place = in_place(found, control, control_in_place), in_place(control, found,
+                                                                                         recording_in_place)
     if effect in NOT_ADDITIVE:
         difference = None
     elif effect == NLOS:
         difference = nlos_change(found, control, samples, control_samples)
+    elif control_place is not None:
+        difference = added(effect, found["params"], control_place["params"])
+    elif recording_place is not None:
+        difference = added(effect, recording_place["params"], control["params"])
     elif named_in == "both":
         difference = added(effect, found["params"], control["params"])
     elif named_in == "recording":
@@ -291,13 +307,33 @@ def change(effect: str, anchors: list[int], found: dict | None, control: dict | 
     else:
         difference = cancelled(effect, control["params"]) if effect in CANCELLABLE else None
     return Change(effect, anchors, named_in, difference, found, control, control_unnamed=control_estimate,
-                  recording_unnamed=recording_estimate)
+                  recording_unnamed=recording_estimate, control_in_place=control_place,
+                  recording_in_place=recording_place)
+
+
+def in_place(finding: dict | None, other: dict | None, other_in_place: Sequence[dict]) -> dict | None:
+    """Where `finding` is reported in a look-alike's place and `other` (the other
+    recording's finding of that effect, if any) is not: the other recording's estimate
+    of it in the same place (its `in_place_estimates`), neutral off the axes the
+    finding takes. None otherwise."""
+    instead = (finding or {}).get("alternative_to")
+    if instead is None or (other or {}).get("alternative_to"):
+        return None
+    estimate = next((e for e in other_in_place if key(e) == key(finding)
+                     and e["in_place_of"]["effect"] == instead["effect"]), None)
+    if estimate is None or "axes" not in instead:
+        return estimate
+    taken = [AXES.index(axis) for axis in instead["axes"]]
+    params = {field: [v if j in taken else neutral(finding["effect"]) for j, v in enumerate(value)]
+              if isinstance(value, list) else value for field, value in estimate["params"].items()}
+    return estimate | {"params": params}
 
 
 def changes(findings: list[dict], control: list[dict], identifiability: Sequence[Identifiability] = (),
             cross_talk: dict[int, list[float]] | None = None, samples: TdoaSamples | None = None,
             control_unnamed: Sequence[dict] = (), recording_unnamed: Sequence[dict] = (),
-            control_samples: TdoaSamples | None = None) -> list[Change]:
+            control_samples: TdoaSamples | None = None, control_in_place: Sequence[dict] = (),
+            recording_in_place: Sequence[dict] = ()) -> list[Change]:
     """Every effect reported on either recording, as it changed; the recording's
     findings first, by their evidence, then those on the control only. One reported
     in a look-alike's place (`alternative_to`) counts too: it carries that
@@ -307,13 +343,14 @@ def changes(findings: list[dict], control: list[dict], identifiability: Sequence
     gets the share of it that the lever arm's change carries; with both recordings'
     TDOA `samples` and `control_samples`, an NLOS gets its change; with either's
     `unnamed_estimates`, an effect named on the other only changes from or to its
-    estimate there."""
+    estimate there; with their `in_place_estimates`, one reported in a look-alike's
+    place on one only, from or to the other's estimate in that place."""
     named = {key(f): f for f in findings}
     own = {key(f): f for f in control}
     own_below, named_below = ({key(u): u for u in listed} for listed in (control_unnamed, recording_unnamed))
     order = sorted(named, key=lambda k: -named[k]["evidence"]) + [k for k in own if k not in named]
     out = [change(k[0], list(k[1]), named.get(k), own.get(k), samples, own_below.get(k), named_below.get(k),
-                  control_samples) for k in order]
+                  control_samples, control_in_place, recording_in_place) for k in order]
     lever = lever_arm_change(named, own)
     for c in out:
         if c.change is None:

@@ -68,8 +68,8 @@ from rig.floor_error import (ON_GROUND_PRIOR, ON_GROUND_SHAPES, floor_multipath,
 from rig.recording import Recording, Vec3Series
 from rig.robust import delay_centre, huber_loss, huber_mean, irls, mad_scale, robust_nll, robust_rms
 from rig.selection import (LOOK_ALIKES, ORDER, Alternative, Term, axis_alternatives, estimate_terms, free_offset_terms,
-                           fresh_terms, nlos_candidate, nlos_shape, rank_of, refit, remainder, select, simpler_than,
-                           stacked, unnamed_simplest_terms)
+                           fresh_terms, in_place_estimates, nlos_candidate, nlos_shape, rank_of, refit, remainder, select,
+                           simpler_than, stacked, unnamed_simplest_terms)
 
 log = logging.getLogger(__name__)
 
@@ -120,6 +120,7 @@ class Diagnosis:
     identifiability: list[ident.Identifiability] = field(default_factory=list)
     cross_talk: dict[int, list[float]] = field(default_factory=dict)     # lever_arm_cross_talk
     unnamed: list[Unnamed] = field(default_factory=list)                # unnamed_estimates
+    in_place: list[Unnamed] = field(default_factory=list)               # in_place_estimates
     # the TDOA's standardised residual less the named effects other than NLOS, as
     # fitted: where an NLOS of this recording or another of the flight is estimated
     tdoa_left: np.ndarray | None = None
@@ -141,7 +142,8 @@ class Diagnosis:
                 "identifiability": [i.to_json() for i in self.identifiability],
                 "lever_arm_cross_talk": [{"anchor": k, "delay_m_per_m": rounded_floats(v)}
                                          for k, v in self.cross_talk.items()],
-                "unnamed_estimates": [u.to_json() for u in self.unnamed]}
+                "unnamed_estimates": [u.to_json() for u in self.unnamed],
+                "in_place_estimates": [u.to_json() for u in self.in_place]}
 
     def vibration_rms(self) -> list[float] | None:
         """The accelerometer's mean vibration RMS per axis over the compared rows: what
@@ -188,17 +190,21 @@ class Diagnosis:
 
 @dataclass
 class Unnamed:
-    """A TDOA effect the recording does not name, measured as a named one would be
-    (report.json's `unnamed_estimates`)."""
+    """An effect measured as the recording does not report it: a TDOA effect it does
+    not name, as a named one would be (report.json's `unnamed_estimates`), or a
+    look-alike in a named effect's place (`in_place_of` that effect and its axes;
+    `in_place_estimates`)."""
 
     effect: str
     anchors: list[int]
     params: dict
     std_err: dict
+    in_place_of: dict | None = None
 
     def to_json(self) -> dict:
         out = {"effect": self.effect, "params": self.params, "std_err": self.std_err}
-        return out | ({"anchors": self.anchors} if self.anchors else {})
+        return out | ({"anchors": self.anchors} if self.anchors else {}) | (
+            {"in_place_of": self.in_place_of} if self.in_place_of else {})
 
 
 def unnamed_estimates(problem: Problem, channel: Channel, as_recorded: Channel, named: list[Term],
@@ -266,7 +272,7 @@ def diagnose(rec: Recording, progress=None) -> Diagnosis:
     problem = Problem(rec)
     pool = candidates(problem)
     before = problem.residual_before
-    findings, model, names, unnamed, tdoa_left = [], [], list(before), [], None
+    findings, model, names, unnamed, in_place, tdoa_left = [], [], list(before), [], [], None
     for name in progress(names) if progress else names:
         as_recorded = problem.channel(name)
         terms, channel, shapes = select(problem, as_recorded, pool)     # fitted jointly
@@ -299,6 +305,8 @@ def diagnose(rec: Recording, progress=None) -> Diagnosis:
                                      z_with, theta, peers, id(term) in simulated))
         findings += [_alternative_finding(problem, channel, alt, terms)
                      for alt in axis_alternatives(channel.z, terms, fresh_terms(pool, name), as_recorded.z)]
+        in_place += [_in_place_estimate(problem, channel, alt)
+                     for alt in in_place_estimates(channel.z, terms, fresh_terms(pool, name), as_recorded.z)]
     after = {name: problem.recorded(name) - pred for name, pred in problem.predict(model).items()}
     if "tdoa" in after:
         floor = _floor_finding(problem, after["tdoa"])
@@ -307,7 +315,7 @@ def diagnose(rec: Recording, progress=None) -> Diagnosis:
             model.append(fx.make_effect("multipath_floor", floor.params))
     findings.sort(key=lambda f: -f.evidence)
     return Diagnosis(problem, findings, model, before, after, identifiability(pool), lever_arm_cross_talk(pool),
-                     unnamed, tdoa_left)
+                     unnamed, in_place, tdoa_left)
 
 
 def identifiability(pool: list[Candidate]) -> list[ident.Identifiability]:
@@ -421,6 +429,16 @@ def _alternative_finding(problem: Problem, channel: Channel, alt: Alternative, n
     if channel.name != "tdoa":
         instead["axes"] = [AXES[j] for j in alt.axes]
     return replace(finding, alternative_to=instead)
+
+
+def _in_place_estimate(problem: Problem, channel: Channel, alt: Alternative) -> Unnamed:
+    """A look-alike fitted in a named effect's place (selection.in_place_estimates)."""
+    term = alt.term
+    instead = {"effect": alt.replaces.candidate.effect} | (
+        {"axes": [AXES[j] for j in alt.axes]} if channel.name != "tdoa" else {})
+    return Unnamed(term.candidate.effect, term.candidate.anchors,
+                   rounded_floats(_effect_of(problem, channel, term, term.estimate).params()),
+                   _uncertainty(term)[0], instead)
 
 
 def _shape_finding(problem: Problem, fit: nlos_mixture.NlosShapeFit) -> Finding:

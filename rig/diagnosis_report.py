@@ -95,7 +95,8 @@ def write(diagnosis: Diagnosis, out: Path, recording: str, control: dict | None 
             c.to_json() for c in compare.changes(report["findings"], control["findings"], diagnosis.identifiability,
                                                  diagnosis.cross_talk, compare.TdoaSamples.of(diagnosis),
                                                  control.get("unnamed_estimates", ()), report["unnamed_estimates"],
-                                                 control_samples)]
+                                                 control_samples, control.get("in_place_estimates", ()),
+                                                 report["in_place_estimates"])]
     (out / REPORT_JSON).write_text(json.dumps(report, indent=2, allow_nan=False, default=_finite))
     (out / MODEL_JSON).write_text(json.dumps({"effects": report["model"],
                                               "vibration_rms_mps2": report["vibration_rms_mps2"]}, indent=2))
@@ -203,8 +204,11 @@ def change_text(change: dict) -> str:
 
 def _side_text(change: dict, side: str) -> str:
     """One recording's parameters (`side`: "recording" or "control"), or its estimate
-    of an effect it does not name."""
-    unnamed = change.get(f"{side}_unnamed")
+    of an effect it does not name, or of one in the look-alike's place the other
+    recording reports it in."""
+    unnamed, in_place = change.get(f"{side}_unnamed"), change.get(f"{side}_in_place")
+    if in_place is not None:
+        return f"{_params_text(in_place)} (estimated in its look-alike's place, as the other reports it)"
     if unnamed is None:
         return _params_text(change[side])
     return f"{_params_text(unnamed)} (estimated, below the bar)"

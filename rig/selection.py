@@ -510,6 +510,28 @@ def axis_alternatives(z: np.ndarray, named: list[Term], pool: list[Term],
     return out
 
 
+def in_place_estimates(z: np.ndarray, named: list[Term], pool: list[Term],
+                       z_simplest: np.ndarray | None = None) -> list[Alternative]:
+    """For each named whole-flight term with a look-alike of the same shape
+    (AXIS_LOOK_ALIKES), the look-alike fitted in its place on all of its axes, whether
+    the flight tells the two apart or not, and whether it names the look-alike too
+    (then without it on those axes): what another recording of the flight that cannot
+    tell them apart reports in the named one's place (axis_alternatives), estimated
+    here, so that the two compare (rig.compare). 0422-log00 names a z scale of 0.89
+    jointly with a z bias of 0.98; with a z scale of 1.03 injected it names a bias and
+    the scale in its place, 1.020, which compares with the untouched flight's scale in
+    its bias's place, not with its joint 0.89."""
+    judged_on = z if z_simplest is None else z_simplest
+    out = []
+    for term in named:
+        effect = AXIS_LOOK_ALIKES.get(term.candidate.effect)
+        alike = next((t for t in pool if t.candidate.effect == effect), None)
+        if alike is None or term.extra or any(t.key == alike.key and t.extra for t in named):
+            continue
+        out.append(_in_place(z, judged_on, term, alike, list(range(term.columns.shape[1])), named, pool))
+    return out
+
+
 def _without_axes(term: Term, axes: list[int]) -> list[Term]:
     """`term` without `axes` (none when nothing is left)."""
     keep = [j for j in range(term.columns.shape[1]) if j not in axes]
@@ -533,15 +555,16 @@ def _cannot_tell(z: np.ndarray, term: Term, alike: Term, j: int, rivals: list[Te
 
 def _in_place(z: np.ndarray, z_simplest: np.ndarray, term: Term, alike: Term, axes: list[int], named: list[Term],
               pool: list[Term]) -> Alternative:
-    """`alike` on `axes` only, fitted with the named terms, `term` without those axes:
+    """`alike` on `axes` only, fitted with the named terms, `term` (and `alike`, where it
+    is named too) without those axes:
     its evidence given the others but its richer look-alikes and its estimate given
     the simpler ones as a named term's (estimate_terms: a drift about a free offset, so it
     compares with a drift named on a control), both on `z_simplest`, and what the
     whole model leaves with it on `z`. Its other axes are neutral and not identified
     (their standard error is the prior's): the flight supported the look-alike on
     none of them."""
-    others = [kept for t in named
-              for kept in (_without_axes(term, axes) if t is term else [Term(t.candidate, t.columns, t.extra)])]
+    others = [kept for t in named for kept in (_without_axes(t, axes) if t is term or t.key == alike.key
+                                               else [Term(t.candidate, t.columns, t.extra)])]
     stand_in = Term(alike.candidate, alike.columns[:, axes])
     richer = {id(t) for t in _richer(stand_in, others)}
     evidence = _Design(z_simplest, [t for t in others if id(t) not in richer] + [stand_in]).gain(stand_in)

@@ -65,6 +65,33 @@ def test_an_effect_the_control_does_not_name_changes_from_its_estimate_there() -
     assert named_on_both.change == {"ppm": pytest.approx(800.0)} and named_on_both.control_unnamed is None
 
 
+def test_an_effect_in_a_look_alikes_place_on_one_recording_changes_from_the_others_estimate_in_that_place() -> None:
+    """0422-log00's control names a z scale of 0.89 jointly with a z bias of 0.98
+    (its flight tells the two apart); with 1.03 injected the recording names the bias
+    and the scale in its place on z, 1.020. Against the control's joint 0.89 that is
+    a change of 0.13; against the control's scale in its bias's place on z, 0.990, it
+    is 0.03. The axes the recording's does not take are neutral on both sides."""
+    instead = {"effect": "imu_accel_bias", "axes": ["z"]}
+    in_bias_place = _finding("imu_accel_scale", {"scale": [1.0, 1.0, 1.02]}, alternative_to=instead)
+    joint = _finding("imu_accel_scale", {"scale": [1.10, 0.87, 0.89]})
+    own_in_place = [{"effect": "imu_accel_scale", "params": {"scale": [0.95, 0.90, 0.99]},
+                     "in_place_of": {"effect": "imu_accel_bias", "axes": ["x", "y", "z"]}},
+                    {"effect": "imu_accel_bias", "params": {"bias_mps2": [0.03, -0.06, -0.09]},
+                     "in_place_of": {"effect": "imu_accel_scale", "axes": ["x", "y", "z"]}}]
+    got = change("imu_accel_scale", [], in_bias_place, joint, control_in_place=own_in_place)
+    assert got.named_in == "both" and got.change["scale"] == pytest.approx([1.0, 1.0, 1.03])
+    assert got.to_json()["control_in_place"] == {"scale": [1.0, 1.0, 0.99]}
+    assert change("imu_accel_scale", [], in_bias_place, joint).change["scale"][2] == pytest.approx(1.13)
+    unnamed_there = change("imu_accel_scale", [], in_bias_place, None, control_in_place=own_in_place)
+    assert unnamed_there.named_in == "recording" and unnamed_there.change["scale"][2] == pytest.approx(1.03)
+    both_in_place = change("imu_accel_scale", [], in_bias_place, _finding("imu_accel_scale", {"scale": [1.0, 1.0, 0.99]},
+                                                                        alternative_to=instead),
+                           control_in_place=[{**own_in_place[0], "params": {"scale": [1.0, 1.0, 0.5]}}])
+    assert both_in_place.change["scale"][2] == pytest.approx(1.03) and both_in_place.control_in_place is None
+    reverse = changes([joint], [in_bias_place], recording_in_place=own_in_place)      # the other way round
+    assert reverse[0].change["scale"] == pytest.approx([1.0, 1.0, 0.97])
+
+
 def test_an_effect_named_on_the_control_only_changes_to_the_recordings_estimate_of_it() -> None:
     """The control's offset, −50 ms, plus an added +60 ms is +10 ms, below the
     recording's bar: a change of +60 ms to its estimate there; without one, a clock

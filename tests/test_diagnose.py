@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import re
 import subprocess
+from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
 
@@ -33,7 +34,8 @@ from rig.importer import load_any
 from rig.paths import default_recording
 from rig.recording import Recording, Vec3Series
 from rig.robust import delay_centre, irls, mad_scale, robust_rms
-from rig.selection import ORDER, Term, confine_in_time, estimate_terms, free_offset_terms, select
+from rig.selection import (ORDER, Term, confine_in_time, estimate_terms, free_offset_terms, fresh_terms,
+                           in_place_estimates, select)
 from rig.simulate import Predictor, SimConfig, inject, simulate
 
 NOISE = [{"effect": "tdoa_noise", "params": {"std_m": 0.15}},
@@ -88,6 +90,11 @@ def findings(result) -> dict[tuple, dict]:
 def unnamed(result) -> dict[tuple, dict]:
     """The simplest effects a diagnosis does not name, as it estimates them."""
     return keyed(result.to_json()["unnamed_estimates"])
+
+
+def in_place(result) -> list[dict]:
+    """Each look-alike a diagnosis estimates in a named effect's place."""
+    return [u.to_json() for u in result.in_place]
 
 
 def keyed(listed: list[dict]) -> dict[tuple, dict]:
@@ -197,18 +204,21 @@ def _mark(name: str, known: dict) -> list:
 
 def _check(found: dict, control: dict, name: str, params: dict, check, real: bool = False,
            samples: compare.TdoaSamples | None = None, control_unnamed: dict | None = None,
-           control_samples: compare.TdoaSamples | None = None) -> None:
+           control_samples: compare.TdoaSamples | None = None, control_in_place: Sequence[dict] = ()) -> None:
     """The injected effect named, located and measured: on a real flight, as its
     change from the control recording (rig.compare, as `rig diagnose --control`; an
     NLOS's over both recordings' TDOA `samples` and `control_samples`; one the control does not
-    name, from its estimate there, `control_unnamed`, keyed like the findings)."""
+    name, from its estimate there, `control_unnamed`, keyed like the findings; one
+    reported in a look-alike's place, from the control's estimate in that place,
+    `control_in_place`)."""
     key = (name, (params["anchor"],) if "anchor" in params else ())
     if key not in found and key in control and name in CANCELLABLE:
         _check_cancelled(control[key], name, params, check, real)
         return
     assert key in found, f"{name} not named; found {sorted(found)}"
     got = compare.change(name, list(key[1]), found[key], control.get(key), samples,
-                         (control_unnamed or {}).get(key), control_samples=control_samples).change
+                         (control_unnamed or {}).get(key), control_samples=control_samples,
+                         control_in_place=control_in_place).change
     got = got or dict(found[key]["params"])
     _check_unidentified(found[key], got, params)
     assert check(got, params, REAL_SLACK if real else 1.0), f"{name}: got {got}, injected {params}"
@@ -285,7 +295,8 @@ def test_a_concealed_effect_in_a_simulated_flight_is_named_located_and_measured(
     assert all(k[0] != name for k in findings(control))
     diagnosis = diagnose(rec)
     _check(findings(diagnosis), findings(control), name, params, check, samples=compare.TdoaSamples.of(diagnosis),
-           control_unnamed=unnamed(control), control_samples=compare.TdoaSamples.of(control))
+           control_unnamed=unnamed(control), control_samples=compare.TdoaSamples.of(control),
+           control_in_place=in_place(control))
 
 
 @pytest.mark.parametrize("name", [pytest.param(n, marks=_mark(n, NOT_ON_REAL)) for n in CASES])
@@ -298,7 +309,7 @@ def test_a_concealed_effect_in_a_real_flight_is_found_against_its_control(name, 
     diagnosis = diagnose(injected)
     _check(findings(diagnosis), findings(real_diagnosis), name, params, check, real=True,
            samples=compare.TdoaSamples.of(diagnosis), control_unnamed=unnamed(real_diagnosis),
-           control_samples=compare.TdoaSamples.of(real_diagnosis))
+           control_samples=compare.TdoaSamples.of(real_diagnosis), control_in_place=in_place(real_diagnosis))
 
 
 def test_a_gyro_scale_is_not_shrunk_by_the_ground_truths_attitude_noise(survey) -> None:
@@ -425,6 +436,26 @@ def test_an_effect_left_unnamed_is_estimated_as_it_would_be_named(survey, effect
     assert np.ravel(estimate.std_err[c.param]) == pytest.approx(term.std_err * c.value_slope(term.estimate), rel=1e-3)
 
 
+def test_a_look_alike_is_estimated_in_a_named_effects_place_named_too_or_not(survey) -> None:
+    """`in_place_estimates`: a z bias of 0.2 m/s² named, its look-alike the z scale in
+    its place reads 1 + 0.2 / g (the flight's mean z specific force), as a recording
+    that cannot tell the two apart reports it; and the same where the scale is named
+    too (taken out on those axes, not fitted twice)."""
+    bias = {"effect": "imu_accel_bias", "params": {"bias_mps2": [0.0, 0.0, 0.2]}}
+    problem = Problem(simulate(sim_config(survey, [bias])))
+    pool, as_recorded = candidates(problem), problem.channel("accel")
+    named, channel, _ = select(problem, as_recorded, pool)
+    fresh = fresh_terms(pool, "accel")
+    assert [t.candidate.effect for t in named] == ["imu_accel_bias"]
+    estimates = in_place_estimates(channel.z, named, fresh, as_recorded.z)
+    scale = next(e for e in estimates if e.replaces is named[0]).term
+    assert scale.candidate.effect == "imu_accel_scale" and len(estimates) == 1
+    assert scale.estimate[2] == pytest.approx(0.2 / 9.81, abs=1e-3)        # the scale's fit is about one
+    both = [*named, next(t for t in fresh if t.candidate.effect == "imu_accel_scale")]
+    also_named = next(e for e in in_place_estimates(channel.z, both, fresh, as_recorded.z) if e.replaces is named[0])
+    assert also_named.term.estimate == pytest.approx(scale.estimate, abs=1e-9)
+
+
 def _clock_started_earlier(rec: Recording, seconds: float) -> Recording:
     """The same flight on a clock that started `seconds` earlier (0422-log00 flies at
     82–132 s of its recording's clock)."""
@@ -540,7 +571,8 @@ def test_a_timing_effect_that_pays_only_once_the_nlos_shapes_are_out_is_named(da
     diagnosis = findings(diagnose(injected))
     assert _found_by_shape(diagnosis)
     control = diagnose(rec)
-    _check(diagnosis, findings(control), "time_offset", params, check, real=True, control_unnamed=unnamed(control))
+    _check(diagnosis, findings(control), "time_offset", params, check, real=True, control_unnamed=unnamed(control),
+           control_in_place=in_place(control))
 
 
 def test_ranges_that_read_long_with_the_tag_on_the_floor_are_located_on_their_anchor(real) -> None:
