@@ -86,6 +86,8 @@ def tables(reports: dict) -> str:
                            for f in sorted(by.get("anchor_delay", []), key=lambda f: f["anchors"])) or "—"
         nlos = ", ".join(str(f["anchors"][0]) for f in sorted(by.get("nlos", []), key=lambda f: f["anchors"])) or "—"
         floor = ", ".join(f"< {f['params']['height_m']} m: +{f['params']['std_m']:.2f} m"
+                          + (f" and < {f['params']['upper_height_m']} m: +{f['params']['upper_std_m']:.2f} m"
+                             if "upper_height_m" in f["params"] else "")
                           for f in by.get("multipath_floor", [])) or "—"
         bias = ", ".join(str([round(v, 2) for v in f["params"]["bias_mps2"]]) for f in by.get("imu_accel_bias", [])) or "—"
         print(f"| {name} | {fit.get('tdoa', '—')} | {fit.get('accel', '—')} | {fit.get('gyro', '—')} | {offset} | "

@@ -480,9 +480,10 @@ def _floor_finding(problem: Problem, residual: np.ndarray) -> Finding | None:
         return None
     low = floor["low"]
     before = float(np.mean(robust_nll(noise[low], floor["sigma_one_level"])))
-    after = float(np.mean(robust_nll(noise[low], floor["sigma_low"])))
-    return Finding("multipath_floor", "tdoa", [], {"height_m": floor["height_m"], "std_m": round(floor["std_m"], 4)},
-                   round(floor["evidence"], 2), before, after,
+    after = float(np.mean(robust_nll(noise[low], floor["sigma_rows"][low])))
+    params = {key: round(floor[key], 4) if key.endswith("std_m") else floor[key]
+              for key in ("height_m", "std_m", "upper_height_m", "upper_std_m") if key in floor}
+    return Finding("multipath_floor", "tdoa", [], params, round(floor["evidence"], 2), before, after,
                    {"below_height_m": floor["height_m"], "time": _span(problem.times("tdoa")[low]),
                     "fit_unit": "mean negative log-likelihood per sample (a noise-level effect)"})
 

@@ -34,7 +34,7 @@ PLAIN = {
     "antenna_pattern": "anchor {anchor}'s ranges are biased with the viewing angle (antenna pattern {coeffs_m} m)",
     "nlos": "ranges to anchor {anchor} carry an excess delay (NLOS: {fraction:.0%} of them, {mean_excess_m:.3f} m "
             "on average) while the tag is inside {region}",
-    "multipath_floor": "below {height_m} m the TDOA noise grows by {std_m:.3f} m (floor multipath)",
+    "multipath_floor": "below {height_m} m the TDOA noise grows by {std_m:.3f} m{upper} (floor multipath)",
     "on_ground_delay": "with the tag on the floor (below {height_m} m{fade}) the ranges read longer than in flight, "
                        "per anchor: {meters} m (the floor in the direct paths; relative to each other)",
     "imu_accel_bias": "the accelerometer reads {bias_mps2} m/s² too high",
@@ -56,6 +56,8 @@ def describe(finding: Finding) -> str:
     if params.get("fade_m"):
         params["fade"] = f", fading out over the {params['fade_m']} m above"
     params.setdefault("fade", "")          # a step: whole below its height, none above
+    upper = params.get("upper_height_m")
+    params["upper"] = "" if upper is None else f", on top of {params['upper_std_m']:.3f} m below {upper} m"
     if isinstance(params.get("region"), dict):
         box = params["region"]
         params["region"] = ", ".join(f"{axis} {low:.2f}…{high:.2f}" for axis, low, high

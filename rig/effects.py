@@ -765,23 +765,35 @@ class Nlos(_Windowed, Effect):
 
 class MultipathFloor(Effect):
     """Near the floor, reflections add error: below `height_m` every TDOA gets extra
-    zero-mean noise of `std_m` (the tag's height is what matters, not the anchor)."""
+    zero-mean noise of `std_m` (the tag's height is what matters, not the anchor).
+    Optionally a second, higher step: below `upper_height_m` extra noise of
+    `upper_std_m` too (independent: below both, their variances add)."""
 
     name, stage = "multipath_floor", NOISE
 
-    def __init__(self, height_m: float = 0.3, std_m: float = 0.0):
+    def __init__(self, height_m: float = 0.3, std_m: float = 0.0, upper_height_m: float | None = None,
+                 upper_std_m: float = 0.0):
         self.height = _finite(height_m, "height_m", HEIGHT, _positive)
         self.std = _finite(std_m, "std_m", "a standard deviation >= 0", _non_negative)
+        self.upper_height = None if upper_height_m is None else _finite(
+            upper_height_m, "upper_height_m", f"a height above height_m ({self.height} m)", lambda h: h > self.height)
+        self.upper_std = _finite(upper_std_m, "upper_std_m", "a standard deviation >= 0", _non_negative)
 
     def params(self) -> dict:
-        return {"height_m": self.height, "std_m": self.std}
+        upper = {} if self.upper_height is None else {"upper_height_m": self.upper_height,
+                                                        "upper_std_m": self.upper_std}
+        return {"height_m": self.height, "std_m": self.std} | upper
 
     def low(self, tag_position: np.ndarray) -> np.ndarray:
         return tag_position[:, 2] < self.height
 
     def apply_tdoa(self, tdoa: TdoaBatch, world: World, rng: np.random.Generator | None) -> None:
-        if rng is not None:
-            tdoa.value += rng.normal(0.0, self.std, len(tdoa.t)) * self.low(tdoa.tag_position)
+        if rng is None:
+            return
+        tdoa.value += rng.normal(0.0, self.std, len(tdoa.t)) * self.low(tdoa.tag_position)
+        if self.upper_height is not None:
+            below = tdoa.tag_position[:, 2] < self.upper_height
+            tdoa.value += rng.normal(0.0, self.upper_std, len(tdoa.t)) * below
 
 
 def on_ground_weight(height: np.ndarray, below_m: float, fade_m: float = 0.0) -> np.ndarray:
