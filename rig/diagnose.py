@@ -484,7 +484,8 @@ def _floor_finding(problem: Problem, residual: np.ndarray) -> Finding | None:
     params = {key: round(floor[key], 4) if key.endswith("std_m") else floor[key]
               for key in ("height_m", "std_m", "upper_height_m", "upper_std_m") if key in floor}
     return Finding("multipath_floor", "tdoa", [], params, round(floor["evidence"], 2), before, after,
-                   {"below_height_m": floor["height_m"], "time": _span(problem.times("tdoa")[low]),
+                   {"below_height_m": floor.get("upper_height_m", floor["height_m"]),     # the samples it affects
+                    "time": _span(problem.times("tdoa")[low]),
                     "fit_unit": "mean negative log-likelihood per sample (a noise-level effect)"})
 
 
