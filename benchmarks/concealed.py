@@ -236,9 +236,9 @@ def main() -> None:
             samples = listed_samples and compare.TdoaSamples.from_json(listed_samples)
             control, _, _, control_samples = results[(flight, "control")]
             control_samples = control_samples and compare.TdoaSamples.from_json(control_samples)
-            judged = [judge(cases.keyed(found["findings"]), own or control, name, params, check, flight != "sim",
-                            samples, control_samples, alone) for alone in (False, True)]
-            (ok, how), (alone_ok, alone_how) = judged
+            (ok, how), (alone_ok, alone_how) = [
+                judge(cases.keyed(found["findings"]), own or control, name, params, check, flight != "sim", samples,
+                      control_samples, alone) for alone in (False, True)]
             below = None if shown is None else shown.below
             rows[label] = {"found": ok, "detail": how, "found_alone": alone_ok, "below_told_apart": below}
             print(f"{flight:12s} {label:28s} {'found ' if ok else 'MISSED'} {'' if ok else how}"

@@ -230,9 +230,7 @@ def unnamed_estimates(problem: Problem, channel: Channel, as_recorded: Channel, 
             continue
         terms = [Term(t.candidate, t.columns, t.extra) for t in parametric if rank_of(t) <= rank_of(term)] + [term]
         estimate_terms(channel.z, terms, as_recorded.z, free_offset_terms(terms, fresh), simplest_unnamed)
-        out.append(Unnamed(term.candidate.effect, term.candidate.anchors,
-                           rounded_floats(_effect_of(problem, channel, term, term.estimate).params()),
-                           _uncertainty(term)[0]))
+        out.append(_estimated(problem, channel, term))
     return out
 
 
@@ -303,10 +301,11 @@ def diagnose(rec: Recording, progress=None) -> Diagnosis:
                 z_with, theta, peers = z_named, named_theta[id(term)], simpler_than(term, terms)
             findings.append(_finding(problem, channel, term, _effect_of(problem, channel, term, term.estimate),
                                      z_with, theta, peers, id(term) in simulated))
+        fresh = fresh_terms(pool, name)
         findings += [_alternative_finding(problem, channel, alt, terms)
-                     for alt in axis_alternatives(channel.z, terms, fresh_terms(pool, name), as_recorded.z)]
-        in_place += [_in_place_estimate(problem, channel, alt)
-                     for alt in in_place_estimates(channel.z, terms, fresh_terms(pool, name), as_recorded.z)]
+                     for alt in axis_alternatives(channel.z, terms, fresh, as_recorded.z)]
+        in_place += [_estimated(problem, channel, alt.term, _replaced(channel, alt))
+                     for alt in in_place_estimates(channel.z, terms, fresh, as_recorded.z)]
     after = {name: problem.recorded(name) - pred for name, pred in problem.predict(model).items()}
     if "tdoa" in after:
         floor = _floor_finding(problem, after["tdoa"])
@@ -425,20 +424,23 @@ def _alternative_finding(problem: Problem, channel: Channel, alt: Alternative, n
     term = alt.term
     finding = _finding(problem, channel, term, _effect_of(problem, channel, term, term.estimate), alt.z_with,
                        term.theta, simpler_than(term, named), True)
+    return replace(finding, alternative_to=_replaced(channel, alt))
+
+
+def _replaced(channel: Channel, alt: Alternative) -> dict:
+    """The named effect a look-alike stands in for, and on an IMU channel its axes."""
     instead = {"effect": alt.replaces.candidate.effect}
     if channel.name != "tdoa":
         instead["axes"] = [AXES[j] for j in alt.axes]
-    return replace(finding, alternative_to=instead)
+    return instead
 
 
-def _in_place_estimate(problem: Problem, channel: Channel, alt: Alternative) -> Unnamed:
-    """A look-alike fitted in a named effect's place (selection.in_place_estimates)."""
-    term = alt.term
-    instead = {"effect": alt.replaces.candidate.effect} | (
-        {"axes": [AXES[j] for j in alt.axes]} if channel.name != "tdoa" else {})
+def _estimated(problem: Problem, channel: Channel, term: Term, in_place_of: dict | None = None) -> Unnamed:
+    """A fitted term's estimate and standard error, as a report lists an effect it
+    does not report as a finding."""
     return Unnamed(term.candidate.effect, term.candidate.anchors,
                    rounded_floats(_effect_of(problem, channel, term, term.estimate).params()),
-                   _uncertainty(term)[0], instead)
+                   _uncertainty(term)[0], in_place_of)
 
 
 def _shape_finding(problem: Problem, fit: nlos_mixture.NlosShapeFit) -> Finding:

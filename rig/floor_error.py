@@ -32,6 +32,9 @@ ON_GROUND_PRIOR = 100.0        # in noise deviations: as good as none, it only f
 # gone above 0.2 m; 24 of the 35 choose a fade (23 of them from 0.05 to 0.15 m)
 ON_GROUND_SHAPES = ((0.05, 0.0), (0.1, 0.0), (0.15, 0.0), (0.2, 0.0), (0.05, 0.1), (0.1, 0.05))
 FLOOR_HEIGHTS_M = (0.25, 0.4, 0.6, 0.8, 1.0)   # the floor multipath's heights tried
+# its steps tried: one of those heights, or two of them, lower first
+FLOOR_STEPS = [(h,) for h in FLOOR_HEIGHTS_M] + [(low, high) for low in FLOOR_HEIGHTS_M for high in FLOOR_HEIGHTS_M
+                                                if low < high]
 LOCAL_SAMPLES = 4              # neighbours on each side, in measurements of one anchor pair
 
 
@@ -118,7 +121,7 @@ def floor_multipath(noise: np.ndarray, heights: np.ndarray, bar: float) -> dict 
     airborne = heights >= ON_GROUND_M
     r, heights = noise[airborne], heights[airborne]
     one = mad_scale(r)
-    fits = [fit for fit in (_noise_levels(r, heights, cuts, one) for cuts in _floor_steps()) if fit is not None]
+    fits = [fit for fit in (_noise_levels(r, heights, cuts, one) for cuts in FLOOR_STEPS) if fit is not None]
     single = max((f for f in fits if len(f["cuts"]) == 1), key=lambda f: f["evidence"], default=None)
     if single is None or single["evidence"] < bar:
         return None
@@ -134,12 +137,6 @@ def floor_multipath(noise: np.ndarray, heights: np.ndarray, bar: float) -> dict 
     sigma_rows = np.full(len(airborne), sigmas[-1])
     sigma_rows[np.flatnonzero(airborne)] = sigmas[best["bands"]]
     return out | {"low": low, "sigma_rows": sigma_rows}
-
-
-def _floor_steps() -> list[tuple[float, ...]]:
-    """One height of FLOOR_HEIGHTS_M, or two of them, lower first."""
-    one = [(h,) for h in FLOOR_HEIGHTS_M]
-    return one + [(low, high) for low in FLOOR_HEIGHTS_M for high in FLOOR_HEIGHTS_M if low < high]
 
 
 def _noise_levels(r: np.ndarray, heights: np.ndarray, cuts: tuple[float, ...], one: float) -> dict | None:
