@@ -51,7 +51,22 @@ class Candidate:
     def naming_bar(self) -> float:
         """The robust loss its fit must remove to be named, unconfined in time (Term.cost
         and MIN_EVIDENCE)."""
-        return self.penalty * self.size + MIN_EVIDENCE
+        return self.bar_on(self.size)
+
+    def bar_on(self, axes: int) -> float:
+        """The robust loss its fit on `axes` of its components must remove to be named."""
+        return self.penalty * axes + MIN_EVIDENCE
+
+    @property
+    def named_by_axis(self) -> bool:
+        """An IMU vector effect is named on the axes that pay for themselves
+        (rig.selection._fewer_axes); an effect on the ranges is named whole."""
+        return self.channel != "tdoa" and self.size > 1
+
+    @property
+    def axis_bars(self) -> tuple[float, ...]:
+        """What naming it on 1, 2, ... of its axes must remove; () if named whole."""
+        return tuple(self.bar_on(k) for k in range(1, self.size + 1)) if self.named_by_axis else ()
 
     def value(self, theta: np.ndarray) -> np.ndarray:
         """The parameter for fitted column weights θ. A scale s regressed on w × the

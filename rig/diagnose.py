@@ -14,7 +14,8 @@ Method, per channel (TDOA, accelerometer, gyroscope), each step's module in brac
 3. Naming: backward elimination. A term's `evidence` is the robust loss it removes
    given all remaining terms but its richer look-alikes (half a chi-square in the
    Gaussian limit, so it grows with the recording's length and compares runs of
-   equal length); the weakest goes while below a bar (a penalty per parameter).
+   equal length); the weakest goes while below a bar (a penalty per parameter); an
+   IMU vector effect loses its weakest axis before it goes whole.
    Delays are reported relative to their robust centre (`delay_centre`): TDOA does
    not see a delay common to all anchors [rig.selection, as steps 4 and 5].
 4. Estimates (Huber IRLS with weak priors, rig.robust): a named term's estimate is its value in
@@ -93,6 +94,7 @@ class Finding:
     std_err: dict | None = None     # standard errors of the fitted parameter (None: not a fitted term)
     not_identified: list = field(default_factory=list)   # its components this trajectory does not identify
     alternative_to: dict | None = None   # {"effect", "axes"}: in place of those axes of that finding, as good
+    not_named_axes: list = field(default_factory=list)   # an IMU vector's axes that did not pay: neutral there
 
     def to_json(self) -> dict:
         out = {"effect": self.effect, "channel": self.channel, "params": self.params, "evidence": self.evidence,
@@ -107,6 +109,8 @@ class Finding:
             out["beyond_physical_bound"] = True
         if self.alternative_to:
             out["alternative_to"] = self.alternative_to
+        if self.not_named_axes:
+            out["not_named_axes"] = self.not_named_axes
         return out
 
 
@@ -327,7 +331,8 @@ def identifiability(pool: list[Candidate]) -> list[ident.Identifiability]:
         rank = ORDER[c.effect][1]
         alikes = {a.effect: a.columns for a in pool if a.effect in LOOK_ALIKES.get(c.effect, ())
                   and ORDER[a.effect][1] <= rank and a.fixed.get("anchor") == c.fixed.get("anchor")}
-        out.append(ident.assess(c.effect, c.anchors, c.param, c.columns, alikes, c.naming_bar, c.bound))
+        out.append(ident.assess(c.effect, c.anchors, c.param, c.columns, alikes, c.naming_bar, c.bound,
+                                c.axis_bars))
     return out
 
 
@@ -415,7 +420,7 @@ def _finding(problem: Problem, channel: Channel, term: Term, effect: fx.Effect, 
                    _where(problem, channel, term, rows, z_with, theta, peers),
                    [{"candidate": key, "evidence": gain} for key, gain in term.look_alikes],
                    not simulated or bool(np.abs(term.param_map() @ term.estimate).max() > term.candidate.bound),
-                   std_err, not_identified)
+                   std_err, not_identified, not_named_axes=[AXES[j] for j in sorted(term.dropped)])
 
 
 def _alternative_finding(problem: Problem, channel: Channel, alt: Alternative, named: list[Term]) -> Finding:

@@ -135,8 +135,13 @@ def _markdown(diagnosis: Diagnosis, report: dict, images: list[tuple[str, str]])
     for k, f in enumerate(diagnosis.findings, 1):
         alike = (" Nearly as good an explanation: " + ", ".join(a["candidate"] for a in f.look_alikes) + "."
                  if f.look_alikes else "")
+        unnamed_axes = {f"[{AXES.index(axis)}]" for axis in f.not_named_axes}     # an IMU finding has one parameter
+        unclear = [label for label in f.not_identified if label[label.find("["):] not in unnamed_axes]
         vague = (" Not identified by this trajectory (standard error most of the prior's, the value is mostly "
-                 "the prior's): " + ", ".join(f.not_identified) + "." if f.not_identified else "")
+                 "the prior's): " + ", ".join(unclear) + "." if unclear else "")
+        if f.not_named_axes:
+            vague += (" Not named on " + ", ".join(f.not_named_axes) + " (those axes do not pay for themselves): "
+                      "neutral there.")
         lines.append(f"{k}. **{f.effect}**: {describe(f)}. Evidence {f.evidence:.1f}; the affected "
                      f"{f.channel} samples' mismatch goes from {f.fit_before:.4g} to {f.fit_after:.4g}"
                      f"{_unit(f)}.{alike}{vague}")

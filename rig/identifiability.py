@@ -50,6 +50,7 @@ class Identifiability:
     bar: float = field(repr=False)                          # what naming it must remove
     apart_gram: np.ndarray = field(repr=False, compare=False)  # RᵀR: the columns beyond the look-alikes'
     own_scale: float = field(repr=False)                    # the largest eigenvalue of MᵀM
+    axis_bars: tuple[float, ...] = field(default=(), repr=False)  # named on 1, 2, ... axes (an IMU vector)
 
     @property
     def told_apart(self) -> bool:
@@ -58,13 +59,15 @@ class Identifiability:
 
     def told_apart_along(self, amount: list[float] | float) -> float | None:
         """The size from which an effect of `amount`'s direction (its change from
-        neutral) is told from the look-alikes: √(2 bar / uᵀRᵀRu), u the unit direction;
-        None where the look-alikes fit it whole (or for no direction at all)."""
+        neutral) is told from the look-alikes: √(2 bar / uᵀRᵀRu), u the unit direction,
+        the bar that of the axes it moves for an effect named axis by axis; None where
+        the look-alikes fit it whole (or for no direction at all)."""
         u = np.atleast_1d(np.asarray(amount, float))
         norm = float(np.linalg.norm(u))
         if norm == 0.0:
             return None
-        return _rounded(_size_at(self.bar, float((u / norm) @ self.apart_gram @ (u / norm)), self.own_scale))
+        bar = self.axis_bars[np.count_nonzero(u) - 1] if self.axis_bars else self.bar
+        return _rounded(_size_at(bar, float((u / norm) @ self.apart_gram @ (u / norm)), self.own_scale))
 
     @property
     def unit(self) -> str:
@@ -105,17 +108,23 @@ def beyond(columns: np.ndarray, look_alikes: np.ndarray) -> np.ndarray:
 
 
 def assess(effect: str, anchors: list[int], param: str, columns: np.ndarray, look_alikes: dict[str, np.ndarray],
-           bar: float, bound: float) -> Identifiability:
+           bar: float, bound: float, axis_bars: tuple[float, ...] = ()) -> Identifiability:
     """An effect with design `columns` (rows × parameter components, standardised)
-    against its `look_alikes` (name: their columns), named at `bar`."""
+    against its `look_alikes` (name: their columns), named at `bar`, or at
+    `axis_bars[k - 1]` on k of its axes if it is named axis by axis: the smallest
+    sizes are then at one axis's bar (a bound: a direction off the axes pays more),
+    every direction at all axes'."""
+    first = axis_bars[0] if axis_bars else bar
     gram = columns.T @ columns
     own = float(np.linalg.eigvalsh(gram)[-1])
-    seen = smallest_sizes(gram, bar, own)[0]
+    seen = smallest_sizes(gram, first, own)[0]
     left = beyond(columns, np.hstack([columns[:, :0], *look_alikes.values()]))
     apart_gram = left.T @ left
-    apart, every, direction = smallest_sizes(apart_gram, bar, own)
+    apart, _, direction = smallest_sizes(apart_gram, first, own)
+    every = smallest_sizes(apart_gram, bar, own)[1]
     return Identifiability(effect, anchors, param, list(look_alikes), _rounded(seen), _rounded(apart),
-                           _rounded(every), [round(float(v), 4) for v in direction], bound, bar, apart_gram, own)
+                           _rounded(every), [round(float(v), 4) for v in direction], bound, bar, apart_gram, own,
+                           tuple(axis_bars))
 
 
 def _rounded(size: float | None) -> float | None:

@@ -327,7 +327,7 @@ def _fewer_axes(z: np.ndarray, term: Term, terms: list[Term]) -> Term | None:
     flight turns about; its other two axes carry almost nothing, and as a whole vector
     it had to pay for all three (0425-traj19: a z scale of 1.1 removed 11.4 against
     the 14 of three parameters)."""
-    if term.candidate.channel == "tdoa" or term.parameters < 2 or term.extra:
+    if not term.candidate.named_by_axis or term.parameters < 2 or term.extra:
         return None
     richer = {id(t) for t in _richer(term, terms)}
     rest = [t for t in terms if t is not term and id(t) not in richer]

@@ -67,3 +67,18 @@ def test_a_direction_between_the_best_and_the_worst_is_told_apart_in_between() -
     assert result.told_apart_along([0.0, 0.0]) is None
     whole = assess("antenna_pattern", [2], "coeffs_m", a[:, None], {"anchor_delay": a[:, None]}, BAR, 1.0)
     assert whole.told_apart_along(0.3) is None
+
+
+def test_an_effect_named_axis_by_axis_is_told_apart_at_the_bar_of_the_axes_it_moves() -> None:
+    """Three orthogonal columns of equal norm, no look-alike: along one axis the size
+    where it removes the bar of one axis, along the diagonal that of three; without
+    `axis_bars`, the bar of three everywhere."""
+    q = np.linalg.qr(np.random.default_rng(1).normal(size=(300, 3)))[0] * 4.0
+    bars = (10.0, 12.0, 14.0)
+    result = assess("imu_gyro_scale", [], "scale", q, {}, bars[-1], 0.5, bars)
+    whole = assess("imu_gyro_scale", [], "scale", q, {}, bars[-1], 0.5)
+    assert result.told_apart_along([0.0, 0.0, 0.1]) == pytest.approx(np.sqrt(2 * 10.0 / 16.0), rel=1e-3)
+    assert result.told_apart_along([0.1, 0.1, 0.1]) == pytest.approx(np.sqrt(2 * 14.0 / 16.0), rel=1e-3)
+    assert whole.told_apart_along([0.0, 0.0, 0.1]) == pytest.approx(np.sqrt(2 * 14.0 / 16.0), rel=1e-3)
+    assert result.smallest_told_apart < whole.smallest_told_apart
+    assert result.every_direction == whole.every_direction
