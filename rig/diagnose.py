@@ -14,8 +14,8 @@ Method, per channel (TDOA, accelerometer, gyroscope), each step's module in brac
 3. Naming: backward elimination. A term's `evidence` is the robust loss it removes
    given all remaining terms but its richer look-alikes (half a chi-square in the
    Gaussian limit, so it grows with the recording's length and compares runs of
-   equal length); the weakest goes while below a bar (a penalty per parameter); an
-   IMU vector effect loses its weakest axis before it goes whole.
+   equal length); the weakest goes while below a bar (a penalty per parameter); a
+   gyroscope scale loses its weakest axis before it goes whole.
    Delays are reported relative to their robust centre (`delay_centre`): TDOA does
    not see a delay common to all anchors [rig.selection, as steps 4 and 5].
 4. Estimates (Huber IRLS with weak priors, rig.robust): a named term's estimate is its value in
@@ -94,7 +94,7 @@ class Finding:
     std_err: dict | None = None     # standard errors of the fitted parameter (None: not a fitted term)
     not_identified: list = field(default_factory=list)   # its components this trajectory does not identify
     alternative_to: dict | None = None   # {"effect", "axes"}: in place of those axes of that finding, as good
-    not_named_axes: list = field(default_factory=list)   # an IMU vector's axes that did not pay: neutral there
+    not_named_axes: list = field(default_factory=list)   # a gyroscope scale's axes that did not pay: neutral there
 
     def to_json(self) -> dict:
         out = {"effect": self.effect, "channel": self.channel, "params": self.params, "evidence": self.evidence,

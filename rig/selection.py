@@ -321,13 +321,10 @@ def _name(z: np.ndarray, terms: list[Term], pool: list[Term], fixed: list[Term] 
 
 
 def _fewer_axes(z: np.ndarray, term: Term, terms: list[Term]) -> Term | None:
-    """An IMU vector effect that does not pay for all its axes, without the axis that
-    adds least given the others (its column zeroed: neutral there), or None for a term
-    of one parameter or a TDOA one. A gyroscope scale is measured on the axis the
-    flight turns about; its other two axes carry almost nothing, and as a whole vector
-    it had to pay for all three (0425-traj19: a z scale of 1.1 removed 11.4 against
-    the 14 of three parameters)."""
-    if not term.candidate.named_by_axis or term.parameters < 2 or term.extra:
+    """An effect named axis by axis (Candidate.by_axis: the gyroscope scale) that does
+    not pay for all its axes, without the axis that adds least given the others (its
+    column zeroed: neutral there), or None for a term named whole or of one axis."""
+    if not term.candidate.by_axis or term.parameters < 2 or term.extra:
         return None
     richer = {id(t) for t in _richer(term, terms)}
     rest = [t for t in terms if t is not term and id(t) not in richer]

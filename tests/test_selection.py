@@ -1,5 +1,5 @@
 """Naming by backward elimination (rig.selection._name) on synthetic design columns:
-an IMU vector effect pays for the axes it is named on, not for all three."""
+a gyroscope scale pays for the axes it is named on, not for all three."""
 
 from __future__ import annotations
 
@@ -12,8 +12,8 @@ from rig.selection import Term, _Design, _name
 SAMPLES = 3000
 
 
-def _gyro_scale(columns: np.ndarray) -> Term:
-    candidate = Candidate("imu_gyro_scale", "gyro", "scale", 3, neutral=1.0, prior=0.2, bound=0.5)
+def _gyro_scale(columns: np.ndarray, by_axis: bool = True) -> Term:
+    candidate = Candidate("imu_gyro_scale", "gyro", "scale", 3, neutral=1.0, prior=0.2, bound=0.5, by_axis=by_axis)
     candidate.columns = columns
     return Term(candidate, columns)
 
@@ -45,6 +45,13 @@ def test_a_vector_effect_on_one_axis_pays_for_that_axis_only() -> None:
     assert named.dropped in [(0, 1), (1, 0)] and named.parameters == 1
     assert named.theta[0] == named.theta[1] == 0.0 and named.theta[2] > 0.0
     assert named.supported
+
+
+def test_a_vector_effect_named_whole_goes_whole() -> None:
+    """The same signal on an effect that is not named axis by axis (an accelerometer
+    bias or scale) does not pay for its three axes."""
+    columns, z = _data([0.0, 0.0, 13.5])
+    assert _name(z, [_gyro_scale(columns, by_axis=False)], []) == []
 
 
 def test_a_vector_effect_on_every_axis_keeps_every_axis() -> None:
