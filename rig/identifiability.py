@@ -50,7 +50,7 @@ class Identifiability:
     bar: float = field(repr=False)                          # what naming it must remove
     apart_gram: np.ndarray = field(repr=False, compare=False)  # RᵀR: the columns beyond the look-alikes'
     own_scale: float = field(repr=False)                    # the largest eigenvalue of MᵀM
-    axis_bars: tuple[float, ...] = field(default=(), repr=False)  # named on 1, 2, ... axes (an IMU vector)
+    axis_bars: tuple[float, ...] = field(default=(), repr=False)  # on 1, 2, ... axes, if named axis by axis
 
     @property
     def told_apart(self) -> bool:

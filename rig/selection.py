@@ -47,7 +47,7 @@ class Term:
     evidence: float = 0.0
     window_cost: bool = False                        # confined in time: its two ends are parameters too
     look_alikes: list = field(default_factory=list)  # (key, evidence) of candidates that did nearly as well
-    dropped: tuple[int, ...] = ()                    # axes of an IMU vector it is not named on (column zeroed)
+    dropped: tuple[int, ...] = ()                    # axes it is not named on (Candidate.by_axis; column zeroed)
 
     @property
     def key(self) -> str:
@@ -311,7 +311,7 @@ def _name(z: np.ndarray, terms: list[Term], pool: list[Term], fixed: list[Term] 
         if fewer is not None:
             log.debug("- %s axis %d (evidence %.1f given the others)", weakest.key, fewer.dropped[-1],
                       weakest.evidence)
-            terms[terms.index(weakest)] = fewer
+            terms = [fewer if t is weakest else t for t in terms]
             continue
         log.debug("- %s (evidence %.1f given the others)", weakest.key, weakest.evidence)
         terms.remove(weakest)
