@@ -285,8 +285,8 @@ def change(effect: str, anchors: list[int], found: dict | None, control: dict | 
     only, from or to the other's estimate of it in that place (`control_in_place`,
     `recording_in_place`: report.json's `in_place_estimates`) on the axes it takes."""
     named_in = "both" if found and control else "recording" if found else "control"
-    control_estimate = control_unnamed if named_in == "recording" else None
-    recording_estimate = recording_unnamed if named_in == "control" else None
+    control_estimate = on_named_axes(control_unnamed, found) if named_in == "recording" else None
+    recording_estimate = on_named_axes(recording_unnamed, control) if named_in == "control" else None
     control_place, recording_place = in_place(found, control, control_in_place), in_place(control, found,
                                                                                          recording_in_place)
     if effect in NOT_ADDITIVE:
@@ -309,6 +309,21 @@ def change(effect: str, anchors: list[int], found: dict | None, control: dict | 
     return Change(effect, anchors, named_in, difference, found, control, control_unnamed=control_estimate,
                   recording_unnamed=recording_estimate, control_in_place=control_place,
                   recording_in_place=recording_place)
+
+
+def on_named_axes(estimate: dict | None, finding: dict | None) -> dict | None:
+    """The other recording's `estimate` of an effect it does not name, as `finding`'s
+    value on the axes the finding is not named on (`not_named_axes`, neutral there):
+    on those neither recording names it, and they do not change."""
+    axes = (finding or {}).get("not_named_axes")
+    if estimate is None or not axes:
+        return estimate
+    params = dict(estimate["params"])
+    for field, values in params.items():
+        if isinstance(values, list) and len(values) == len(AXES):
+            params[field] = [finding["params"][field][j] if axis in axes else v
+                             for j, (axis, v) in enumerate(zip(AXES, values))]
+    return estimate | {"params": params}
 
 
 def in_place(finding: dict | None, other: dict | None, other_in_place: Sequence[dict]) -> dict | None:

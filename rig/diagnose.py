@@ -213,20 +213,21 @@ class Unnamed:
 
 def unnamed_estimates(problem: Problem, channel: Channel, as_recorded: Channel, named: list[Term],
                       pool: list[Candidate]) -> list[Unnamed]:
-    """The parametric TDOA candidates (all but NLOS) that the recording does not name,
-    each estimated as it would be named (see select): in the joint fit of the named
-    effects of its rank or a simpler one and it; the simplest (timing, delays, lever
-    arm) on the channel as recorded (a drift about a free offset), a richer one on
-    `channel` (the NLOS found by shape out) with every simplest candidate fitted
-    along. A real flight's own effect below the bar is still there: on 0425-traj5 a
-    drift of −1126 ± 433 ppm, which an injected +2000 ppm brought to a named +720;
-    on 0426-traj8 a pattern on anchor 2 of [1.03, −0.04, 0.12] ± 0.25 m, which an
-    injected [0.3, 0.2, 0] brought to a named [1.24, 0.15, 0.04]. Compared with
-    another recording of the flight that names it, this is what the flight had
-    (rig.compare)."""
-    fresh = fresh_terms(pool, "tdoa")
+    """The channel's parametric candidates (all but NLOS) that the recording does not
+    name, each estimated as it would be named (see select): in the joint fit of the
+    named effects of its rank or a simpler one and it; the simplest (timing, delays,
+    lever arm; an IMU bias or scale) on the channel as recorded (a drift about a free
+    offset), a richer one on `channel` (the NLOS found by shape out) with every
+    simplest candidate fitted along. A real flight's own effect below the bar is
+    still there: on 0425-traj5 a drift of −1126 ± 433 ppm, which an injected +2000
+    ppm brought to a named +720; on 0426-traj8 a pattern on anchor 2 of [1.03,
+    −0.04, 0.12] ± 0.25 m, which an injected [0.3, 0.2, 0] brought to a named [1.24,
+    0.15, 0.04]; on 0425-traj17 an x rectification, which a y one injected brought
+    to a named x −0.64. Compared with another recording of the flight that names
+    it, this is what the flight had (rig.compare)."""
+    fresh = fresh_terms(pool, channel.name)
     parametric = [t for t in named if t.candidate.effect != "nlos"]
-    simplest_unnamed = unnamed_simplest_terms(fresh, parametric)
+    simplest_unnamed = unnamed_simplest_terms(fresh, parametric, channel.name)
     named_keys = {t.key for t in named}
     out = []
     for term in fresh:
@@ -278,8 +279,8 @@ def diagnose(rec: Recording, progress=None) -> Diagnosis:
     for name in progress(names) if progress else names:
         as_recorded = problem.channel(name)
         terms, channel, shapes = select(problem, as_recorded, pool)     # fitted jointly
+        unnamed += unnamed_estimates(problem, channel, as_recorded, terms, pool)
         if name == "tdoa":
-            unnamed = unnamed_estimates(problem, channel, as_recorded, terms, pool)
             tdoa_left = remainder(as_recorded.z, [t for t in terms if t.candidate.effect != "nlos"])
         for fit in shapes:
             findings.append(_shape_finding(problem, fit))

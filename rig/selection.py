@@ -423,7 +423,7 @@ def select(problem: Problem, channel: Channel, pool: list[Candidate]
     positions = problem.tag_positions() if channel.name == "tdoa" else None
     if confine_in_time(channel, named, positions):
         named = _name(z, named, terms, simplest)      # leaves them fitted jointly
-    unnamed = unnamed_simplest_terms(terms, named) if channel.name == "tdoa" else []
+    unnamed = unnamed_simplest_terms(terms, named, channel.name)
     estimate_terms(z, named, z_before_shapes, free_offset_terms(named, terms), unnamed)
     _note_look_alikes(z, named, terms)
     return named, channel, shapes
@@ -434,8 +434,12 @@ def fresh_terms(pool: list[Candidate], channel: str) -> list[Term]:
     return [Term(c, c.columns) for c in pool if c.channel == channel]
 
 
-def unnamed_simplest_terms(terms: list[Term], named: list[Term]) -> list[Term]:
-    """The simplest (rank 0) of `terms` that are not among `named`, as unfitted terms."""
+def unnamed_simplest_terms(terms: list[Term], named: list[Term], channel: str) -> list[Term]:
+    """The simplest (rank 0) of `terms` that are not among `named`, as unfitted terms:
+    on TDOA, what a richer term is fitted along with (see select); none on an IMU
+    channel, whose richer term (the rectification) is fitted given the named ones."""
+    if channel != "tdoa":
+        return []
     named_keys = {t.key for t in named}
     return [Term(t.candidate, t.candidate.columns) for t in terms if rank_of(t) == 0 and t.key not in named_keys]
 

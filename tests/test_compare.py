@@ -65,6 +65,24 @@ def test_an_effect_the_control_does_not_name_changes_from_its_estimate_there() -
     assert named_on_both.change == {"ppm": pytest.approx(800.0)} and named_on_both.control_unnamed is None
 
 
+def test_an_imu_effect_the_control_does_not_name_changes_from_its_estimate_on_the_named_axes() -> None:
+    """The flight's own x rectification, −0.6 below the control's bar, rides on an
+    added y −0.8: the recording names x −0.64 and y −0.86, a change of about none on
+    x. A gyroscope scale named on z only (x, y not named: neutral) changes from the
+    control's estimate on z and not at all on x and y, whatever it reads there."""
+    rectification = _finding("imu_vibration_rectification", {"gain": [-0.64, -0.86, 0.25]})
+    own = _finding("imu_vibration_rectification", {"gain": [-0.60, -0.05, 0.22]})
+    got = change("imu_vibration_rectification", [], rectification, None, control_unnamed=own)
+    assert got.change["gain"] == pytest.approx([-0.04, -0.81, 0.03])
+    scale = _finding("imu_gyro_scale", {"scale": [1.0, 1.0, 1.11]}, not_named_axes=["x", "y"])
+    own_scale = _finding("imu_gyro_scale", {"scale": [0.95, 1.04, 1.01]})
+    got = change("imu_gyro_scale", [], scale, None, control_unnamed=own_scale)
+    assert got.change["scale"] == pytest.approx([1.0, 1.0, 1.10])
+    assert got.to_json()["control_unnamed"] == {"scale": [1.0, 1.0, 1.01]}      # as compared
+    back = change("imu_gyro_scale", [], None, scale, recording_unnamed=own_scale)
+    assert back.change["scale"] == pytest.approx([1.0, 1.0, 0.90])
+
+
 def test_an_effect_in_a_look_alikes_place_on_one_recording_changes_from_the_others_estimate_in_that_place() -> None:
     """0422-log00's control names a z scale of 0.89 jointly with a z bias of 0.98
     (its flight tells the two apart); with 1.03 injected the recording names the bias

@@ -414,20 +414,24 @@ def test_time_offset_and_clock_drift_are_told_apart(survey) -> None:
 
 
 @pytest.mark.parametrize("effect", [{"effect": "clock_drift", "params": {"ppm": 2000.0}},
-                                    {"effect": "anchor_position", "params": {"anchor": 3, "offset_m": [0.2, 0.2, 0.0]}}],
-                         ids=["a drift (simplest)", "a displacement (richer)"])
+                                    {"effect": "anchor_position", "params": {"anchor": 3, "offset_m": [0.2, 0.2, 0.0]}},
+                                    {"effect": "imu_vibration_rectification", "params": {"gain": [0.0, -0.8, 0.0]}}],
+                         ids=["a drift (simplest)", "a displacement (richer)", "a rectification (IMU, richer)"])
 def test_an_effect_left_unnamed_is_estimated_as_it_would_be_named(survey, effect: dict) -> None:
     """`unnamed_estimates`: a control that does not name an effect still has its own
     below the bar, and a comparison starts from there. Taken out of the named
     effects, an effect a flight names is estimated at the value and standard error
-    it was named with; every parametric TDOA candidate not named has an estimate."""
-    problem = Problem(simulate(sim_config(survey, [effect])))
-    pool, as_recorded = candidates(problem), problem.channel("tdoa")
+    it was named with; every parametric candidate of its channel not named has an
+    estimate."""
+    problem = Problem(simulate(sim_case(survey, effect["effect"], [effect])))
+    pool = candidates(problem)
+    name = next(c.channel for c in pool if c.effect == effect["effect"])
+    as_recorded = problem.channel(name)
     named, channel, _ = select(problem, as_recorded, pool)
     term = next(t for t in named if t.candidate.effect == effect["effect"])
     left_out = unnamed_estimates(problem, channel, as_recorded, [t for t in named if t is not term], pool)
     named_keys = {t.key for t in named} - {term.key}
-    assert len(left_out) == sum(c.channel == "tdoa" and c.effect != "nlos" and c.key not in named_keys for c in pool)
+    assert len(left_out) == sum(c.channel == name and c.effect != "nlos" and c.key not in named_keys for c in pool)
     estimate = next(u for u in left_out if u.effect == term.candidate.effect and u.anchors == term.candidate.anchors)
     c = term.candidate
     assert np.ravel(estimate.params[c.param]) == pytest.approx(c.value(term.estimate), abs=1e-5)
