@@ -312,17 +312,19 @@ def change(effect: str, anchors: list[int], found: dict | None, control: dict | 
 
 
 def on_named_axes(estimate: dict | None, finding: dict | None) -> dict | None:
-    """The other recording's `estimate` of an effect it does not name, as `finding`'s
-    value on the axes the finding is not named on (`not_named_axes`, neutral there):
-    on those neither recording names it, and they do not change."""
+    """The other recording's `estimate` of an effect it does not name, neutral on the
+    axes `finding` is not named on (`not_named_axes`, neutral there too): on those
+    neither recording names it, and they do not change."""
     axes = (finding or {}).get("not_named_axes")
     if estimate is None or not axes:
         return estimate
-    params = dict(estimate["params"])
-    for field, values in params.items():
-        if isinstance(values, list) and len(values) == len(AXES):
-            params[field] = [finding["params"][field][j] if axis in axes else v
-                             for j, (axis, v) in enumerate(zip(AXES, values))]
+    return neutral_on(estimate, finding["effect"], {AXES.index(axis) for axis in axes})
+
+
+def neutral_on(estimate: dict, effect: str, axes: set[int]) -> dict:
+    """`estimate` with its vector parameters neutral on `axes` (indices)."""
+    params = {field: [neutral(effect) if j in axes else v for j, v in enumerate(value)]
+              if isinstance(value, list) else value for field, value in estimate["params"].items()}
     return estimate | {"params": params}
 
 
@@ -338,10 +340,7 @@ def in_place(finding: dict | None, other: dict | None, other_in_place: Sequence[
                      and e["in_place_of"]["effect"] == instead["effect"]), None)
     if estimate is None or "axes" not in instead:
         return estimate
-    taken = [AXES.index(axis) for axis in instead["axes"]]
-    params = {field: [v if j in taken else neutral(finding["effect"]) for j, v in enumerate(value)]
-              if isinstance(value, list) else value for field, value in estimate["params"].items()}
-    return estimate | {"params": params}
+    return neutral_on(estimate, finding["effect"], {j for j, axis in enumerate(AXES) if axis not in instead["axes"]})
 
 
 def changes(findings: list[dict], control: list[dict], identifiability: Sequence[Identifiability] = (),
