@@ -16,6 +16,8 @@ from typing import Callable, Iterable, Iterator
 
 import numpy as np
 from mcap.reader import make_reader
+from mcap.records import Channel, Message, Metadata
+from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, IndexType, Writer
 
 from rig.survey import Anchor
@@ -339,24 +341,55 @@ def _anchors(msgs: list[dict]) -> list[Anchor]:
 
 
 def read_topics(path: Path, topics: Iterable[str] | None = None) -> tuple[dict[str, list[dict]], dict[str, dict[str, str]]]:
-    """Decode every JSON message of `topics` (all when None), plus all metadata records."""
+    """Decode every JSON message of `topics` (all when None), plus all metadata records.
+    An unfinished or damaged file (a writer killed before it closed it, a copy cut
+    short) yields the records before its first damaged one, with a warning; one with
+    none is an error."""
     path = Path(path)
     if not path.is_file():
         raise RecordingError(f"recording {path} does not exist")
-    messages: dict[str, list[dict]] = {}
-    metadata: dict[str, dict[str, str]] = {}
+    wanted = set(topics) if topics is not None else None
     try:
-        with open(path, "rb") as stream:
-            reader = make_reader(stream)
-            wanted = list(topics) if topics is not None else None
-            for _, channel, message in reader.iter_messages(topics=wanted, log_time_order=False):
-                messages.setdefault(channel.topic, []).append(json.loads(message.data))
-            for record in reader.iter_metadata():
-                metadata[record.name] = dict(record.metadata)
+        return _read_whole(path, wanted)
     except RecordingError:
         raise
     except Exception as exc:  # the mcap reader raises many types for damaged files
-        raise RecordingError(f"cannot read {path} as MCAP: {exc}") from exc
+        messages, metadata = _read_prefix(path, wanted)
+        count = sum(map(len, messages.values()))
+        if not count:
+            raise RecordingError(f"cannot read {path} as MCAP: {exc} (and no message before the damage)") from exc
+        log.warning("%s is unfinished or damaged: read the %d messages before its first damaged record (%s)",
+                    path, count, exc)
+        return messages, metadata
+
+
+def _read_whole(path: Path, wanted: set[str] | None) -> tuple[dict[str, list[dict]], dict[str, dict[str, str]]]:
+    messages: dict[str, list[dict]] = {}
+    with open(path, "rb") as stream:
+        reader = make_reader(stream, validate_crcs=True)
+        for _, channel, message in reader.iter_messages(topics=wanted, log_time_order=False):
+            messages.setdefault(channel.topic, []).append(json.loads(message.data))
+        metadata = {record.name: dict(record.metadata) for record in reader.iter_metadata()}
+    return messages, metadata
+
+
+def _read_prefix(path: Path, wanted: set[str] | None) -> tuple[dict[str, list[dict]], dict[str, dict[str, str]]]:
+    """The records of `path` in file order up to the first one that is cut short or
+    fails its CRC (chunks are checked, so nothing damaged is decoded)."""
+    messages: dict[str, list[dict]] = {}
+    metadata: dict[str, dict[str, str]] = {}
+    topic_of: dict[int, str] = {}
+    with open(path, "rb") as stream:
+        try:
+            for record in StreamReader(stream, validate_crcs=True).records:
+                if isinstance(record, Channel):
+                    topic_of[record.id] = record.topic
+                elif isinstance(record, Message) and (wanted is None or topic_of.get(record.channel_id) in wanted):
+                    messages.setdefault(topic_of[record.channel_id], []).append(json.loads(record.data))
+                elif isinstance(record, Metadata):
+                    metadata[record.name] = dict(record.metadata)
+        except Exception as exc:  # the damaged record: what came before it stands
+            log.debug("%s: stopped at %s", path, exc)
     return messages, metadata
 
 

@@ -25,12 +25,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from mcap.reader import NonSeekingReader, make_reader
+from mcap.reader import make_reader
 from mcap.writer import CompressionType
 
 from rig import protocol
 from rig.recording import (SCHEMAS, TOPIC_ANCHORS, McapJsonWriter, Recording, RecordingError, _object, _number,
-                           _xyz, anchors_message)
+                           _xyz, anchors_message, read_topics)
 
 log = logging.getLogger(__name__)
 
@@ -175,22 +175,7 @@ def read_run(path: Path) -> dict[str, list[dict]]:
     path = Path(path)
     if not path.is_file():
         raise RecordingError(f"no run record at {path}")
-    messages: dict[str, list[dict]] = {}
-    with open(path, "rb") as stream:
-        try:
-            for _, channel, message in make_reader(stream).iter_messages(log_time_order=False):
-                messages.setdefault(channel.topic, []).append(json.loads(message.data))
-            return messages
-        except Exception:  # no summary (unfinished file): read record by record
-            log.warning("%s is unfinished: reading what was written", path)
-    messages = {}
-    with open(path, "rb") as stream:
-        try:
-            for _, channel, message in NonSeekingReader(stream).iter_messages():
-                messages.setdefault(channel.topic, []).append(json.loads(message.data))
-        except Exception as exc:  # the truncated tail
-            log.warning("%s: stopped at a damaged record (%s)", path, exc)
-    return messages
+    return read_topics(path)[0]
 
 
 def run_metadata(path: Path) -> dict[str, str]:

@@ -119,6 +119,36 @@ def test_cli_salvage_imports_the_valid_prefix_with_a_warning(tmp_path: Path, dat
     assert rec.metadata["crc"].startswith("bad")
 
 
+@pytest.mark.parametrize("damage", ["truncate", "corrupt"])
+def test_a_cut_or_damaged_recording_is_read_up_to_the_damage_with_a_warning(tmp_path: Path, data_dir: Path,
+                                                                           damage: str) -> None:
+    whole = tmp_path / "whole.mcap"
+    write_recording(load_any(data_dir / "flights" / "0425-traj2"), whole)
+    data = bytearray(whole.read_bytes())
+    if damage == "truncate":                                  # a writer killed, a copy cut short
+        data = data[: len(data) * 3 // 4]
+    else:
+        data[len(data) // 2] ^= 0xFF
+    damaged = tmp_path / "damaged.mcap"
+    damaged.write_bytes(bytes(data))
+    proc = run_rig("evaluate", str(damaged))
+    assert proc.returncode == 0, proc.stderr
+    assert "unfinished or damaged" in proc.stderr and "Traceback" not in proc.stderr
+    original, salvaged = read_recording(whole), read_recording(damaged)
+    n = len(salvaged.accel)
+    assert 0 < n < len(original.accel) and salvaged.anchors == original.anchors
+    np.testing.assert_array_equal(salvaged.accel.xyz, original.accel.xyz[:n])   # nothing damaged decoded
+
+
+def test_a_recording_cut_before_its_first_chunk_is_a_clear_error(tmp_path: Path) -> None:
+    data = paths.default_recording().read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: len(data) // 2])
+    proc = run_rig("evaluate", str(cut))
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert "cannot read" in proc.stderr and "no message before the damage" in proc.stderr
+
+
 def test_cli_reports_a_missing_file_without_traceback(tmp_path: Path) -> None:
     proc = run_rig("import", str(tmp_path / "nope"), "--survey", str(tmp_path / "nope.txt"), "-o",
                    str(tmp_path / "o.mcap"))
