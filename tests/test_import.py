@@ -137,6 +137,7 @@ def test_a_cut_or_damaged_recording_is_read_up_to_the_damage_with_a_warning(tmp_
     original, salvaged = read_recording(whole), read_recording(damaged)
     n = len(salvaged.accel)
     assert 0 < n < len(original.accel) and salvaged.anchors == original.anchors
+    assert salvaged.metadata == original.metadata
     np.testing.assert_array_equal(salvaged.accel.xyz, original.accel.xyz[:n])   # nothing damaged decoded
 
 
