@@ -86,13 +86,23 @@ class Problem:
         self.predictor = predictor or Predictor(rec)
         t0, t1 = rec.truth.t[0] + EDGE_S, rec.truth.t[-1] - EDGE_S
         d = rec.tdoa
-        known = {a.id for a in rec.anchors}
-        self.tdoa_rows = np.flatnonzero(np.isfinite(d.distance_diff) & (d.t >= t0) & (d.t <= t1)
-                                        & np.isin(d.id_a, list(known)) & np.isin(d.id_b, list(known)))
+        known = [a.id for a in rec.anchors]
+        in_window = (d.t >= t0) & (d.t <= t1)
+        usable = np.isfinite(d.distance_diff) & np.isin(d.id_a, known) & np.isin(d.id_b, known)
+        self.tdoa_rows = np.flatnonzero(in_window & usable)
+        self.unusable = {"tdoa": int(np.sum(in_window & ~usable))}
+        self.unknown_anchors = sorted(int(k) for k in set(np.concatenate([d.id_a[in_window], d.id_b[in_window]]))
+                                      - set(known))
         self.imu_rows, self.imu_blocks = {}, {}
         for name, series in (("accel", rec.accel), ("gyro", rec.gyro)):
-            rows = np.flatnonzero((series.t >= t0) & (series.t <= t1) & np.all(np.isfinite(series.xyz), axis=1))
+            in_window = (series.t >= t0) & (series.t <= t1)
+            finite = np.all(np.isfinite(series.xyz), axis=1)
+            rows = np.flatnonzero(in_window & finite)
+            self.unusable[name] = int(np.sum(in_window & ~finite))
             self._set_imu_rows(name, rows, _block_index(series.t[rows] - t0, IMU_BLOCK_S[name]))
+        if any(self.unusable.values()):
+            log.warning("left out as unusable (not finite%s): %s", self._unknown_text(),
+                        left_out_text(self.unusable))
         self.gyro_block_s = IMU_BLOCK_S["gyro"]
         if len(self.imu_rows["gyro"]):
             self._choose_gyro_blocks(t0)
@@ -101,6 +111,10 @@ class Problem:
                                                                           d.id_b[self.tdoa_rows]]))
                                  if self._anchor_rows(k).sum() >= MIN_SAMPLES)
         self._tag_positions = self.predictor.tdoa([]).tag_position[self.tdoa_rows]
+
+    def _unknown_text(self) -> str:
+        return (f", or a range from anchor {', '.join(map(str, self.unknown_anchors))}, which the recording's "
+                f"anchor set lacks" if self.unknown_anchors else "")
 
     def _choose_gyro_blocks(self, t0: float) -> None:
         """The gyroscope's blocks (GYRO_BLOCKS_S) under which its scale is best

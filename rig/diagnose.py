@@ -131,6 +131,7 @@ class Diagnosis:
 
     def channel_fits(self) -> dict:
         return {name: {"samples": int(len(r)), "gross_errors_left_out": self.problem.left_out[name],
+                       "unusable_left_out": self.problem.unusable[name],
                        "noise_scale": float(self.problem.scales[name][0]),
                        "fit_before": robust_rms(r, self.problem.scales[name]),
                        "fit_after": robust_rms(self.residual_after[name], self.problem.scales[name])}
@@ -140,6 +141,7 @@ class Diagnosis:
         rec = self.problem.rec
         return {"recording": rec.metadata.get("source", ""), "duration_s": float(rec.truth.t[-1] - rec.truth.t[0]),
                 "findings": [f.to_json() for f in self.findings], "channels": self.channel_fits(),
+                "unknown_anchors": self.problem.unknown_anchors,
                 "mismatch": locate(self.problem, self.residual_before),
                 "model": [e.to_json() for e in self.model] + self.noise_model,
                 "vibration_rms_mps2": self.vibration_rms(),

@@ -128,6 +128,11 @@ def _markdown(diagnosis: Diagnosis, report: dict, images: list[tuple[str, str]])
     if left_out:
         lines += [f"Left out as corrupt (over {GROSS_Z:g} noise deviations from the channel's median: a garbled "
                   f"range, or a glitch of the ground truth): {left_out}.", ""]
+    unusable = left_out_text({name: c["unusable_left_out"] for name, c in report["channels"].items()})
+    if unusable:
+        unknown = ", ".join(map(str, report["unknown_anchors"]))
+        lines += [f"Left out as unusable (not finite{', or from anchors the anchor set lacks: ' + unknown if unknown else ''}"
+                  f"): {unusable}.", ""]
     lines += _on_ground_lines(report["mismatch"].get("tdoa_on_ground_m", {}))
     lines += ["## What physics the simulation left out", ""]
     if not diagnosis.findings:

@@ -1007,17 +1007,25 @@ def test_corrupt_ranges_and_a_ground_truth_glitch_are_left_out_not_chased(survey
     """Ranges off by 100 m and the motion capture turning the drone's attitude half
     round for 0.4 s (a marker swap; 0425-traj9 has such a glitch, read as a yaw rate of
     10 rad/s) are left out and counted, and no effect is named to explain them (an
-    accelerometer scale of [−0.02, 0.22, 1.0] was)."""
+    accelerometer scale of [−0.02, 0.22, 1.0] was). So are samples that cannot be
+    used at all: not finite, or a range from an anchor the anchor set lacks."""
     rec = simulate(sim_config(survey, []))
     ranges = rec.tdoa.distance_diff.copy()
     ranges[1000:1040:4] += 100.0
+    ranges[2000:2007] = np.nan
+    id_b = rec.tdoa.id_b.copy()
+    id_b[3000:3003] = 42
+    accel = rec.accel.xyz.copy()
+    accel[20000:20005, 1] = np.inf
     quaternion = rec.truth.quaternion.copy()
     flipped = (rec.truth.t > 20.0) & (rec.truth.t < 20.4)
     quaternion[flipped] = (Rotation.from_euler("z", np.pi) * Rotation.from_quat(quaternion[flipped])).as_quat()
-    glitched = replace(rec, tdoa=replace(rec.tdoa, distance_diff=ranges),
-                       truth=replace(rec.truth, quaternion=quaternion))
+    glitched = replace(rec, tdoa=replace(rec.tdoa, distance_diff=ranges, id_b=id_b),
+                       accel=replace(rec.accel, xyz=accel), truth=replace(rec.truth, quaternion=quaternion))
     result = diagnose(glitched).to_json()
     assert result["channels"]["tdoa"]["gross_errors_left_out"] == 10
+    assert [result["channels"][name]["unusable_left_out"] for name in ("tdoa", "accel", "gyro")] == [10, 5, 0]
+    assert result["unknown_anchors"] == [42]
     assert result["channels"]["gyro"]["gross_errors_left_out"] >= 3         # a block mean of each axis
     assert set(keyed(result["findings"])) == set(sim_control), "the same flight, untouched, names these"
 
