@@ -63,11 +63,12 @@ from rig import effects as fx
 from rig import identifiability as ident
 from rig import imu_spectrum, nlos_mixture
 from rig.candidates import MIN_EVIDENCE, PENALTY_PER_PARAMETER, Candidate, candidates
-from rig.channels import AXES, GROSS_Z, TIME_BLOCKS, Channel, Problem
-from rig.floor_error import (ON_GROUND_PRIOR, ON_GROUND_SHAPES, floor_multipath, local_noise, on_ground_delays,
+from rig.channels import AXES, GROSS_Z, Channel, Problem
+from rig.floor_error import (ON_GROUND_PRIOR, ON_GROUND_SHAPES, floor_multipath, local_noise,
                              on_ground_fits)
+from rig.mismatch import locate
 from rig.recording import Recording, Vec3Series
-from rig.robust import delay_centre, huber_loss, huber_mean, irls, mad_scale, robust_nll, robust_rms
+from rig.robust import delay_centre, huber_loss, irls, mad_scale, robust_nll, robust_rms
 from rig.selection import (LOOK_ALIKES, ORDER, Alternative, Term, axis_alternatives, estimate_terms, free_offset_terms,
                            fresh_terms, in_place_estimates, nlos_candidate, nlos_shape, rank_of, refit, remainder, select,
                            simpler_than, stacked, unnamed_simplest_terms)
@@ -583,31 +584,4 @@ def _significant_axes(term: Term, theta: np.ndarray, z_after: np.ndarray, peers:
             shifted = shifted - simpler[0] @ irls(shifted, *simpler)
         if huber_loss(shifted).sum() - best > 4.0:
             out.append(j)
-    return out
-
-
-def locate(problem: Problem, residual: dict[str, np.ndarray]) -> dict:
-    """Where the untouched simulation and the recording differ: robust mean mismatch per
-    anchor (signed: positive = that anchor's ranges read long), the same with the tag
-    on the floor against in flight (tdoa_on_ground_m), per IMU axis and per time
-    block."""
-    out: dict = {}
-    if "tdoa" in residual:
-        r, scale = residual["tdoa"], problem.scales["tdoa"][0]
-        out["tdoa_per_anchor_m"] = {str(k): huber_mean(problem.anchor_sign(k)[problem.anchor_sign(k) != 0]
-                                                        * r[problem.anchor_sign(k) != 0], scale)
-                                    for k in problem.anchor_ids}
-        out["tdoa_on_ground_m"] = {k: float(v * scale) for k, v in on_ground_delays(problem, r / scale).items()}
-    for name in ("accel", "gyro"):
-        if name in residual:
-            r = residual[name]
-            out[f"{name}_per_axis"] = {AXES[a]: huber_mean(r[a::3], problem.scales[name][a]) for a in range(3)}
-    for name, r in residual.items():
-        t = problem.times(name)
-        edges = np.quantile(t, np.linspace(0, 1, TIME_BLOCKS + 1))
-        block = np.clip(np.searchsorted(edges, t, side="right") - 1, 0, TIME_BLOCKS - 1)
-        out[f"{name}_per_time_block"] = [
-            {"time": [round(float(edges[b]), 2), round(float(edges[b + 1]), 2)],
-             "robust_rms": robust_rms(r[block == b], problem.scales[name][block == b])}
-            for b in range(TIME_BLOCKS) if (block == b).any()]
     return out

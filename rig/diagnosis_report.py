@@ -20,6 +20,7 @@ from rig.channels import AXES, GROSS_Z, left_out_text  # noqa: E402
 from rig.diagnose import Diagnosis, Finding, vibration_spread  # noqa: E402
 from rig.floor_error import ON_GROUND_M  # noqa: E402
 from rig.identifiability import figures  # noqa: E402
+from rig.mismatch import CELL_M  # noqa: E402
 
 REPORT_JSON, REPORT_MD, MODEL_JSON = "report.json", "report.md", "model.json"
 CONTROL_DIR = "control"          # `rig diagnose --control`: the control recording's own report
@@ -47,6 +48,7 @@ PLAIN = {
     "lever_arm": "the UWB antenna sits at {offset_m} m from the body origin (body frame)",
 }
 UNITS = {"tdoa": "m", "accel": "m/s²", "gyro": "rad/s"}
+WHERE_SHOWN = 3                  # "Where they differ": the largest of each kind in report.md
 
 
 def describe(finding: Finding) -> str:
@@ -133,7 +135,7 @@ def _markdown(diagnosis: Diagnosis, report: dict, images: list[tuple[str, str]])
         unknown = ", ".join(map(str, report["unknown_anchors"]))
         lines += [f"Left out as unusable (not finite{', or from anchors the anchor set lacks: ' + unknown if unknown else ''}"
                   f"): {unusable}.", ""]
-    lines += _on_ground_lines(report["mismatch"].get("tdoa_on_ground_m", {}))
+    lines += _where_lines(report["mismatch"])
     lines += ["## What physics the simulation left out", ""]
     if not diagnosis.findings:
         lines.append("Nothing: no catalog effect removes enough of the mismatch to pay for its parameters.")
@@ -305,6 +307,55 @@ def _size(value: float | None, unit: str) -> str:
     if value is None:
         return "never"
     return f"{figures(value)} {unit}".rstrip()
+
+
+def _where_lines(mismatch: dict) -> list[str]:
+    """Where the untouched simulation and the recording differ (rig.mismatch): each
+    anchor, and of the pairs, regions and viewing angles the clearest few."""
+    def clearest(items, mean_and_samples):
+        """By |mean| × √samples: a large mean over a handful of samples is noise."""
+        return sorted(items, key=lambda item: -abs(mean_and_samples(item)[0]) * np.sqrt(mean_and_samples(item)[1])
+                      )[:WHERE_SHOWN]
+
+    lines = ["## Where they differ", "",
+             "Recorded − simulated before any effect is modelled (all of it under `mismatch` in report.json; "
+             "pairs and viewing angles the clearest first, by |mean| × √samples):", ""]
+    if "tdoa_per_anchor_m" in mismatch:
+        anchors = dict(sorted(mismatch["tdoa_per_anchor_m"].items(), key=lambda kv: -abs(kv[1])))
+        pairs = clearest(mismatch["tdoa_per_pair_m"].items(), lambda kv: (kv[1]["mean_m"], kv[1]["samples"]))
+        regions = mismatch["tdoa_per_region"][:WHERE_SHOWN]
+        angles = clearest([(k, b) for k, bins in mismatch["tdoa_per_viewing_angle"].items() for b in bins],
+                          lambda kb: (kb[1]["mean_m"], kb[1]["samples"]))
+        lines += [f"- **Anchors**, how long each one's ranges read, largest first: {_per_anchor(anchors, ' m')}.",
+                  "- **Anchor pairs**, the later anchor's range against the earlier's: "
+                  + "; ".join(f"{pair} {c['mean_m']:+.2f} m ({c['samples']} samples)" for pair, c in pairs) + ".",
+                  f"- **Regions of space** ({CELL_M:g} m cubes), the largest robust RMS first: " + "; ".join(map(_region_text, regions)) + ".",
+                  "- **Viewing angles**, the tag seen from an anchor: "
+                  + "; ".join(f"anchor {k} at azimuth {b['azimuth_deg'][0]:g}…{b['azimuth_deg'][1]:g}°, elevation "
+                              f"{b['elevation_deg'][0]:g}…{b['elevation_deg'][1]:g}°: {b['mean_m']:+.2f} m "
+                              f"({b['samples']} samples)" for k, b in angles) + "."]
+    imu = [f"{name} {', '.join(f'{axis} {v:+.3g}' for axis, v in mismatch[f'{name}_per_axis'].items())} {UNITS[name]}"
+           for name in ("accel", "gyro") if f"{name}_per_axis" in mismatch]
+    if imu:
+        lines.append(f"- **IMU axes**: {'; '.join(imu)}.")
+    lines += [f"- **Time**: {'; '.join(_worst_block_text(name, mismatch) for name in UNITS if f'{name}_per_time_block' in mismatch)}.",
+              ""]
+    return lines + _on_ground_lines(mismatch.get("tdoa_on_ground_m", {}))
+
+
+def _region_text(cell: dict) -> str:
+    low, high = cell["region"]["min"], cell["region"]["max"]
+    box = ", ".join(f"{axis} {a:g}…{b:g}" for axis, a, b in zip(AXES, low, high))
+    worst = (f", anchor {cell['anchor']} reading {cell['anchor_mean_m']:+.2f} m there" if "anchor" in cell else "")
+    return f"{box} m: {cell['robust_rms']:.3g} m over {cell['samples']} samples{worst}"
+
+
+def _worst_block_text(name: str, mismatch: dict) -> str:
+    blocks = mismatch[f"{name}_per_time_block"]
+    worst = max(blocks, key=lambda b: b["robust_rms"])
+    typical = float(np.median([b["robust_rms"] for b in blocks]))
+    return (f"{name} worst over {worst['time'][0]:g}–{worst['time'][1]:g} s ({worst['robust_rms']:.3g} "
+            f"{UNITS[name]} against a median block's {typical:.3g})")
 
 
 def _on_ground_lines(on_ground: dict[str, float]) -> list[str]:

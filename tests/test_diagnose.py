@@ -26,11 +26,12 @@ from rig import effects as fx
 from rig import imu_spectrum
 from rig.candidates import Candidate, candidates
 from rig.channels import Channel, Problem
-from rig.diagnose import (diagnose, identifiability, lever_arm_cross_talk, locate, nlos_identifiability,
+from rig.diagnose import (diagnose, identifiability, lever_arm_cross_talk, nlos_identifiability,
                           unnamed_estimates, vibration_spread)
 from rig.diagnosis_report import describe, write as write_report
 from rig.floor_error import ON_GROUND_M
 from rig.importer import load_any
+from rig.mismatch import locate
 from rig.paths import default_recording
 from rig.recording import Recording, Vec3Series
 from rig.robust import delay_centre, irls, mad_scale, robust_rms
@@ -724,6 +725,8 @@ def test_cli_writes_the_report_contract(tmp_path: Path, survey) -> None:
     assert abs(delay["params"]["meters"] - 0.3) < 0.05
     markdown = (tmp_path / "d" / "report.md").read_text()
     assert "anchor_delay" in markdown and "![" in markdown
+    assert report["mismatch"]["tdoa_per_pair_m"] and "## Where they differ" in markdown
+    assert re.search(r"\*\*Anchors\*\*, how long each one's ranges read, largest first: 2: \+0\.[23]", markdown)
     for image in (tmp_path / "d").glob("*.png"):
         assert image.stat().st_size > 1000
     written = json.loads((tmp_path / "d" / "model.json").read_text())
