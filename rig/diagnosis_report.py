@@ -104,7 +104,7 @@ def write(diagnosis: Diagnosis, out: Path, recording: str, control: dict | None 
     (out / REPORT_JSON).write_text(json.dumps(report, indent=2, allow_nan=False, default=_finite))
     (out / MODEL_JSON).write_text(json.dumps({"effects": report["model"],
                                               "vibration_rms_mps2": report["vibration_rms_mps2"]}, indent=2))
-    images = _plots(diagnosis, report["model"], out)
+    images = _plots(diagnosis, report["model"], report["mismatch"], out)
     (out / REPORT_MD).write_text(_markdown(diagnosis, report, images))
     return report
 
@@ -419,8 +419,11 @@ def _change(c: dict) -> str:
     return f"{(c['fit_after'] - c['fit_before']) / c['fit_before']:+.1%}"
 
 
-def _plots(diagnosis: Diagnosis, model: list[dict], out: Path) -> list[tuple[str, str]]:
+def _plots(diagnosis: Diagnosis, model: list[dict], mismatch: dict, out: Path) -> list[tuple[str, str]]:
     images = []
+    if mismatch.get("tdoa_per_region"):
+        images.append(("Where they differ: TDOA mismatch by region of space, before modelling",
+                       _regions_plot(mismatch["tdoa_per_region"], out)))
     p = diagnosis.problem
     names = list(diagnosis.residual_before)
     fig, axes = plt.subplots(len(names), 1, figsize=(9, 2.6 * len(names)), squeeze=False)
@@ -549,6 +552,30 @@ def _position_plot(diagnosis: Diagnosis, k: int, out: Path) -> str:
     axes[0].set(ylabel="y [m]")
     fig.colorbar(sc, ax=axes, label="m")
     return _save(fig, out, f"anchor{k}_position.png")
+
+
+def _regions_plot(cells: list[dict], out: Path) -> str:
+    """The cubes of `mismatch.tdoa_per_region` seen from above, one panel per layer of
+    height: each coloured by its robust RMS and labelled with the anchor reading
+    furthest off there and by how much."""
+    layers = sorted({c["region"]["min"][2] for c in cells})
+    fig, axes = plt.subplots(1, len(layers), figsize=(4.2 * len(layers) + 1, 4), squeeze=False, layout="constrained")
+    norm = matplotlib.colors.Normalize(0.0, max(c["robust_rms"] for c in cells))
+    low, high = (np.array([c["region"][end] for c in cells]) for end in ("min", "max"))
+    for ax, z in zip(axes[0], layers):
+        for c in (c for c in cells if c["region"]["min"][2] == z):
+            (x0, y0, _), (x1, y1, _) = c["region"]["min"], c["region"]["max"]
+            shade = norm(c["robust_rms"])
+            ax.add_patch(matplotlib.patches.Rectangle((x0, y0), x1 - x0, y1 - y0, color=plt.cm.viridis(shade)))
+            if "anchor" in c:
+                ax.text((x0 + x1) / 2, (y0 + y1) / 2, f"{c['anchor']}: {c['anchor_mean_m']:+.2f}", ha="center",
+                        va="center", fontsize=8, color="k" if shade > 0.6 else "w")
+        ax.set(title=f"z {z:g}…{z + CELL_M:g} m", xlabel="x [m]", ylabel="y [m]", aspect="equal",
+               xlim=(low[:, 0].min(), high[:, 0].max()), ylim=(low[:, 1].min(), high[:, 1].max()))
+    fig.colorbar(matplotlib.cm.ScalarMappable(norm, "viridis"), ax=axes[0].tolist(),
+                 label="robust RMS of recorded − simulated [m]")
+    fig.suptitle("label: the anchor reading furthest off in the cube, and by how much [m]", fontsize=9)
+    return _save(fig, out, "mismatch_regions.png")
 
 
 def _running_median(x: np.ndarray, y: np.ndarray, bins: int = 60) -> tuple[np.ndarray, np.ndarray]:

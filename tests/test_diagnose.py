@@ -726,6 +726,7 @@ def test_cli_writes_the_report_contract(tmp_path: Path, survey) -> None:
     markdown = (tmp_path / "d" / "report.md").read_text()
     assert "anchor_delay" in markdown and "![" in markdown
     assert report["mismatch"]["tdoa_per_pair_m"] and "## Where they differ" in markdown
+    assert "(mismatch_regions.png)" in markdown
     assert re.search(r"\*\*Anchors\*\*, how long each one's ranges read, largest first: 2: \+0\.[23]", markdown)
     for image in (tmp_path / "d").glob("*.png"):
         assert image.stat().st_size > 1000
