@@ -64,8 +64,7 @@ from rig import identifiability as ident
 from rig import imu_spectrum, nlos_mixture
 from rig.candidates import MIN_EVIDENCE, PENALTY_PER_PARAMETER, Candidate, candidates
 from rig.channels import AXES, GROSS_Z, Channel, Problem
-from rig.floor_error import (ON_GROUND_PRIOR, ON_GROUND_SHAPES, floor_multipath, local_noise,
-                             on_ground_fits)
+from rig.floor_error import ON_GROUND_PRIOR, ON_GROUND_SHAPES, floor_multipath, local_noise, on_ground_fits
 from rig.mismatch import locate
 from rig.recording import Recording, Vec3Series
 from rig.robust import delay_centre, huber_loss, irls, mad_scale, robust_nll, robust_rms
