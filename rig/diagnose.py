@@ -75,6 +75,13 @@ from rig.selection import (LOOK_ALIKES, ORDER, Alternative, Term, axis_alternati
 log = logging.getLogger(__name__)
 
 IDENTIFIED_SD_SHARE = 0.5      # a parameter is identified when its standard error is below this share of its prior
+# A named IMU effect is located on an axis when zeroing that axis raises the robust
+# loss by more than this (half a chi-square: about 2 standard errors). The effect has
+# already paid for itself; this says which of its axes carry it. At 4 (2.8 standard
+# errors) a gyroscope scale of 1.05 on all axes, recovered within its tolerance on
+# most flights, was located on all three on one of six, at 2 on two (session 49,
+# docs/diagnosis-experiments.md).
+LOCATED_LOSS = 2.0
 
 
 @dataclass
@@ -569,8 +576,8 @@ def _where(problem: Problem, channel: Channel, term: Term, rows: np.ndarray, z_a
 
 def _significant_axes(term: Term, theta: np.ndarray, z_after: np.ndarray, peers: list[Term]) -> list[int]:
     """Axes whose parameter matters: zeroing it (all else as fitted) raises the robust
-    loss by more than 4 (about 2.8 standard errors), with the simpler effects' (`peers`)
-    refitted, so one that would make up for it does (simplest first, as in the
+    loss by more than LOCATED_LOSS (about 2 standard errors), with the simpler effects'
+    (`peers`) refitted, so one that would make up for it does (simplest first, as in the
     selection): a rectification's gain on an axis that shakes evenly all flight is the
     bias's offset shared out between the two. Look-alikes of equal rank stay as fitted:
     each has its axes, as in the fit, where a bias and a scale are told apart."""
@@ -581,6 +588,6 @@ def _significant_axes(term: Term, theta: np.ndarray, z_after: np.ndarray, peers:
         shifted = z_after + term.columns[:, j] * theta[j]
         if simpler is not None:
             shifted = shifted - simpler[0] @ irls(shifted, *simpler)
-        if huber_loss(shifted).sum() - best > 4.0:
+        if huber_loss(shifted).sum() - best > LOCATED_LOSS:
             out.append(j)
     return out
