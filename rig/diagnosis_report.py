@@ -312,9 +312,10 @@ def _size(value: float | None, unit: str) -> str:
 def _where_lines(mismatch: dict) -> list[str]:
     """Where the untouched simulation and the recording differ (rig.mismatch): each
     anchor, and of the pairs, regions and viewing angles the clearest few."""
-    def clearest(items, mean_and_samples):
-        """By |mean| × √samples: a large mean over a handful of samples is noise."""
-        return sorted(items, key=lambda item: -abs(mean_and_samples(item)[0]) * np.sqrt(mean_and_samples(item)[1])
+    def clearest(items, entry):
+        """By |mean| × √samples of each item's `entry`: a large mean over a handful of
+        samples is noise."""
+        return sorted(items, key=lambda item: -abs(entry(item)["mean_m"]) * np.sqrt(entry(item)["samples"])
                       )[:WHERE_SHOWN]
 
     lines = ["## Where they differ", "",
@@ -322,10 +323,10 @@ def _where_lines(mismatch: dict) -> list[str]:
              "pairs and viewing angles the clearest first, by |mean| × √samples):", ""]
     if "tdoa_per_anchor_m" in mismatch:
         anchors = dict(sorted(mismatch["tdoa_per_anchor_m"].items(), key=lambda kv: -abs(kv[1])))
-        pairs = clearest(mismatch["tdoa_per_pair_m"].items(), lambda kv: (kv[1]["mean_m"], kv[1]["samples"]))
+        pairs = clearest(mismatch["tdoa_per_pair_m"].items(), lambda kv: kv[1])
         regions = mismatch["tdoa_per_region"][:WHERE_SHOWN]
         angles = clearest([(k, b) for k, bins in mismatch["tdoa_per_viewing_angle"].items() for b in bins],
-                          lambda kb: (kb[1]["mean_m"], kb[1]["samples"]))
+                          lambda kb: kb[1])
         lines += [f"- **Anchors**, how long each one's ranges read, largest first: {_per_anchor(anchors, ' m')}.",
                   "- **Anchor pairs**, the later anchor's range against the earlier's: "
                   + "; ".join(f"{pair} {c['mean_m']:+.2f} m ({c['samples']} samples)" for pair, c in pairs) + ".",

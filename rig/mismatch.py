@@ -27,12 +27,13 @@ def locate(problem: Problem, residual: dict[str, np.ndarray]) -> dict:
     out: dict = {}
     if "tdoa" in residual:
         r, scale = residual["tdoa"], problem.scales["tdoa"]
-        out["tdoa_per_anchor_m"] = {str(k): _anchor_mean(problem, r, k) for k in problem.anchor_ids}
+        signs = {k: problem.anchor_sign(k) for k in problem.anchor_ids}
+        out["tdoa_per_anchor_m"] = {str(k): _signed_mean(sign, r, sign != 0, scale[0]) for k, sign in signs.items()}
         out["tdoa_per_pair_m"] = _per_pair(problem, r)
         out["tdoa_on_ground_m"] = {k: float(v * scale[0])
                                    for k, v in on_ground_delays(problem, r / scale[0]).items()}
-        out["tdoa_per_region"] = _per_region(problem, r)
-        out["tdoa_per_viewing_angle"] = _per_viewing_angle(problem, r)
+        out["tdoa_per_region"] = _per_region(problem, r, signs)
+        out["tdoa_per_viewing_angle"] = _per_viewing_angle(problem, r, signs)
     for name in ("accel", "gyro"):
         if name in residual:
             r = residual[name]
@@ -42,11 +43,10 @@ def locate(problem: Problem, residual: dict[str, np.ndarray]) -> dict:
     return out
 
 
-def _anchor_mean(problem: Problem, r: np.ndarray, k: int, rows: np.ndarray | None = None) -> float:
-    """How long anchor k's ranges read, robustly, over `rows` (all when None)."""
-    sign = problem.anchor_sign(k)
-    mask = sign != 0 if rows is None else rows & (sign != 0)
-    return huber_mean(sign[mask] * r[mask], problem.scales["tdoa"][0])
+def _signed_mean(sign: np.ndarray, r: np.ndarray, rows: np.ndarray, scale: float) -> float:
+    """How long an anchor's ranges read (or a pair's later one against its earlier),
+    robustly, over `rows`: residuals signed by `sign` (+1 where it is the pair's B)."""
+    return huber_mean(sign[rows] * r[rows], scale)
 
 
 def _per_pair(problem: Problem, r: np.ndarray) -> dict[str, dict]:
@@ -59,22 +59,23 @@ def _per_pair(problem: Problem, r: np.ndarray) -> dict[str, dict]:
     for a, b in sorted(set(zip(low.tolist(), high.tolist()))):
         rows = (low == a) & (high == b)
         if rows.sum() >= MIN_PAIR_SAMPLES:
-            out[f"{a}-{b}"] = {"mean_m": huber_mean(sign[rows] * r[rows], problem.scales["tdoa"][0]),
+            out[f"{a}-{b}"] = {"mean_m": _signed_mean(sign, r, rows, problem.scales["tdoa"][0]),
                                "samples": int(rows.sum())}
     return out
 
 
-def _per_region(problem: Problem, r: np.ndarray) -> list[dict]:
+def _per_region(problem: Problem, r: np.ndarray, signs: dict[int, np.ndarray]) -> list[dict]:
     """Cubes of CELL_M the tag flew through, worst mismatch first: its robust RMS there
-    and the anchor whose ranges read furthest off there."""
+    and the anchor whose ranges read furthest off there (`signs`: each anchor's)."""
     cells = np.floor(problem.tag_positions() / CELL_M).astype(int)
     out = []
     for cell in np.unique(cells, axis=0):
         rows = np.all(cells == cell, axis=1)
         if rows.sum() < MIN_SAMPLES:
             continue
-        means = {k: _anchor_mean(problem, r, k, rows) for k in problem.anchor_ids
-                 if np.sum(rows & (problem.anchor_sign(k) != 0)) >= MIN_SAMPLES}
+        seen = {k: rows & (sign != 0) for k, sign in signs.items()}
+        means = {k: _signed_mean(signs[k], r, seen[k], problem.scales["tdoa"][0])
+                 for k in signs if seen[k].sum() >= MIN_SAMPLES}
         worst = max(means, key=lambda k: abs(means[k]), default=None)
         out.append({"region": {"min": (cell * CELL_M).tolist(), "max": ((cell + 1) * CELL_M).tolist()},
                     "samples": int(rows.sum()),
@@ -83,14 +84,13 @@ def _per_region(problem: Problem, r: np.ndarray) -> list[dict]:
     return sorted(out, key=lambda c: -c["robust_rms"])
 
 
-def _per_viewing_angle(problem: Problem, r: np.ndarray) -> dict[str, list[dict]]:
+def _per_viewing_angle(problem: Problem, r: np.ndarray, signs: dict[int, np.ndarray]) -> dict[str, list[dict]]:
     """For each anchor, how long its ranges read with the tag seen in each bin of
     azimuth and elevation in the anchor's own frame (where an antenna pattern shows)."""
     batch = problem.predictor.tdoa([])
     world = problem.predictor.world([])
     out = {}
-    for k in problem.anchor_ids:
-        sign = problem.anchor_sign(k)
+    for k, sign in signs.items():
         azimuth, elevation = (np.degrees(a[problem.tdoa_rows]) for a in fx.viewing_angles(batch, world, k))
         bins = np.column_stack([np.floor(azimuth / ANGLE_BIN_DEG), np.floor(elevation / ANGLE_BIN_DEG)]).astype(int)
         rows_k = sign != 0
@@ -100,7 +100,8 @@ def _per_viewing_angle(problem: Problem, r: np.ndarray) -> dict[str, list[dict]]
             if rows.sum() >= MIN_SAMPLES:
                 out[str(k)].append({"azimuth_deg": [float(az * ANGLE_BIN_DEG), float((az + 1) * ANGLE_BIN_DEG)],
                                     "elevation_deg": [float(el * ANGLE_BIN_DEG), float((el + 1) * ANGLE_BIN_DEG)],
-                                    "samples": int(rows.sum()), "mean_m": _anchor_mean(problem, r, k, rows)})
+                                    "samples": int(rows.sum()),
+                                    "mean_m": _signed_mean(sign, r, rows, problem.scales["tdoa"][0])})
     return out
 
 

@@ -351,8 +351,6 @@ def read_topics(path: Path, topics: Iterable[str] | None = None) -> tuple[dict[s
     wanted = set(topics) if topics is not None else None
     try:
         return _read_whole(path, wanted)
-    except RecordingError:
-        raise
     except Exception as exc:  # the mcap reader raises many types for damaged files
         messages, metadata = _read_prefix(path, wanted)
         count = sum(map(len, messages.values()))

@@ -7,7 +7,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 from rig import effects as fx
 from rig.channels import Problem
@@ -18,19 +17,14 @@ from test_diagnose import sim_config
 LOCATED_M = 0.08       # a robust mean within this of the injected size (TDOA noise 0.15 m, 3 % outliers)
 
 
-@pytest.fixture(scope="module")
-def survey(data_dir: Path) -> Path:
-    return data_dir / "surveys" / "anchor_0425.txt"
-
-
 def _located(survey: Path, effect: str, params: dict) -> tuple[Problem, dict]:
     problem = Problem(simulate(sim_config(survey, [{"effect": effect, "params": params}])))
     return problem, locate(problem, {"tdoa": problem.channel("tdoa").residual})
 
 
-def test_a_delay_shows_on_its_anchor_and_on_every_pair_with_it(survey: Path) -> None:
+def test_a_delay_shows_on_its_anchor_and_on_every_pair_with_it(survey_0425: Path) -> None:
     """Anchor 7: the ring's pair (7, 0) is recorded the other way round."""
-    _, where = _located(survey, "anchor_delay", {"anchor": 7, "meters": 0.3})
+    _, where = _located(survey_0425, "anchor_delay", {"anchor": 7, "meters": 0.3})
     per_anchor = where["tdoa_per_anchor_m"]
     assert max(per_anchor, key=lambda k: abs(per_anchor[k])) == "7"
     assert {"0-7", "6-7"} <= set(where["tdoa_per_pair_m"])
@@ -40,9 +34,9 @@ def test_a_delay_shows_on_its_anchor_and_on_every_pair_with_it(survey: Path) -> 
         assert abs(c["mean_m"] - want) < LOCATED_M, f"pair {pair}: {c['mean_m']:+.3f} m, want {want:+.1f}"
 
 
-def test_an_nlos_shows_in_its_region_on_its_anchor(survey: Path) -> None:
+def test_an_nlos_shows_in_its_region_on_its_anchor(survey_0425: Path) -> None:
     region = {"min": [-9.0, -9.0, -9.0], "max": [0.0, 9.0, 9.0]}
-    _, where = _located(survey, "nlos", {"anchor": 6, "fraction": 1.0, "mean_excess_m": 0.5, "region": region})
+    _, where = _located(survey_0425, "nlos", {"anchor": 6, "fraction": 1.0, "mean_excess_m": 0.5, "region": region})
     cells = [c for c in where["tdoa_per_region"] if "anchor" in c]
     inside = [c for c in cells if c["region"]["max"][0] <= 0.0]
     outside = [c for c in cells if c["region"]["min"][0] >= 0.0]
@@ -53,9 +47,9 @@ def test_an_nlos_shows_in_its_region_on_its_anchor(survey: Path) -> None:
     assert worst["region"]["max"][0] <= 0.0, "the largest mismatch is in the NLOS region"
 
 
-def test_a_pattern_shows_at_the_viewing_angles_it_biases(survey: Path) -> None:
+def test_a_pattern_shows_at_the_viewing_angles_it_biases(survey_0425: Path) -> None:
     coeffs = np.array([0.0, 0.6, 0.0])
-    problem, where = _located(survey, "antenna_pattern", {"anchor": 2, "coeffs_m": coeffs.tolist()})
+    problem, where = _located(survey_0425, "antenna_pattern", {"anchor": 2, "coeffs_m": coeffs.tolist()})
     azimuth, elevation = fx.viewing_angles(problem.predictor.tdoa([]), problem.predictor.world([]), 2)
     azimuth, elevation = azimuth[problem.tdoa_rows], elevation[problem.tdoa_rows]
     seen = problem.anchor_sign(2) != 0
