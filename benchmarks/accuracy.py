@@ -19,10 +19,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from rig import paths  # noqa: E402
-from rig.bias_model import DEFAULT_NETWORK  # noqa: E402
-from rig.evaluate import evaluate  # noqa: E402
-from rig.importer import import_log  # noqa: E402
+from rig.data import paths  # noqa: E402
+from rig.data.importer import import_log  # noqa: E402
+from rig.estimator.bias_net import DEFAULT_NETWORK  # noqa: E402
+from rig.estimator.evaluate import evaluate  # noqa: E402
 
 GROUPS = [("0425 TDOA2", lambda n: n.startswith("0425-traj") and int(n.split("traj")[1]) <= 12),
           ("0425 TDOA3", lambda n: n.startswith("0425-traj") and int(n.split("traj")[1]) >= 13),

@@ -23,12 +23,13 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from rig import paths  # noqa: E402
-from rig.bias_dataset import Samples  # noqa: E402
-from rig.bias_model import BiasNet  # noqa: E402
-from rig.evaluate import evaluate  # noqa: E402
-from rig.importer import load_any  # noqa: E402
-from rig.train import FEATURE_SETS, TrainConfig, run_training  # noqa: E402
+from rig.bias.config import FEATURE_SETS, TrainConfig  # noqa: E402
+from rig.bias.dataset import Samples  # noqa: E402
+from rig.bias.train import run_training  # noqa: E402
+from rig.data import paths  # noqa: E402
+from rig.data.importer import load_any  # noqa: E402
+from rig.estimator.bias_net import BiasNet  # noqa: E402
+from rig.estimator.evaluate import evaluate  # noqa: E402
 
 OUT = ROOT / "out" / "ablation"
 CACHES = {"estimate": ROOT / "out" / "cache" / "all.npz", "truth": ROOT / "out" / "cache" / "all_truth.npz"}

@@ -25,12 +25,12 @@ sys.path.insert(0, str(ROOT))
 
 from bias_ablation import CACHES, OUT, TEST_DAY  # noqa: E402  - ablation (d): its network, test day, dataset
 
-from rig import paths  # noqa: E402
-from rig.bias_dataset import _known_pairs, measurement_features, truth_latency  # noqa: E402
-from rig.bias_model import BiasNet  # noqa: E402
-from rig.evaluate import evaluate  # noqa: E402
-from rig.importer import load_any  # noqa: E402
-from rig.train import load_or_build_dataset  # noqa: E402
+from rig.bias.dataset import _known_pairs, measurement_features, truth_latency  # noqa: E402
+from rig.bias.train import load_or_build_dataset  # noqa: E402
+from rig.data import paths  # noqa: E402
+from rig.data.importer import load_any  # noqa: E402
+from rig.estimator.bias_net import BiasNet  # noqa: E402
+from rig.estimator.evaluate import evaluate  # noqa: E402
 
 MODEL = OUT / "d14" / "bias_net.json"
 TDOA_STDS = (0.25, 0.3, 0.5)

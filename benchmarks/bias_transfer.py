@@ -35,12 +35,14 @@ sys.path.insert(0, str(ROOT))
 
 from bias_ablation import CACHES, TEST_DAY  # noqa: E402  - the ablations' dataset caches and test day
 
-from rig import metrics, paths  # noqa: E402
-from rig.bias_dataset import Samples, _known_pairs, truth_latency  # noqa: E402
-from rig.evaluate import evaluate  # noqa: E402
-from rig.importer import load_any  # noqa: E402
-from rig.survey import parse_survey  # noqa: E402
-from rig.train import TrainConfig, fit, load_or_build_dataset, split_flights  # noqa: E402
+from rig.bias.config import TrainConfig  # noqa: E402
+from rig.bias.dataset import Samples, _known_pairs, truth_latency  # noqa: E402
+from rig.bias.train import fit, load_or_build_dataset, split_flights  # noqa: E402
+from rig.data import paths
+from rig.data.importer import load_any  # noqa: E402
+from rig.data.survey import parse_survey  # noqa: E402
+from rig.estimator import metrics  # noqa: E402
+from rig.estimator.evaluate import evaluate  # noqa: E402
 
 CELL_M = 0.2
 MIN_CELL_SAMPLES = 5

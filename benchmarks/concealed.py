@@ -12,7 +12,7 @@ circle or with its own shaking, that flight, with its own control). Prints a lin
 effect and flight (found or missed, the recovered parameters after subtracting the
 control) and a count per flight. A case whose injected effect is smaller than the size
 from which the injected flight tells it from its look-alikes, along its direction
-(rig.identifiability), is marked "below what the flight tells apart": its own signal
+(rig.diagnosis.identifiability), is marked "below what the flight tells apart": its own signal
 beyond the look-alikes does not pay for it, and it is found only as a change of the
 flight's own effect of that kind or reported in its look-alike's place.
 Each case is judged twice: as the suite judges it, and as a check that reads the two
@@ -43,13 +43,13 @@ sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
 
 import test_diagnose as cases  # noqa: E402  - the cases and their tolerances are the suite's
 
-from rig import compare, paths  # noqa: E402
-from rig.candidates import candidates  # noqa: E402
-from rig.diagnose import nlos_identifiability  # noqa: E402
-from rig.effects import Region  # noqa: E402
-from rig.importer import load_any  # noqa: E402
-from rig.simulate import Predictor, inject, simulate  # noqa: E402
-
+from rig.data import paths
+from rig.data.importer import load_any  # noqa: E402
+from rig.diagnosis import compare  # noqa: E402
+from rig.diagnosis.candidates import candidates  # noqa: E402
+from rig.diagnosis.diagnose import nlos_identifiability  # noqa: E402
+from rig.sim.effects import Region  # noqa: E402
+from rig.sim.simulate import Predictor, inject, simulate  # noqa: E402
 
 # Fourteen real flights of the three days, both UWB modes, with and without obstacles.
 FLIGHTS = ["0426-traj1", "0426-traj4", "0425-traj5", "0422-log01", "0422-log00", "0422-log03", "0425-traj1",
@@ -113,7 +113,7 @@ def describe(shown: compare.Shown) -> str:
 def diagnosed(job: tuple[str, str, str, dict]) -> tuple[str, str, list, list | None, dict | None, dict | None]:
     """The findings on the flight with the effect injected, on its own untouched flight
     when it is not the flight's shared control (a simulated case with its own circle or
-    shaking), how well the injected flight shows the effect (rig.compare.Shown), and
+    shaking), how well the injected flight shows the effect (rig.diagnosis.compare.Shown), and
     for an NLOS and for the control their TDOA samples, over which an NLOS's change is
     estimated."""
     flight, label, name, params = job

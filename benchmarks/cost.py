@@ -26,11 +26,12 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from rig import native, paths  # noqa: E402
-from rig.bias_model import BiasNet, HIDDEN, INPUTS  # noqa: E402
-from rig.evaluate import build_events, load_model, start_time, truth_pose_at  # noqa: E402
-from rig.importer import load_any  # noqa: E402
-from rig.recording import Recording  # noqa: E402
+from rig.data import paths
+from rig.data.importer import load_any  # noqa: E402
+from rig.data.recording import Recording  # noqa: E402
+from rig.estimator import native  # noqa: E402
+from rig.estimator.bias_net import HIDDEN, INPUTS, BiasNet  # noqa: E402
+from rig.estimator.evaluate import build_events, load_model, start_time, truth_pose_at  # noqa: E402
 
 FUNCTIONS = ("ekf_predict", "tdoa_update", "tdoa_update_plain", "tdoa_update_robust", "bn_features", "bn_predict")
 CONFIGURATIONS = {"plain": {"robust": 0, "use_bias_net": 0},

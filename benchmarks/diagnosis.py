@@ -21,16 +21,17 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
 
 import numpy as np  # noqa: E402
-
-from rig import effects as fx  # noqa: E402
-from rig import compare, imu_spectrum, paths  # noqa: E402
-from rig.channels import left_out_text  # noqa: E402
-from rig.diagnose import vibration_spread  # noqa: E402
-from rig.floor_error import ON_GROUND_M  # noqa: E402
-from rig.identifiability import figures  # noqa: E402
-from rig.importer import load_any  # noqa: E402
-from rig.recording import Vec3Series  # noqa: E402
 from test_diagnose import CASES  # noqa: E402  - the suite's concealed cases, for their sizes
+
+from rig.data import paths
+from rig.data.importer import load_any  # noqa: E402
+from rig.data.recording import Vec3Series  # noqa: E402
+from rig.diagnosis import compare, imu_spectrum  # noqa: E402
+from rig.diagnosis.channels import left_out_text  # noqa: E402
+from rig.diagnosis.diagnose import vibration_spread  # noqa: E402
+from rig.diagnosis.floor_error import ON_GROUND_M  # noqa: E402
+from rig.diagnosis.identifiability import figures  # noqa: E402
+from rig.sim import effects as fx  # noqa: E402
 
 
 def run(flight: Path, out: Path, reuse: bool) -> None:

@@ -22,10 +22,10 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from rig import effects as fx  # noqa: E402
-from rig.diagnosis_report import SENSORS  # noqa: E402
-from rig.evaluate import evaluate  # noqa: E402
-from rig.simulate import SimConfig, simulate  # noqa: E402
+from rig.diagnosis.report import SENSORS  # noqa: E402
+from rig.estimator.evaluate import evaluate  # noqa: E402
+from rig.sim import effects as fx  # noqa: E402
+from rig.sim.simulate import SimConfig, simulate  # noqa: E402
 
 NOISE = ("imu_noise", "imu_resonance", "imu_lowpass")
 # two calm flights of the third day (0426) and three that shook (0422-log01, 0425-traj1, -traj9)

@@ -34,12 +34,12 @@ sys.path.insert(0, str(ROOT))
 
 import numpy as np  # noqa: E402
 
-from rig import paths  # noqa: E402
-from rig.diagnose import diagnose  # noqa: E402
-from rig.evaluate import evaluate  # noqa: E402
-from rig.importer import load_any  # noqa: E402
-from rig.recording import Recording  # noqa: E402
-from rig.simulate import SimConfig, simulate  # noqa: E402
+from rig.data import paths  # noqa: E402
+from rig.data.importer import load_any  # noqa: E402
+from rig.data.recording import Recording  # noqa: E402
+from rig.diagnosis.diagnose import diagnose  # noqa: E402
+from rig.estimator.evaluate import evaluate  # noqa: E402
+from rig.sim.simulate import SimConfig, simulate  # noqa: E402
 
 NOISE = ("tdoa_noise", "imu_noise", "imu_resonance", "imu_lowpass")
 KINDS = ("real", "noise", "model", "model_and_residuals", "model_and_learned_bias")

@@ -1,2 +1,2 @@
-"""bridge: serves board links on eclipse-zenoh (bridge.zenoh_link) so that many boards on
+"""bridge: serves board links on eclipse-zenoh (rig.hil.zenoh) so that many boards on
 many hosts report to one rig; `bridge --help` (bridge.cli) runs one."""

@@ -2,7 +2,7 @@
 
     bridge --target native|native-udp|qemu|serial:URL|crazyflie:URI --name NAME --connect tcp/HOST:PORT
 
-The board's messages are published under rig/board/NAME/... (bridge/zenoh_link.py);
+The board's messages are published under rig/board/NAME/... (rig/hil/zenoh.py);
 the rig replays into it with `rig replay --target zenoh:NAME --zenoh-connect ...`.
 """
 
@@ -14,8 +14,9 @@ import logging
 import signal
 import sys
 
-from bridge.zenoh_link import Bridge, open_session
-from rig.transport import LinkError, open_target
+from rig.hil.links import LinkError
+from rig.hil.targets import open_target
+from rig.hil.zenoh import Bridge, open_session
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from rig import paths
-from rig.usdlog import EventType, encode
+from rig.data import paths
+from rig.data.usdlog import EventType, encode
 
 ROOT = Path(__file__).resolve().parent.parent
 RIG = [sys.executable, "-m", "rig"]
@@ -32,7 +32,7 @@ FULL_PRECISION = {k: 0.0 for k in ("time", "accel", "gyro", "tdoa", "position", 
 
 def simulate_exact(survey: Path, trajectory: str = "circle-sine", effects: list[dict] | None = None, **kw):
     """A simulated flight at full precision (no effects unless given)."""
-    from rig.simulate import SimConfig, simulate
+    from rig.sim.simulate import SimConfig, simulate
 
     return simulate(SimConfig(trajectory=trajectory, survey=str(survey), effects=effects or [],
                               resolution=dict(FULL_PRECISION), **kw))
@@ -48,7 +48,7 @@ def data_dir() -> Path:
 @pytest.fixture(scope="session")
 def default_rec():
     """The shipped default recording."""
-    from rig.importer import load_any
+    from rig.data.importer import load_any
 
     return load_any(paths.default_recording())
 

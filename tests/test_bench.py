@@ -8,9 +8,9 @@ import json
 import subprocess
 from pathlib import Path
 
-from rig import native
-
 from conftest import run_rig
+
+from rig.estimator import native
 
 
 def _slow_firmware() -> Path:

@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rig import metrics
-from rig.bias_dataset import estimated_poses, flight_samples, truth_latency
-from rig.importer import load_any
+from rig.bias.dataset import estimated_poses, flight_samples, truth_latency
+from rig.data.importer import load_any
+from rig.estimator import metrics
 
 FLIGHT = "0426-traj1"
 

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from rig import native
-from rig.bias_model import BiasNet, HIDDEN, INPUTS, identity_probe_net
-from rig.native import ESTIMATOR_DIR
+from rig.estimator import native
+from rig.estimator.bias_net import HIDDEN, INPUTS, BiasNet, identity_probe_net
+from rig.estimator.native import ESTIMATOR_DIR
 
 LEVEL = [0.0, 0.0, 0.0, 1.0]
 UPSIDE_DOWN = Rotation.from_euler("x", 180, degrees=True).as_quat()

@@ -1,4 +1,4 @@
-"""What a recording adds to its control (rig.compare, `rig diagnose --control`), on
+"""What a recording adds to its control (rig.diagnosis.compare, `rig diagnose --control`), on
 findings written out by hand; the concealed-effect tests judge every real case
 through it (tests/test_diagnose.py), the CLI test runs it end to end."""
 
@@ -9,11 +9,11 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from rig.compare import TdoaSamples, by_size, change, changes, flight_difference
-from rig.diagnosis_report import change_text
-from rig.identifiability import assess
-from rig.paths import default_recording
-from rig.recording import read_recording
+from rig.data.paths import default_recording
+from rig.data.recording import read_recording
+from rig.diagnosis.compare import TdoaSamples, by_size, change, changes, flight_difference
+from rig.diagnosis.identifiability import assess
+from rig.diagnosis.report import change_text
 
 
 def _finding(effect: str, params: dict, evidence: float = 50.0, std_err: dict | None = None, **extra) -> dict:

@@ -18,26 +18,34 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import RIG
 from scipy.spatial.transform import Rotation
 
-from conftest import RIG
-from rig import compare
-from rig import effects as fx
-from rig import imu_spectrum
-from rig.candidates import Candidate, candidates
-from rig.channels import Channel, Problem
-from rig.diagnose import (diagnose, identifiability, lever_arm_cross_talk, nlos_identifiability,
-                          unnamed_estimates, vibration_spread)
-from rig.diagnosis_report import describe, write as write_report
-from rig.floor_error import ON_GROUND_M
-from rig.importer import load_any
-from rig.mismatch import locate
-from rig.paths import default_recording
-from rig.recording import Recording, Vec3Series
-from rig.robust import delay_centre, irls, mad_scale, robust_rms
-from rig.selection import (ORDER, Term, confine_in_time, estimate_terms, free_offset_terms, fresh_terms,
-                           in_place_estimates, select)
-from rig.simulate import Predictor, SimConfig, inject, simulate
+from rig.data.importer import load_any
+from rig.data.paths import default_recording
+from rig.data.recording import Recording, Vec3Series
+from rig.diagnosis import compare, imu_spectrum
+from rig.diagnosis.alternatives import in_place_estimates
+from rig.diagnosis.candidates import Candidate, candidates
+from rig.diagnosis.channels import Channel, Problem
+from rig.diagnosis.confined import confine_in_time
+from rig.diagnosis.diagnose import (
+    diagnose,
+    identifiability,
+    lever_arm_cross_talk,
+    nlos_identifiability,
+    unnamed_estimates,
+    vibration_spread,
+)
+from rig.diagnosis.floor_error import ON_GROUND_M
+from rig.diagnosis.mismatch import locate
+from rig.diagnosis.report import describe
+from rig.diagnosis.report import write as write_report
+from rig.diagnosis.robust import delay_centre, irls, mad_scale, robust_rms
+from rig.diagnosis.selection import fresh_terms, select
+from rig.diagnosis.terms import ORDER, Term, estimate_terms, free_offset_terms
+from rig.sim import effects as fx
+from rig.sim.simulate import Predictor, SimConfig, inject, simulate
 
 NOISE = [{"effect": "tdoa_noise", "params": {"std_m": 0.15}},
          {"effect": "imu_noise", "params": {"accel_std": 0.5, "gyro_std": 0.05}},
@@ -207,7 +215,7 @@ def _check(found: dict, control: dict, name: str, params: dict, check, real: boo
            samples: compare.TdoaSamples | None = None, control_unnamed: dict | None = None,
            control_samples: compare.TdoaSamples | None = None, control_in_place: Sequence[dict] = ()) -> None:
     """The injected effect named, located and measured: on a real flight, as its
-    change from the control recording (rig.compare, as `rig diagnose --control`; an
+    change from the control recording (rig.diagnosis.compare, as `rig diagnose --control`; an
     NLOS's over both recordings' TDOA `samples` and `control_samples`; one the control does not
     name, from its estimate there, `control_unnamed`, keyed like the findings; one
     reported in a look-alike's place, from the control's estimate in that place,
@@ -337,7 +345,7 @@ def test_a_yaw_wobble_is_kept_in_short_gyroscope_blocks(survey, monkeypatch) -> 
     assert Problem(rec).gyro_block_s == 0.2
     short = findings(diagnose(rec))[("imu_gyro_scale", ())]
     assert abs(short["params"]["scale"][2] - 1.1) < 0.03
-    monkeypatch.setattr("rig.channels.GYRO_BLOCKS_S", (0.5,))
+    monkeypatch.setattr("rig.diagnosis.channels.GYRO_BLOCKS_S", (0.5,))
     long = findings(diagnose(rec))[("imu_gyro_scale", ())]
     assert short["std_err"]["scale"][2] < 0.5 * long["std_err"]["scale"][2]
 
@@ -560,7 +568,7 @@ def test_nlos_found_by_its_shape_leaves_the_simplest_effects_as_they_were(real, 
     to drop the flight's own lever arm and time offset). The shapes may add one; on
     this flight they add none, so these are the same with and without the shapes."""
     assert _found_by_shape(real_control)
-    monkeypatch.setattr("rig.selection._nlos_shapes", lambda *args: [])
+    monkeypatch.setattr("rig.diagnosis.selection.nlos_shapes", lambda *args: [])
     assert _simplest_tdoa(diagnose(real[0])) == _simplest_tdoa(real_diagnosis)
 
 

@@ -12,12 +12,13 @@ import sys
 from pathlib import Path
 
 import numpy as np
-
 from conftest import ROOT, run_rig, simulate_exact
-from rig import native
-from rig.evaluate import build_events, evaluate, make_estimator, start_time, truth_pose_at
-from rig.importer import import_log
-from rig.recording import Recording, read_recording, write_recording
+
+from rig.data.importer import import_log
+from rig.data.recording import Recording, read_recording, write_recording
+from rig.estimator import native
+from rig.estimator.evaluate import build_events, evaluate, make_estimator, start_time, truth_pose_at
+
 
 def _sim(survey: Path, effects: list[dict], duration: float = 20.0, **kw) -> Recording:
     return simulate_exact(survey, effects=effects, duration=duration, **kw)
@@ -153,7 +154,7 @@ def test_estimator_under_sanitizers() -> None:
 def test_no_shared_flight_diverges_in_any_configuration_and_robust_averages_under_30_cm(data_dir: Path) -> None:
     from concurrent.futures import ProcessPoolExecutor
 
-    from rig import paths
+    from rig.data import paths
 
     with ProcessPoolExecutor(max_workers=2) as pool:
         rows = list(pool.map(_both_configs, paths.flights()))
@@ -164,7 +165,7 @@ def test_no_shared_flight_diverges_in_any_configuration_and_robust_averages_unde
 
 def _both_configs(flight: Path) -> tuple[str, dict]:
     """Every configuration, with and without the shipped bias network."""
-    from rig import paths
+    from rig.data import paths
 
     rec = import_log(flight, paths.survey_for(flight))
     return flight.name, {"robust": evaluate(rec, robust=True, use_nn=False),

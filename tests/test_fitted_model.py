@@ -8,11 +8,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from conftest import run_rig
-from rig.robust import delay_centre
-from rig.fitted_model import combine, read_models, replace_fitted
-from rig.recording import read_recording
+
+from rig.data.recording import read_recording
+from rig.diagnosis.combine import combine, read_models, replace_fitted
+from rig.diagnosis.robust import delay_centre
 
 
 def _model(offset: float, delays: dict[int, float], nlos: bool = False, drift: float | None = None) -> list[dict]:

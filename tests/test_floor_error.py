@@ -1,5 +1,5 @@
-"""The floor multipath's steps (rig.floor_error.floor_multipath) on noise drawn with
-known steps, and the effect that simulates them (rig.effects.MultipathFloor)."""
+"""The floor multipath's steps (rig.diagnosis.floor_error.floor_multipath) on noise drawn with
+known steps, and the effect that simulates them (rig.sim.effects.MultipathFloor)."""
 
 from __future__ import annotations
 
@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from rig.diagnose import Finding
-from rig.diagnosis_report import describe
-from rig.effects import TdoaBatch, make_effect
-from rig.floor_error import floor_multipath
+from rig.diagnosis.diagnose import Finding
+from rig.diagnosis.floor_error import floor_multipath
+from rig.diagnosis.report import describe
+from rig.sim.effects import TdoaBatch, make_effect
 
 BAR = 12.0          # what the diagnosis asks of the two parameters of a step
 SAMPLES = 40000

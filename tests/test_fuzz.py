@@ -10,9 +10,10 @@ from pathlib import Path
 
 import numpy as np
 
-from rig import native, protocol, replay
-from rig.evaluate import build_events, start_time, truth_pose_at
-from rig.recording import Recording
+from rig.data.recording import Recording
+from rig.estimator import native
+from rig.estimator.evaluate import build_events, start_time, truth_pose_at
+from rig.hil import protocol, replay
 
 FUZZ_SECONDS = 20
 

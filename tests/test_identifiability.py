@@ -1,12 +1,12 @@
 """The sizes below which a trajectory cannot show an effect or tell it from its
-look-alikes (rig.identifiability), on columns whose answer is known in closed form."""
+look-alikes (rig.diagnosis.identifiability), on columns whose answer is known in closed form."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from rig.identifiability import assess
+from rig.diagnosis.identifiability import assess
 
 BAR = 10.0          # half a chi-square an effect must remove to be named
 

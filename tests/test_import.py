@@ -7,13 +7,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import crafted_log, run_rig
 from mcap.reader import make_reader
 
-from conftest import crafted_log, run_rig
-from rig import paths
-from rig.importer import GRAVITY, import_log, infer_uwb_mode, load_any
-from rig.recording import read_recording, write_recording
-from rig.usdlog import read_log
+from rig.data import paths
+from rig.data.importer import GRAVITY, import_log, infer_uwb_mode, load_any
+from rig.data.recording import read_recording, write_recording
+from rig.data.usdlog import read_log
 
 
 def test_unit_conversions_and_time_order(tmp_path: Path, survey_0425: Path) -> None:

@@ -9,9 +9,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rig import imu_spectrum
-from rig.effects import ImuBatch, lowpass, make_effect
-from rig.recording import Vec3Series
+from rig.data.recording import Vec3Series
+from rig.diagnosis import imu_spectrum
+from rig.sim.effects import ImuBatch, lowpass, make_effect
 
 RATE = 1000.0
 T = np.arange(0.0, 40.0, 1.0 / RATE)

@@ -7,10 +7,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from conftest import ROOT, run_rig
-from rig.metrics import MetricsError, SegmentRule, flight_window, score
-from rig.recording import PoseSeries
+
+from rig.data.recording import PoseSeries
+from rig.estimator.metrics import MetricsError, SegmentRule, flight_window, score
 
 
 def _flight(duration: float = 30.0, rate: float = 50.0) -> PoseSeries:
@@ -71,7 +71,7 @@ def test_no_flight_is_a_clear_error() -> None:
 
 
 def test_cli_metrics_and_plot(tmp_path: Path) -> None:
-    from rig.recording import read_recording
+    from rig.data.recording import read_recording
 
     rec = read_recording(ROOT / "recordings" / "default.mcap")
     csv = tmp_path / "est.csv"
@@ -98,13 +98,13 @@ def test_cli_demo_runs_the_main_job(tmp_path: Path) -> None:
 def test_the_demo_judges_the_native_wall_clock_on_its_p99_window() -> None:
     """One preempted window does not fail the native program; a slow estimator does.
     QEMU's deterministic worst window stays the bar."""
-    from rig.cli import DEMO_BUDGET_FIGURE, DEMO_MAX_BUDGET, _assertions
+    from rig.hil.checks import DEMO_BUDGET_FIGURE, DEMO_MAX_BUDGET, assertions
 
     def result(p99: float, worst: float) -> dict:
         return {"rmse_3d": 0.1, "timing": {"budget": 1e7, "window_p99": p99, "window_max": worst}}
 
     def failed(target: str, timing: dict) -> list[str]:
-        return _assertions(timing, 0.4, DEMO_MAX_BUDGET, DEMO_BUDGET_FIGURE[target])
+        return assertions(timing, 0.4, DEMO_MAX_BUDGET, DEMO_BUDGET_FIGURE[target])
 
     assert failed("native", result(p99=1.2e4, worst=5e6)) == []
     assert failed("native", result(p99=2.5e6, worst=3e6)) == ["window p99 25.0% of the budget > 20.0%"]

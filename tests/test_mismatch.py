@@ -1,4 +1,4 @@
-"""Where the untouched simulation and a recording differ (rig.mismatch): an effect
+"""Where the untouched simulation and a recording differ (rig.diagnosis.mismatch): an effect
 injected into a simulated flight shows on its anchor and its anchor pairs, in its
 region of space and at its viewing angles."""
 
@@ -7,12 +7,12 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-
-from rig import effects as fx
-from rig.channels import Problem
-from rig.mismatch import ANGLE_BIN_DEG, locate
-from rig.simulate import simulate
 from test_diagnose import sim_config
+
+from rig.diagnosis.channels import Problem
+from rig.diagnosis.mismatch import ANGLE_BIN_DEG, locate
+from rig.sim import effects as fx
+from rig.sim.simulate import simulate
 
 LOCATED_M = 0.08       # a robust mean within this of the injected size (TDOA noise 0.15 m, 3 % outliers)
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from rig import nlos_mixture as nm
+from rig.diagnosis import nlos_mixture as nm
 
 N = 4000
 

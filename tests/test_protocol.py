@@ -6,11 +6,11 @@ from __future__ import annotations
 import subprocess
 
 import numpy as np
-
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from rig import native, protocol
+from rig.estimator import native
+from rig.hil import protocol
 
 payloads = st.binary(min_size=1, max_size=protocol.MAX_PAYLOAD)
 

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from rig.selection import find_region
-from rig.region_scan import GRID_BINS, BoxScan
+from rig.diagnosis.confined import find_region
+from rig.diagnosis.region_scan import GRID_BINS, BoxScan
 
 N = 3000
 

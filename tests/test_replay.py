@@ -12,11 +12,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from conftest import RIG
-from rig import native, protocol, replay, transport
-from rig.evaluate import build_events, load_model, make_estimator, start_time, truth_pose_at
-from rig.importer import load_any
+
+from rig.data.importer import load_any
+from rig.estimator import native
+from rig.estimator.evaluate import build_events, load_model, make_estimator, start_time, truth_pose_at
+from rig.hil import protocol, replay, targets
+from rig.hil.links import CrtpLink, LinkError, open_url
 
 
 @pytest.fixture(scope="module")
@@ -47,7 +49,7 @@ def positions(session) -> np.ndarray:
 def test_native_program_under_sanitizers_equals_the_library(default_rec) -> None:
     native.make("program-asan")
     params, model = native.params_with(), load_model()
-    link = transport.open_native(native.ESTIMATOR_DIR / "build" / "estimator_native-asan")
+    link = targets.open_native(native.ESTIMATOR_DIR / "build" / "estimator_native-asan")
     session = run_target(link, default_rec, params, model, duration=6.0)
     lib = library_estimates(default_rec, params, model, 6.0)
     assert len(session.estimates) == len(lib) >= 599
@@ -60,8 +62,8 @@ def test_cflib_udp_link_to_the_native_program_equals_the_library(default_rec) ->
     native program's UDP endpoint (under sanitizers)."""
     native.make("program-asan")
     params, model = native.params_with(), load_model()
-    link = transport.open_native_udp(native.ESTIMATOR_DIR / "build" / "estimator_native-asan")
-    assert isinstance(link, transport.CrtpLink) and link.name.startswith("crazyflie udp://127.0.0.1:")
+    link = targets.open_native_udp(native.ESTIMATOR_DIR / "build" / "estimator_native-asan")
+    assert isinstance(link, CrtpLink) and link.name.startswith("crazyflie udp://127.0.0.1:")
     session = run_target(link, default_rec, params, model, duration=4.0)
     lib = library_estimates(default_rec, params, model, 4.0)
     assert len(session.estimates) == len(lib) >= 399
@@ -73,8 +75,8 @@ def test_qemu_firmware_matches_native_on_a_real_flight_and_counts_are_determinis
     params, model = native.params_with(), load_model()
     duration = 12.0
     lib = library_estimates(real_rec, params, model, duration)
-    first = run_target(transport.open_qemu(), real_rec, params, model, duration)
-    second = run_target(transport.open_qemu(), real_rec, params, model, duration=2.0)
+    first = run_target(targets.open_qemu(), real_rec, params, model, duration)
+    second = run_target(targets.open_qemu(), real_rec, params, model, duration=2.0)
     assert first.unit == "instructions"
     np.testing.assert_allclose(positions(first), lib["pos"], atol=2e-3)
     # identical instruction counts run to run (QEMU -icount): the calls inside a STEP exactly; the
@@ -115,7 +117,7 @@ def test_cli_replay_writes_metrics_and_asserts(tmp_path: Path, data_dir: Path) -
 
 def test_corrupt_bytes_mid_stream_are_dropped_and_counted(default_rec) -> None:
     params = native.params_with(use_bias_net=0)
-    link = transport.open_native()
+    link = targets.open_native()
     original = link.send
     sent = {"n": 0}
 
@@ -134,7 +136,7 @@ def test_corrupt_bytes_mid_stream_are_dropped_and_counted(default_rec) -> None:
 
 
 def test_a_target_that_stops_answering_fails_clearly_within_seconds(default_rec) -> None:
-    link = transport.open_native()
+    link = targets.open_native()
     original = link.send
     state = {"n": 0, "stopped_at": None}
 
@@ -147,7 +149,7 @@ def test_a_target_that_stops_answering_fails_clearly_within_seconds(default_rec)
 
     link.send = send_then_freeze
     try:
-        with pytest.raises(transport.LinkError, match="stopped answering"):
+        with pytest.raises(LinkError, match="stopped answering"):
             replay.run(link, default_rec, native.params_with(use_bias_net=0), None, duration=5.0)
         assert time.monotonic() - state["stopped_at"] < 10
     finally:
@@ -159,10 +161,10 @@ def test_a_board_that_stops_reading_fails_the_write_instead_of_blocking_for_ever
     """A real pty whose other end nobody reads (a board stuck with its receive
     interrupt off): once its buffer is full the write gives up with a clear error."""
     board_side, rig_side = os.openpty()
-    link = transport.open_url(os.ttyname(rig_side), write_timeout=0.5)
+    link = open_url(os.ttyname(rig_side), write_timeout=0.5)
     try:
         began = time.monotonic()
-        with pytest.raises(transport.LinkError, match="the board stopped reading"):
+        with pytest.raises(LinkError, match="the board stopped reading"):
             for _ in range(10_000):                  # 1 MB of hellos: far beyond a pty's buffer
                 link.send([protocol.hello()] * 20)
         assert time.monotonic() - began < 5.0 and link.bytes_sent > 0
@@ -176,9 +178,9 @@ def test_a_board_that_resets_mid_replay_fails_clearly_and_keeps_the_record(defau
     """A real reset: QEMU's system_reset reboots the firmware mid-replay; the board
     announces its boot, the replay stops with a clear error and the run record keeps
     every estimate received before, and the board's boot status."""
-    from rig.runrecord import TOPIC_ESTIMATE, TOPIC_STATUS, RunRecorder, read_run
+    from rig.hil.runrecord import TOPIC_ESTIMATE, TOPIC_STATUS, RunRecorder, read_run
 
-    link = transport.open_qemu()
+    link = targets.open_qemu()
     original, count = link.send, {"n": 0}
 
     def send_then_reset(payloads):
@@ -190,7 +192,7 @@ def test_a_board_that_resets_mid_replay_fails_clearly_and_keeps_the_record(defau
     link.send = send_then_reset
     recorder = RunRecorder(tmp_path / "run.mcap")
     try:
-        with pytest.raises(transport.LinkError, match="reset during the replay") as failure:
+        with pytest.raises(LinkError, match="reset during the replay") as failure:
             replay.run(link, default_rec, native.params_with(use_bias_net=0), None, duration=8.0, recorder=recorder)
     finally:
         link.close()
@@ -206,8 +208,8 @@ def test_real_time_mode_gives_the_lock_step_estimates_and_counts_a_lost_window(d
     same estimates as lock-step, latencies measured; a window lost on the link (the
     radio dropped it) is counted as missed and the replay carries on."""
     params = native.params_with(use_bias_net=0)
-    lock = run_target(transport.open_native(), default_rec, params, None, duration=6.0)
-    link, original, calls = transport.open_native(), None, {"n": 0}
+    lock = run_target(targets.open_native(), default_rec, params, None, duration=6.0)
+    link, original, calls = targets.open_native(), None, {"n": 0}
     original = link.send
 
     def drop_one_window(payloads):
@@ -245,7 +247,7 @@ def test_real_time_mode_exposes_the_slow_qemu_link_that_lock_step_hides(tmp_path
     assert result["mode"] == "realtime" and result["timing"]["overruns"] == 0
     assert rt["missed_windows"] == 0 and rt["late_windows"] > rt["windows_sent"] // 2
     assert rt["latency_ms"]["max"] > 10 * rt["deadline_ms"]       # a backlog that grows, not jitter
-    from rig.runrecord import TOPIC_TIMING, read_run
+    from rig.hil.runrecord import TOPIC_TIMING, read_run
     latency = [r["latency_ms"] for r in read_run(out / "run.mcap")[TOPIC_TIMING]]
     assert len(latency) == result["n_estimates"] and max(latency) == pytest.approx(rt["latency_ms"]["max"])
 

@@ -5,8 +5,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rig.robust import (HUBER_C, delay_centre, delay_centre_slope, huber_loss, huber_mean, irls, mad_scale,
-                        robust_nll, robust_rms)
+from rig.diagnosis.robust import (
+    HUBER_C,
+    delay_centre,
+    delay_centre_slope,
+    huber_loss,
+    huber_mean,
+    irls,
+    mad_scale,
+    robust_nll,
+    robust_rms,
+)
 
 
 def test_irls_is_not_pulled_by_outliers_that_least_squares_follows() -> None:

@@ -1,4 +1,4 @@
-"""Naming by backward elimination (rig.selection._name) on synthetic design columns:
+"""Naming by backward elimination (rig.diagnosis.selection._name) on synthetic design columns:
 a gyroscope scale pays for the axes it is named on, not for all three."""
 
 from __future__ import annotations
@@ -6,8 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rig.candidates import MIN_EVIDENCE, PENALTY_PER_PARAMETER, Candidate
-from rig.selection import Term, _Design, _name
+from rig.diagnosis.candidates import MIN_EVIDENCE, PENALTY_PER_PARAMETER, Candidate
+from rig.diagnosis.selection import _name
+from rig.diagnosis.terms import Design, Term
 
 SAMPLES = 3000
 
@@ -32,7 +33,7 @@ def _data(half_chi_square: list[float], seed: int = 7) -> tuple[np.ndarray, np.n
 
 def _gain(z: np.ndarray, columns: np.ndarray) -> float:
     term = _gyro_scale(columns)
-    return _Design(z, [term]).gain(term)
+    return Design(z, [term]).gain(term)
 
 
 def test_a_vector_effect_on_one_axis_pays_for_that_axis_only() -> None:

@@ -14,11 +14,10 @@ import sys
 import time
 from pathlib import Path
 
+from conftest import RIG, ROOT, exit_status, run_rig
 from mcap.reader import make_reader
 
-from rig.runrecord import read_run
-
-from conftest import ROOT, RIG, exit_status, run_rig
+from rig.hil.runrecord import read_run
 
 
 def _free_endpoint() -> str:

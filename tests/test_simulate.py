@@ -7,16 +7,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import FULL_PRECISION, ROOT, run_rig, simulate_exact
 from scipy.spatial.transform import Rotation, Slerp
 
-from conftest import FULL_PRECISION, ROOT, run_rig, simulate_exact
-from rig.bias_dataset import measurement_features
-from rig.bias_model import DEFAULT_NETWORK, BiasNet
-from rig.effects import ImuBatch, LearnedBias, TdoaBatch, World, make_effect, vibration_level
-from rig.importer import load_any
-from rig.recording import Recording, Vec3Series, read_recording, write_recording
-from rig.simulate import Predictor, SimConfig, inject, simulate
-from rig.trajectory import GRAVITY, RecordedTrajectory, parametric, windowed_mean_quaternion
+from rig.bias.dataset import measurement_features
+from rig.data.importer import load_any
+from rig.data.recording import Recording, Vec3Series, read_recording, write_recording
+from rig.estimator.bias_net import DEFAULT_NETWORK, BiasNet
+from rig.sim.effects import ImuBatch, LearnedBias, TdoaBatch, World, make_effect, vibration_level
+from rig.sim.simulate import Predictor, SimConfig, inject, simulate
+from rig.sim.trajectory import GRAVITY, RecordedTrajectory, parametric, windowed_mean_quaternion
 
 
 def _strapdown(rec: Recording) -> np.ndarray:
@@ -60,7 +60,7 @@ def test_noiseless_tdoa_equals_the_geometry_exactly(survey_0425: Path, mode: str
     rec = simulate_exact(survey_0425, "circle-sine", duration=5.0, uwb_mode=mode)
     anchors = rec.anchor_map()
     # The truth is sampled at other times, so evaluate the trajectory itself at the TDOA times.
-    from rig.trajectory import parametric
+    from rig.sim.trajectory import parametric
     p = parametric("circle-sine", duration=5.0).position(rec.tdoa.t)
     a = np.array([anchors[k].position for k in rec.tdoa.id_a])
     b = np.array([anchors[k].position for k in rec.tdoa.id_b])
@@ -322,7 +322,7 @@ def test_shipped_default_recording_regenerates_byte_identically(tmp_path: Path) 
 
 
 def test_simulating_a_recordings_own_trajectory(tmp_path: Path, data_dir: Path) -> None:
-    from rig.importer import import_log
+    from rig.data.importer import import_log
 
     real = import_log(data_dir / "flights" / "0425-traj1", data_dir / "surveys" / "anchor_0425.txt")
     write_recording(real, tmp_path / "real.mcap")

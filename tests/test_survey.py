@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rig.survey import SurveyError, anchor_rotation, parse_survey
+from rig.data.survey import SurveyError, anchor_rotation, parse_survey
 
 
 @pytest.mark.parametrize("day", ["0422", "0425", "0426"])

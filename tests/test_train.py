@@ -9,14 +9,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from conftest import ROOT, run_rig
-from rig import native
-from rig.bias_dataset import Samples
-from rig.bias_model import DEFAULT_NETWORK
-from rig.evaluate import evaluate
-from rig.recording import read_recording
-from rig.train import TrainConfig, provenance_path, run_training, split_flights, train, trained_on
+
+from rig.bias.config import TrainConfig
+from rig.bias.dataset import Samples
+from rig.bias.train import provenance_path, run_training, split_flights, train, trained_on
+from rig.data.recording import read_recording
+from rig.estimator import native
+from rig.estimator.bias_net import DEFAULT_NETWORK
+from rig.estimator.evaluate import evaluate
 
 
 def synthetic_samples(n_flights: int, per_flight: int, seed: int) -> Samples:
@@ -103,10 +104,10 @@ def test_split_is_by_flight_and_seeded() -> None:
 
 def test_restarts_are_chosen_by_the_estimator_replaying_the_validation_flights(tmp_path: Path,
                                                                               data_dir: Path) -> None:
-    from rig.bias_dataset import build_dataset
-    from rig.evaluate import evaluate
-    from rig.importer import load_any
-    from rig.train import Split, fit
+    from rig.bias.dataset import build_dataset
+    from rig.bias.train import Split, fit
+    from rig.data.importer import load_any
+    from rig.estimator.evaluate import evaluate
 
     names = ["0425-traj1", "0425-traj2", "0426-traj1"]
     samples, _ = build_dataset([data_dir / "flights" / n for n in names])

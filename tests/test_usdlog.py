@@ -7,9 +7,9 @@ import zlib
 
 import numpy as np
 import pytest
-
 from conftest import TYPES, crafted_log
-from rig.usdlog import LogFormatError, decode
+
+from rig.data.usdlog import LogFormatError, decode
 
 
 def test_crafted_log_round_trips() -> None:

@@ -180,3 +180,31 @@ int ekf_is_diverged(const estimator_t *est)
             if (!isfinite(est->P[i][j])) return 1;
     return 0;
 }
+
+/* G P G^T + std^2 for a Jacobian G nonzero on position only. */
+float ekf_innovation_variance(const estimator_t *est, const float h[3], float std)
+{
+    float s = std * std;
+    for (int i = 0; i < 3; i++)
+        s += h[i] * (est->P[i][0] * h[0] + est->P[i][1] * h[1] + est->P[i][2] * h[2]);
+    return s;
+}
+
+/* The EKF update with one scalar measurement whose Jacobian h is nonzero on position
+ * only (every measurement model of this estimator): K = P h^T / s, dx = K innovation,
+ * P <- P - K (h P). Every measurement model calls down into it, as Crazyflie's
+ * kalmanCoreScalarUpdate. */
+void ekf_scalar_update(estimator_t *est, const float h[3], float innovation, float std)
+{
+    float PG[EST_STATE_DIM];
+    for (int i = 0; i < EST_STATE_DIM; i++)
+        PG[i] = est->P[i][0] * h[0] + est->P[i][1] * h[1] + est->P[i][2] * h[2];
+    const float s = h[0] * PG[0] + h[1] * PG[1] + h[2] * PG[2] + std * std;
+    const float inv_s = 1.0f / s;
+    float dx[EST_STATE_DIM];
+    for (int i = 0; i < EST_STATE_DIM; i++) dx[i] = PG[i] * inv_s * innovation;
+    /* P <- P - K (G P) = P - PG PG^T / s  (rank one, stays symmetric) */
+    for (int i = 0; i < EST_STATE_DIM; i++)
+        for (int j = 0; j < EST_STATE_DIM; j++) est->P[i][j] -= PG[i] * PG[j] * inv_s;
+    ekf_apply_error(est, dx);
+}

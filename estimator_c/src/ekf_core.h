@@ -27,15 +27,17 @@ void ekf_condition_covariance(estimator_t *est);
 void ekf_apply_error(estimator_t *est, const float dx[EST_STATE_DIM]);
 int ekf_is_diverged(const estimator_t *est);
 void quat_to_rot(const float q[4], float r[3][3]);
+/* the one scalar measurement update (Jacobian nonzero on position only, measurement
+ * noise std) and its innovation variance */
+float ekf_innovation_variance(const estimator_t *est, const float h[3], float std);
+void ekf_scalar_update(estimator_t *est, const float h[3], float innovation, float std);
 
 /* mm_tdoa.c */
 float tdoa_predict(const float pos[3], const float a[3], const float b[3], float grad[3]);
 void tdoa_update(estimator_t *est, const est_tdoa_t *m);
 
-/* mm_tdoa_robust.c */
-float tdoa_update_robust(estimator_t *est, float innovation, const float grad[3]);
-/* plain update, shared with mm_tdoa.c */
-void tdoa_update_plain(estimator_t *est, float innovation, const float grad[3]);
+/* mm_tdoa_robust.c: the M-estimation counterpart of ekf_scalar_update */
+float ekf_robust_scalar_update(estimator_t *est, const float h[3], float innovation, float std);
 
 /* robust_weight.c */
 float gm_weight(float e, float c2);

@@ -1,5 +1,6 @@
 /* TDOA measurement model: h(p) = |p - b| - |p - a|, its gradient, and the
- * measurement step that picks the plain or the robust update. */
+ * measurement step that picks the plain or the robust update (both in the core:
+ * ekf_scalar_update and ekf_robust_scalar_update). */
 #include <math.h>
 
 #include "ekf_core.h"
@@ -18,32 +19,6 @@ float tdoa_predict(const float pos[3], const float a[3], const float b[3], float
     const float ia = 1.0f / fmaxf(ra, 1e-3f), ib = 1.0f / fmaxf(rb, 1e-3f);
     for (int i = 0; i < 3; i++) grad[i] = db[i] * ib - da[i] * ia;
     return rb - ra;
-}
-
-/* G P G^T + sigma^2 for a Jacobian G nonzero on position only. */
-static float innovation_variance(const estimator_t *est, const float grad[3])
-{
-    float s = est->params.tdoa_std * est->params.tdoa_std;
-    for (int i = 0; i < 3; i++)
-        s += grad[i] * (est->P[i][0] * grad[0] + est->P[i][1] * grad[1] + est->P[i][2] * grad[2]);
-    return s;
-}
-
-/* Plain EKF update with a scalar measurement whose Jacobian is nonzero on position only. */
-void tdoa_update_plain(estimator_t *est, float innovation, const float grad[3])
-{
-    float PG[EST_STATE_DIM];
-    for (int i = 0; i < EST_STATE_DIM; i++)
-        PG[i] = est->P[i][0] * grad[0] + est->P[i][1] * grad[1] + est->P[i][2] * grad[2];
-    const float s = grad[0] * PG[0] + grad[1] * PG[1] + grad[2] * PG[2]
-                    + est->params.tdoa_std * est->params.tdoa_std;
-    const float inv_s = 1.0f / s;
-    float dx[EST_STATE_DIM];
-    for (int i = 0; i < EST_STATE_DIM; i++) dx[i] = PG[i] * inv_s * innovation;
-    /* P <- P - K (G P) = P - PG PG^T / s  (rank one, stays symmetric) */
-    for (int i = 0; i < EST_STATE_DIM; i++)
-        for (int j = 0; j < EST_STATE_DIM; j++) est->P[i][j] -= PG[i] * PG[j] * inv_s;
-    ekf_apply_error(est, dx);
 }
 
 static void count_weight(estimator_t *est, float weight)
@@ -74,19 +49,21 @@ void tdoa_update(estimator_t *est, const est_tdoa_t *m)
         measured -= bn_predict(est->net, features);
     }
     const float innovation = measured - predicted;
+    const float std = est->params.tdoa_std;
 
     /* Hard gate: an innovation both large in metres and many sigmas out is not this
      * flight's geometry (multipath far beyond what the robust cost should even see). */
     if (fabsf(innovation) > est->params.gate_m
-        && innovation * innovation > EST_GATE_SIGMAS * EST_GATE_SIGMAS * innovation_variance(est, grad)) {
+        && innovation * innovation > EST_GATE_SIGMAS * EST_GATE_SIGMAS
+                                       * ekf_innovation_variance(est, grad, std)) {
         est->counters.rejected[EST_REJ_GATE]++;
         est->counters.tdoa_rejected++;
         return;
     }
     if (est->params.robust) {
-        count_weight(est, tdoa_update_robust(est, innovation, grad));
+        count_weight(est, ekf_robust_scalar_update(est, grad, innovation, std));
     } else {
-        tdoa_update_plain(est, innovation, grad);
+        ekf_scalar_update(est, grad, innovation, std);
         est->counters.tdoa_accepted++;
     }
     ekf_condition_covariance(est);

@@ -44,19 +44,20 @@ static void reweighted_gain_column(const float S[N][N], const float inv_w[N], co
     }
 }
 
-/* Returns the final measurement weight. */
-float tdoa_update_robust(estimator_t *est, float innovation, const float grad[3])
+/* The robust counterpart of ekf_scalar_update for a measurement of noise `std`;
+ * returns the final measurement weight. */
+float ekf_robust_scalar_update(estimator_t *est, const float grad[3], float innovation, float std)
 {
     const est_params_t *prm = &est->params;
     float S[N][N];
     memset(S, 0, sizeof S);
     if (cholesky_lower((const float (*)[N])est->P, S) != 0) {
         /* Not positive definite (numerically): fall back to the plain update this once. */
-        tdoa_update_plain(est, innovation, grad);
+        ekf_scalar_update(est, grad, innovation, std);
         return 1.0f;
     }
-    const float sigma2 = prm->tdoa_std * prm->tdoa_std;
-    const float inv_sigma = 1.0f / prm->tdoa_std;
+    const float sigma2 = std * std;
+    const float inv_sigma = 1.0f / std;
     float dx[N] = {0};
     float inv_w[N];
     float PG[N];

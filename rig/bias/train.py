@@ -1,0 +1,274 @@
+"""Train the TDOA bias network (paper Section III) with torch on the CPU.
+
+Flights, not samples, are split into training, validation and test sets (samples
+20 ms apart are not independent). Mini-batch Adam on the mean squared error of
+the standardised label, early stopping when the validation error has not improved
+for `patience` epochs, the best epoch's weights kept. A few restarts from different
+initialisations; the one kept is the one with which the robust estimator tracks the
+validation flights best (lowest mean 3D RMSE, replayed in closed loop): on the shared
+flights the end-to-end result varies by 0.01-0.02 m from one initialisation to the
+next, and the validation TDOA error ranks them poorly (docs/bias.md). Seeded: the same
+data and seed give the same network.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+
+from rig.bias.config import TrainConfig
+from rig.bias.dataset import Samples
+from rig.data import paths
+from rig.estimator.bias_net import HIDDEN, INPUTS, BiasNet
+
+log = logging.getLogger(__name__)
+
+
+
+@dataclass
+class Split:
+    train: list[str]
+    validation: list[str]
+    test: list[str]
+
+
+def split_flights(names: list[str], seed: int, test: list[str] | None = None,
+                  fractions: tuple[float, float] = (0.70, 0.15)) -> Split:
+    """Shuffle flight names (seeded) and cut 70/15/15 (train/validation/test). With `test`
+    given, those flights are the test set and the rest is cut in the same 70:15 proportion."""
+    names = sorted(set(names) - set(test or []))
+    order = [str(n) for n in np.random.default_rng(seed).permutation(names)]
+    n = len(order)
+    if n < 2:
+        raise ValueError(f"need at least two training flights, got {n}")
+    if test is None:
+        n_val = max(1, round(fractions[1] * n))
+        n_test = max(1, n - round(fractions[0] * n) - n_val)
+        test = order[n - n_test:]
+        order = order[:n - n_test]
+    else:
+        n_val = max(1, round(len(order) * fractions[1] / sum(fractions)))
+    return Split(sorted(order[n_val:]), sorted(order[:n_val]), sorted(test))
+
+
+def error_stats(residual: np.ndarray) -> dict:
+    return {"mean": float(np.mean(residual)), "std": float(np.std(residual)),
+            "rmse": float(np.sqrt(np.mean(residual ** 2))), "n": int(len(residual))}
+
+
+def _torch():
+    import torch
+
+    torch.set_num_threads(1)  # fastest for this small network on this machine
+    return torch
+
+
+def _mlp(torch):
+    nn = torch.nn
+    return nn.Sequential(nn.Linear(INPUTS, HIDDEN), nn.ReLU(), nn.Linear(HIDDEN, HIDDEN), nn.ReLU(),
+                         nn.Linear(HIDDEN, HIDDEN), nn.ReLU(), nn.Linear(HIDDEN, 1))
+
+
+def _masked(features: np.ndarray, keep: list[int]) -> np.ndarray:
+    out = np.zeros_like(features, dtype=np.float64)
+    out[:, keep] = features[:, keep]
+    return out
+
+
+def _normalisation(x: np.ndarray, keep: list[int]) -> tuple[np.ndarray, np.ndarray]:
+    mean = x.mean(axis=0)
+    std = x.std(axis=0)
+    scale = np.where(std > 1e-9, 1.0 / np.maximum(std, 1e-9), 0.0)
+    dropped = np.setdiff1d(np.arange(INPUTS), keep)
+    mean[dropped], scale[dropped] = 0.0, 0.0  # a dropped feature cannot reach the network
+    return mean, scale
+
+
+def _to_bias_net(model, in_mean, in_scale, out_scale, out_offset) -> BiasNet:
+    linears = [m for m in model if hasattr(m, "weight")]
+    return BiasNet([m.weight.detach().double().numpy().copy() for m in linears],
+                   [m.bias.detach().double().numpy().copy() for m in linears],
+                   in_mean, in_scale, float(out_scale), float(out_offset))
+
+
+def train(train_set: Samples, validation_set: Samples, config: TrainConfig = TrainConfig(),
+          progress=None, score: Callable[[BiasNet], float] | None = None) -> tuple[BiasNet, dict]:
+    """Fit `config.restarts` networks from different initialisations and keep the one with the
+    lowest `score` (default: the validation error); returns it with its training history and
+    every restart's result."""
+    torch = _torch()
+    x_train = _masked(train_set.features, config.features)
+    in_mean, in_scale = _normalisation(x_train, config.features)
+    out_offset, out_scale = float(train_set.label.mean()), float(train_set.label.std())
+
+    def tensors(samples: Samples):
+        x = (_masked(samples.features, config.features) - in_mean) * in_scale
+        y = (samples.label - out_offset) / out_scale
+        return torch.tensor(x, dtype=torch.float32), torch.tensor(y[:, None], dtype=torch.float32)
+
+    data = (*tensors(train_set), *tensors(validation_set))
+    tic = time.perf_counter()
+    runs = []
+    for restart in range(config.first_restart, config.first_restart + config.restarts):
+        model, run = _train_once(torch, data, config, restart, progress)
+        net = _to_bias_net(model, in_mean, in_scale, out_scale, out_offset)
+        if score is not None:
+            run["validation_rmse_3d"] = score(net)
+        runs.append((net, run))
+    key = "validation_mse" if score is None else "validation_rmse_3d"
+    net, best = min(runs, key=lambda pair: pair[1][key])
+    info = {**best, "selected_by": key, "seconds": time.perf_counter() - tic, "config": asdict(config),
+            "restarts": [{k: v for k, v in run.items() if k != "history"} for _, run in runs]}
+    return net, info
+
+
+def closed_loop_rmse(recordings: list, net: BiasNet) -> float:
+    """The robust estimator's mean 3D RMSE over `recordings` with `net` correcting (inf if
+    any replay diverges)."""
+    from rig.estimator.evaluate import evaluate
+
+    results = [evaluate(rec, model=net) for rec in recordings]
+    if any(r["diverged"] for r in results):
+        return float("inf")
+    return float(np.mean([r["rmse_3d"] for r in results]))
+
+
+def _train_once(torch, data: tuple, config: TrainConfig, restart: int, progress=None) -> tuple:
+    """One training run from the initialisation `config.init_seed(restart)`."""
+    xt, yt, xv, yv = data
+    init_seed = config.init_seed(restart)
+    torch.manual_seed(init_seed)
+    rng = np.random.default_rng(init_seed)
+    model = _mlp(torch)
+    optimiser = torch.optim.Adam(model.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay)
+    loss_fn = torch.nn.MSELoss()
+    best, best_state, best_epoch, history = np.inf, None, -1, []
+    epochs = range(config.max_epochs)
+    for epoch in progress(epochs) if progress else epochs:
+        model.train()
+        order = torch.from_numpy(rng.permutation(len(xt)))
+        for start in range(0, len(xt), config.batch_size):
+            idx = order[start:start + config.batch_size]
+            optimiser.zero_grad()
+            loss = loss_fn(model(xt[idx]), yt[idx])
+            loss.backward()
+            optimiser.step()
+        model.eval()
+        with torch.no_grad():
+            val = float(loss_fn(model(xv), yv)) if len(xv) else float(loss)
+        history.append({"epoch": epoch, "validation_mse": val})
+        if val < best - 1e-6:
+            best, best_epoch = val, epoch
+            best_state = {k: v.clone() for k, v in model.state_dict().items()}
+        elif epoch - best_epoch >= config.patience:
+            break
+    model.load_state_dict(best_state)
+    return model, {"restart": restart, "init_seed": init_seed, "validation_mse": best,
+                   "epochs": len(history), "best_epoch": best_epoch, "history": history}
+
+
+def residual_stats(net: BiasNet, samples: Samples) -> dict:
+    """TDOA error before and after subtracting the network's prediction (float and int8 weights)."""
+    if not len(samples):
+        return {}
+    return {"before": error_stats(samples.label),
+            "after": error_stats(samples.label - net.predict(samples.features)),
+            "after_int8": error_stats(samples.label - net.quantized().predict(samples.features))}
+
+
+
+
+def involves(samples: Samples, anchors: list[int]) -> np.ndarray:
+    return np.isin(samples.id_a, anchors) | np.isin(samples.id_b, anchors)
+
+
+def fit(samples: Samples, split: Split, config: TrainConfig = TrainConfig(), exclude_anchors: list[int] = (),
+        progress=None, flight_dir: Path | None = None) -> tuple[BiasNet, dict]:
+    """Train on `split`; with `exclude_anchors`, training and validation never see a measurement
+    involving them and the test set is exactly the test flights' measurements that do. The
+    validation flights' recordings (for selecting a restart in closed loop) are read from
+    `flight_dir`, by default the shared flights."""
+    exclude_anchors = list(exclude_anchors)
+    hit = involves(samples, exclude_anchors) if exclude_anchors else np.zeros(len(samples), bool)
+    in_flights = lambda names: np.isin(samples.flight, names)  # noqa: E731
+    train_set = samples.select(in_flights(split.train) & ~hit)
+    validation_set = samples.select(in_flights(split.validation) & ~hit)
+    test_set = samples.select(in_flights(split.test) & (hit if exclude_anchors else True))
+    score = None
+    if config.select_by == "rmse_3d" and not exclude_anchors and config.restarts > 1:
+        from rig.data.importer import load_any
+
+        flight_dir = paths.data_dir() / "flights" if flight_dir is None else Path(flight_dir)
+        recordings = [load_any(flight_dir / name) for name in split.validation]
+        score = lambda net: closed_loop_rmse(recordings, net)  # noqa: E731
+    net, info = train(train_set, validation_set, config, progress, score)
+    report = {"split": asdict(split), "exclude_anchors": exclude_anchors,
+              "samples": {"train": len(train_set), "validation": len(validation_set), "test": len(test_set)},
+              "validation": residual_stats(net, validation_set), "test": residual_stats(net, test_set),
+              "training": {k: v for k, v in info.items() if k != "history"}, "history": info["history"]}
+    return net, report
+
+
+def provenance_path(model_path: Path) -> Path:
+    return model_path.with_name(model_path.stem + ".provenance.json")
+
+
+def trained_on(model_path: Path) -> set[str]:
+    """The names of the flights a `rig train` output trained on, from its provenance."""
+    try:
+        return set(json.loads(provenance_path(model_path).read_text())["split"]["train"])
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise ValueError(f"{model_path}: no readable provenance with its training flights ({exc})") from exc
+
+
+def load_or_build_dataset(flights: list[Path], cache: Path | None, progress=None,
+                          features_from: str = "estimate") -> tuple[Samples, dict]:
+    """The samples of `flights`, from `cache` when it holds exactly these flights with
+    features from the same tag pose."""
+    from rig.bias.dataset import build_dataset
+
+    names = sorted(Path(f).name for f in flights)
+    meta = {"flights": names, "features_from": features_from}
+    if cache is not None and cache.exists() and cache.with_suffix(".json").exists():
+        cached = json.loads(cache.with_suffix(".json").read_text())
+        if all(cached.get(k) == v for k, v in meta.items()):
+            log.info("dataset from cache %s", cache)
+            return Samples.load(cache), cached["latency_s"]
+    samples, latency = build_dataset(flights, progress=progress, features_from=features_from)
+    if cache is not None:
+        cache.parent.mkdir(parents=True, exist_ok=True)
+        samples.save(cache)
+        cache.with_suffix(".json").write_text(json.dumps({**meta, "latency_s": latency}) + "\n")
+    return samples, latency
+
+
+def run_training(flights: list[Path], out: Path, *, test_prefixes: list[str] | None = None,
+                 exclude_anchors: list[int] = (), config: TrainConfig = TrainConfig(),
+                 dataset_cache: Path | None = None, command: list[str] | None = None,
+                 progress=None, features_from: str = "estimate") -> dict:
+    """Build the dataset, split by flight, train, write OUT (model JSON) and its provenance."""
+    import torch
+
+    samples, latency = load_or_build_dataset(flights, dataset_cache, progress, features_from)
+    names = sorted(set(samples.flight.tolist()))
+    test = [n for n in names if any(n.startswith(p) for p in test_prefixes)] if test_prefixes else None
+    if test_prefixes and not test:
+        raise ValueError(f"no flight name starts with {test_prefixes}")
+    split = split_flights(names, config.seed, test)
+    net, report = fit(samples, split, config, exclude_anchors, progress,
+                      flight_dir=Path(flights[0]).parent if flights else None)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    net.save(out)
+    provenance = {"model": out.name, "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+                  "command": command or [], "data_dir": str(Path(flights[0]).parent) if flights else "",
+                  "flights": names, "ground_truth_latency_s": latency, "torch": torch.__version__,
+                  "features": config.features, "features_from": features_from, **report}
+    provenance_path(out).write_text(json.dumps(provenance, indent=2) + "\n")
+    return provenance

@@ -1,0 +1,83 @@
+"""`rig train`: the TDOA bias network from the shared flights."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from rig.bias.config import FEATURES_FROM, SELECT_BY, TrainConfig
+from rig.cli.common import EXIT_OK, CliError, progress
+from rig.data import paths
+from rig.data.paths import SHIPPED_BIAS_NET as DEFAULT_NETWORK
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    from rig.bias.config import FEATURE_SETS
+    from rig.bias.train import provenance_path, run_training, trained_on
+
+    flights = [f for f in paths.flights() if any(f.name.startswith(p) for p in args.flights)] \
+        if args.flights else paths.flights()
+    if args.apart_from:
+        try:
+            apart = trained_on(args.apart_from)
+        except ValueError as exc:
+            raise CliError(str(exc)) from exc
+        flights = [f for f in flights if f.name not in apart]
+    if not flights:
+        raise CliError(f"no flight in {paths.data_dir() / 'flights'} matches {args.flights or 'all'}"
+                       + (f" apart from {args.apart_from}'s training flights" if args.apart_from else ""))
+    if args.restarts < 1:
+        raise CliError(f"--restarts must be at least 1, got {args.restarts}")
+    config = TrainConfig(seed=args.seed, restarts=args.restarts, select_by=args.select_by,
+                         max_epochs=args.max_epochs, features=FEATURE_SETS[args.features])
+    anchors = [int(a) for a in args.exclude_anchors.split(",")] if args.exclude_anchors else []
+    prov = run_training(flights, args.out, test_prefixes=args.test, exclude_anchors=anchors, config=config,
+                        dataset_cache=args.dataset_cache, command=["rig", *sys.argv[1:]],
+                        progress=progress(desc="training", total=None), features_from=args.features_from)
+    t = prov["training"]
+    print(f"trained on {len(prov['split']['train'])} flights ({prov['samples']['train']} samples), "
+          f"{len(t['restarts'])} restarts in {t['seconds']:.0f} s; kept restart {t['restart']} by {t['selected_by']} "
+          f"({t[t['selected_by']]:.3f}; best epoch {t['best_epoch']} of {t['epochs']})")
+    for part in ("validation", "test"):
+        stats = prov[part]
+        if stats:
+            print(f"{part}: TDOA error mean {stats['before']['mean']:+.3f} -> {stats['after']['mean']:+.3f} m, "
+                  f"std {stats['before']['std']:.3f} -> {stats['after']['std']:.3f} m "
+                  f"(int8 {stats['after_int8']['std']:.3f} m)")
+    print(f"wrote {args.out} and {provenance_path(args.out)}")
+    return EXIT_OK
+
+
+def register(sub) -> None:
+    p = sub.add_parser("train", help="train the TDOA bias network on the shared flights (torch, CPU)",
+                       description="Build the dataset (14 features from the C feature code at the estimator's own "
+                                   "pose, label = measured - true TDOA, |error| <= 1 m, in flight), split by "
+                                   "flight 70/15/15, train the 14-30-30-30-1 network with early stopping from a "
+                                   "few initialisations, keep the one the estimator does best with on the "
+                                   "validation flights and write the model JSON and a provenance file. Seeded "
+                                   "and reproducible.")
+    p.add_argument("--flights", nargs="+", metavar="PREFIX", help="use flights whose names start with these")
+    p.add_argument("--apart-from", type=Path, metavar="MODEL",
+                   help="leave out the flights this model (a `rig train` output) trained on, so that it can be "
+                        "tested on what this one learns (how recordings/room_bias_net.json is made)")
+    p.add_argument("--test", nargs="+", metavar="PREFIX",
+                   help="these flights are the test set (default: a seeded 15%% of the flights)")
+    p.add_argument("--exclude-anchors", metavar="K,K", help="leave these anchors out of training; test on them")
+    p.add_argument("--features", choices=("14", "10"), default="14",
+                   help="10 drops the anchors' orientation (the tag's angles in each anchor's frame)")
+    p.add_argument("--features-from", choices=FEATURES_FROM, default=FEATURES_FROM[0],
+                   help="the tag pose the features are computed from: the estimator's own (a replay without "
+                        "correction; what the network sees in flight) or the ground truth")
+    p.add_argument("--seed", type=int, default=0, help="seeds the flight split and the initialisations")
+    p.add_argument("--restarts", type=int, default=TrainConfig().restarts,
+                   help="train from this many initialisations and keep the best on the validation flights "
+                        "(default %(default)s)")
+    p.add_argument("--select-by", choices=SELECT_BY, default=SELECT_BY[0],
+                   help="choose the kept restart by the robust estimator's mean 3D RMSE replaying the validation "
+                        "flights with it (default), or by the validation TDOA error (no replay; always used "
+                        "with --exclude-anchors)")
+    p.add_argument("--max-epochs", type=int, default=TrainConfig().max_epochs)
+    p.add_argument("--out", type=Path, default=DEFAULT_NETWORK)
+    p.add_argument("--dataset-cache", type=Path, help="reuse (or write) the dataset here (.npz)")
+    p.set_defaults(func=cmd_train)

@@ -1,0 +1,64 @@
+"""What every command shares: exit statuses, the one-line error, progress bars, JSON
+output, printing a score, and the options several commands take."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from rig.data import paths
+
+EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT = 0, 1, 2
+
+
+class CliError(Exception):
+    """An error to report to the user in one line, without a traceback."""
+
+
+def progress(total: int | None = None, desc: str = ""):
+    """A tqdm wrapper factory that stays quiet when stderr is not a terminal."""
+    from tqdm import tqdm
+
+    def wrap(iterable):
+        return tqdm(iterable, total=total, desc=desc, unit="msg", disable=not sys.stderr.isatty(),
+                    mininterval=0.5, leave=False)
+    return wrap
+
+
+def write_json(path: Path | None, data: dict) -> None:
+    """`data` into `path` as every command writes JSON; nothing when no path was asked for."""
+    if path is None:
+        return
+    from rig.hil.job import write_json as write
+
+    write(path, data)
+
+
+def print_accuracy(result: dict) -> None:
+    if "score_error" in result:
+        print(f"not scored: {result['score_error']}")
+        return
+    x, y, z = result["rmse_xyz"]
+    print(f"RMSE 3D {result['rmse_3d']:.3f} m (x {x:.3f}, y {y:.3f}, z {z:.3f}); "
+          f"p95 {result['p95_3d']:.3f} m, max {result['max_3d']:.3f} m over {result['n_scored']} estimates")
+
+
+def add_estimator_options(p: argparse.ArgumentParser) -> None:
+    """The recording and the estimator configuration, shared by evaluate and replay."""
+    p.add_argument("recording", type=Path, nargs="?", default=paths.default_recording(),
+                   help="MCAP recording or shared flight log (default: the shipped default recording)")
+    survey_option(p)
+    p.add_argument("--no-nn", action="store_true", help="no bias-network correction")
+    p.add_argument("--no-robust", action="store_true", help="plain EKF update instead of M-estimation")
+    p.add_argument("--model", type=Path, help="bias network JSON (default: the shipped model)")
+
+
+def survey_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--survey", type=Path, help="anchor survey of a flight log (default: anchor_MMDD.txt of the "
+                                               "log's day, beside its flights directory or in the shared data)")
+
+
+def add_segment_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--min-height", type=float, default=0.3, help="score only above this height (m)")
+    p.add_argument("--skip-after-takeoff", type=float, default=5.0, help="seconds after take-off not scored")

@@ -1,0 +1,90 @@
+"""`rig evaluate`, `rig metrics` and `rig size`: the C estimator in-process, estimates
+scored against ground truth, and the estimator's footprint on the board."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from rig.cli.common import EXIT_FAILED, EXIT_OK, add_estimator_options, add_segment_options, print_accuracy, write_json
+
+
+def cmd_metrics(args: argparse.Namespace) -> int:
+    from rig.data.recording import read_recording
+    from rig.estimator import metrics
+
+    truth = read_recording(args.recording).truth
+    t, pos = metrics.read_estimates(args.estimates)
+    rule = metrics.SegmentRule(min_height=args.min_height, skip_after_takeoff=args.skip_after_takeoff)
+    result = metrics.score(t, pos, truth, rule)
+    print_accuracy(result)
+    write_json(args.json, result)
+    if args.plot:
+        metrics.plot(t, pos, truth, args.plot, rule, title=str(args.estimates))
+    return EXIT_OK
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    from rig.data.importer import load_any
+    from rig.estimator.evaluate import evaluate
+
+    rec = load_any(args.recording, args.survey)
+    result = evaluate(rec, robust=not args.no_robust, use_nn=not args.no_nn, model_path=args.model)
+    result["recording"] = str(args.recording)
+    config = ("robust" if not args.no_robust else "plain") + (" + bias network" if result["config"]["bias_net"] else "")
+    print(f"{args.recording}: C estimator ({config}), {result['flight_seconds']:.1f} s replayed in "
+          f"{result['estimator_seconds'] * 1e3:.1f} ms of estimator time")
+    print_accuracy(result)
+    # the update rejects by its gate or by a robust weight near zero; the rest of the
+    # reasons refuse a measurement before it reaches the update (counted apart)
+    by_reason = result["rejected_by_reason"]
+    refused = ", ".join(f"{k} {v}" for k, v in by_reason.items() if v and k != "gate") or "none"
+    print(f"TDOA: {result['tdoa_accepted']} accepted, {result['tdoa_downweighted']} down-weighted, "
+          f"{result['tdoa_rejected']} rejected (gate {by_reason['gate']}, robust weight "
+          f"{result['tdoa_rejected'] - by_reason['gate']}); refused before the update: {refused}; "
+          f"resets {result['resets']}; diverged: {'yes' if result['diverged'] else 'no'}")
+    write_json(args.json, result)
+    return EXIT_FAILED if result["diverged"] else EXIT_OK
+
+
+def cmd_size(args: argparse.Namespace) -> int:
+    from rig.estimator.footprint import measure
+
+    result = measure()
+    est = result["estimator"]
+    budget = est["budget"]
+    print(f"estimator (Cortex-M4F, -Os): flash {est['flash']} B of {budget['flash']} B budget; "
+          f"RAM {est['ram']} B of {budget['ram']} B (static {est['static_ram']} B + stack {est['stack']} B "
+          f"via {' > '.join(est['stack_chain'])})")
+    fw = result["firmware"]
+    print(f"firmware image (-O2, static): flash {fw['flash']} B, RAM {fw['ram']} B (text {fw['text']}, "
+          f"data {fw['data']}, bss {fw['bss']})")
+    write_json(args.json, result)
+    within = est["flash"] <= budget["flash"] and est["ram"] <= budget["ram"]
+    return EXIT_OK if within else EXIT_FAILED
+
+
+def register(sub) -> None:
+    p = sub.add_parser("metrics", help="score an estimate stream against a recording's ground truth",
+                       description="Align estimates with ground truth (interpolated), keep the flight segment, "
+                                   "report 3D/per-axis RMSE, max and percentiles.")
+    p.add_argument("recording", type=Path, help="recording with the ground truth")
+    p.add_argument("--estimates", type=Path, required=True, help="CSV t,x,y,z or MCAP with an estimate topic")
+    p.add_argument("--json", type=Path, help="write the metrics here")
+    p.add_argument("--plot", type=Path, help="write a PNG of trajectory and error here")
+    add_segment_options(p)
+    p.set_defaults(func=cmd_metrics)
+    p = sub.add_parser("evaluate", help="replay a recording through the C estimator (in-process) and score it",
+                       description="Run the real C estimator (native library) over a recording from take-off: "
+                                   "IMU-driven error-state EKF, TDOA updates, bias network, robust update. "
+                                   "Writes rmse_3d, rmse_xyz, diverged and measurement counts. Exit status 1 "
+                                   "when the estimate diverged.")
+    add_estimator_options(p)
+    p.add_argument("--json", type=Path, help="write the metrics here")
+    p.set_defaults(func=cmd_evaluate)
+    p = sub.add_parser("size", help="flash, RAM and stack of the estimator for the STM32F405",
+                       description="Build the estimator for Cortex-M4F and report flash and RAM (static + worst "
+                                   "stack) from arm-none-eabi-size and -fstack-usage. Exit status 1 when over "
+                                   "the budget (13 kB flash, 12 kB RAM).")
+    p.add_argument("--json", type=Path, help="write the figures here")
+    p.set_defaults(func=cmd_size)

@@ -1,0 +1,299 @@
+"""The hardware-in-the-loop commands: `rig replay`, `rig demo`, `rig bench`, `rig report`,
+`rig farm`, and the zenoh helpers `rig router` and `rig watch`."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from rig.cli.common import EXIT_FAILED, EXIT_OK, CliError, add_estimator_options, print_accuracy, progress, write_json
+from rig.data import paths
+
+
+def replay_into(recording: Path, target: str, out: Path, estimator, **options) -> dict:
+    """One replay job (rig.hil.job) with its summary printed; a board that failed is a
+    one-line error that names what was kept."""
+    from rig.hil.job import JobFailed, replay_job
+
+    try:
+        result = replay_job(recording, target, out, estimator, progress=progress(desc=f"replay {target}"),
+                            **options)
+    except JobFailed as exc:
+        raise CliError(str(exc)) from exc
+    print_replay(result, report=options.get("report", True))
+    if result["run_record_error"]:
+        raise CliError(result["run_record_error"])
+    return result
+
+
+def print_replay(result: dict, report: bool = True) -> None:
+    """What a replay measured, in a few lines."""
+    import math
+
+    out = Path(result["run_record"]).parent
+    timing = result["timing"]
+    print(f"{result['recording']} -> {result['target']}: {result['n_estimates']} estimates in "
+          f"{result['wall_seconds']:.1f} s ({result['speed']:.2f}x real time, "
+          f"{result['bytes_sent'] / max(1, result['n_estimates']):.0f} B a window)")
+    print_accuracy(result)
+    print(f"timing ({timing['unit']}): window p50 {timing['window_p50']:.0f}, p99 {timing['window_p99']:.0f}, "
+          f"max {timing['window_max']:.0f} = {timing['window_max_fraction_of_budget']:.1%} of the "
+          f"{timing['budget']:.0f} budget; overruns {timing['overruns']}")
+    if "realtime" in result:
+        rt = result["realtime"]
+        lat = rt["latency_ms"] or {"p50": math.nan, "p99": math.nan, "max": math.nan}
+        print(f"real time x{rt['speed']:g}: latency p50 {lat['p50']:.1f} ms, p99 {lat['p99']:.1f} ms, max "
+              f"{lat['max']:.1f} ms; late windows {rt['late_windows']} (deadline {rt['deadline_ms']:.1f} ms), "
+              f"missed windows {rt['missed_windows']}")
+    if report:
+        print(f"wrote {out / 'metrics.json'}, {out / 'run.mcap'} and {out / 'report.html'}")
+    else:
+        print(f"wrote {out / 'metrics.json'} and {out / 'run.mcap'}")
+
+
+def estimator_choice(args: argparse.Namespace):
+    from rig.hil.job import EstimatorChoice
+
+    return EstimatorChoice(use_nn=not args.no_nn, robust=not getattr(args, "no_robust", False),
+                           model_path=getattr(args, "model", None))
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    from rig.hil.checks import assertions, deadline_failures
+    from rig.hil.zenoh import open_session
+
+    if not args.speed > 0:
+        raise CliError(f"--speed must be a positive number, not {args.speed}")
+    session = open_session(None, args.zenoh_listen, args.zenoh_connect)
+    try:
+        result = replay_into(args.recording, args.target, args.out, estimator_choice(args), start=args.start,
+                             duration=args.duration, lookahead=args.lookahead,
+                             speed=args.speed if args.mode == "realtime" else None, session=session,
+                             board=args.board, survey=args.survey)
+    finally:
+        session.close()
+    failed = assertions(result, args.assert_rmse, args.assert_budget)
+    if args.assert_deadlines:
+        failed += deadline_failures(result)
+    for reason in failed:
+        print(f"rig replay: assertion failed: {reason}", file=sys.stderr)
+    return EXIT_FAILED if failed else EXIT_OK
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    """The README's main job: the default recording into the native program and the QEMU
+    firmware in lock-step, accuracy and timing asserted, the two targets compared."""
+    from rig.hil.checks import demo
+    from rig.hil.job import EstimatorChoice
+
+    estimator = EstimatorChoice(use_nn=args.nn)
+    _, gap, failed = demo(args.recording, args.out,
+                          lambda recording, target, out: replay_into(recording, target, out, estimator))
+    print(f"native and QEMU RMSE differ by {gap * 1e3:.2f} mm")
+    for reason in failed:
+        print(f"rig demo: check failed: {reason}", file=sys.stderr)
+    return EXIT_FAILED if failed else EXIT_OK
+
+
+def cmd_report(args: argparse.Namespace) -> int:
+    from rig.hil.report import write_report
+
+    print(f"wrote {write_report(args.dir)}")
+    return EXIT_OK
+
+
+def cmd_farm(args: argparse.Namespace) -> int:
+    """Many boards at once (rig.hil.farm); exit 1 when any board failed."""
+    from rig.hil.farm import FARM_FILE, farm_jobs, run_farm
+
+    try:
+        jobs = farm_jobs(args.recordings, args.target or ["native"])
+    except ValueError as exc:
+        raise CliError(str(exc)) from exc
+    results = run_farm(jobs, args.out, args.listen, estimator_choice(args), args.duration,
+                       on_replayed=lambda result: print_replay(result, report=False))
+    for k, r in enumerate(results):
+        state = r.get("error") or f"RMSE {r['rmse_3d']:.3f} m, {r['n_estimates']} estimates"
+        print(f"board{k} ({r['target']}, {r['recording']}): {state}")
+    print(f"wrote {args.out / FARM_FILE}")
+    return EXIT_FAILED if any(r.get("error") for r in results) else EXIT_OK
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    from rig.data.importer import load_any
+    from rig.hil import bench
+    from rig.hil.links import LinkError
+
+    rec = load_any(args.recording)
+    baseline = None if args.update_baseline else bench.load_baseline(args.baseline)
+    start, duration = (args.start, args.duration) if baseline is None else bench.run_settings(baseline)
+    binaries = {"native": args.program, "qemu": args.firmware}
+    current = []
+    for target in args.targets.split(","):
+        try:
+            current.append(bench.measure(target, rec, start, duration, binaries.get(target)))
+        except LinkError as exc:
+            raise CliError(str(exc)) from exc
+    document = bench.baseline_document(current, str(args.recording), start, duration)
+    if baseline is None:
+        write_json(args.baseline, document)
+        for f in current:
+            print(f"{f.target} ({f.unit}): " + ", ".join(f"{k} {v:.0f}" for k, v in f.values.items()))
+        print(f"wrote baseline {args.baseline}")
+        return EXIT_OK
+    thresholds = dict(bench.THRESHOLDS)
+    if args.threshold is not None:
+        thresholds = {unit: args.threshold for unit in thresholds}
+    rows = bench.compare(current, baseline, thresholds)
+    print(f"{'target':7} {'figure':17} {'unit':12} {'baseline':>10} {'current':>10} {'ratio':>7}")
+    for r in rows:
+        flag = "  REGRESSED" if r["regressed"] else ("" if r["compared"] else "  (not compared)")
+        print(f"{r['target']:7} {r['figure']:17} {r['unit']:12} {r['baseline']:10.0f} {r['current']:10.0f} "
+              f"{r['ratio']:7.3f}{flag}")
+    regressed = [r for r in rows if r["regressed"]]
+    write_json(args.json, {**document, "baseline": str(args.baseline), "comparison": rows,
+                           "regressions": len(regressed)})
+    for r in regressed:
+        print(f"rig bench: {r['target']} {r['figure']} regressed by {r['ratio'] - 1:.1%} "
+              f"(threshold {r['threshold']:.0%})", file=sys.stderr)
+    return EXIT_FAILED if regressed else EXIT_OK
+
+
+def cmd_router(args: argparse.Namespace) -> int:
+    import threading
+
+    from rig.hil.zenoh import open_session, wait_interruptibly
+
+    session = open_session("router", args.listen, [])
+    print(f"router listening on {', '.join(args.listen)}", flush=True)
+    try:
+        wait_interruptibly(threading.Event(), args.duration)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        session.close()
+    return EXIT_OK
+
+
+def cmd_watch(args: argparse.Namespace) -> int:
+    from rig.hil.zenoh import EstimateCounter, open_session, wait_interruptibly
+
+    session = open_session(None, [], args.connect)
+    counter = EstimateCounter(session, args.board, args.count).start()
+    try:
+        print("watching", flush=True)
+        wait_interruptibly(counter.done, args.timeout)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        counter.stop()
+        session.close()
+    result = {"counts": counter.counts, "last": counter.last}
+    write_json(args.json, result)
+    for board, n in sorted(counter.counts.items()):
+        print(f"{board}: {n} estimates")
+    return EXIT_OK if args.count is None or sum(counter.counts.values()) >= args.count else EXIT_FAILED
+
+
+def register(sub) -> None:
+    p = sub.add_parser("replay", help="replay a recording into a board (native, QEMU or serial) in lock-step",
+                       description="Build what the target needs, start it (native program on a pty, firmware in "
+                                   "QEMU netduinoplus2) or open the port (serial:URL, any pyserial URL), "
+                                   "handshake, configure, then stream IMU and TDOA one 10 ms window at a time, "
+                                   "waiting for each estimate. Writes DIR/metrics.json (accuracy, timing).")
+    add_estimator_options(p)
+    p.add_argument("--target", default="native",
+                   help="native (program on a pty), native-udp (its UDP endpoint through cflib's udp:// driver), "
+                        "qemu, serial:URL (any pyserial URL), crazyflie:URI (cflib radio://, usb://, udp://) or "
+                        "zenoh:NAME (a board served by a `bridge` process); default native")
+    p.add_argument("--out", type=Path, required=True, help="output directory")
+    p.add_argument("--start", type=float, help="start time on the recording's clock (default 1 s before take-off)")
+    p.add_argument("--duration", type=float, help="seconds to replay (default: to the end)")
+    p.add_argument("--board", default="local", help="board name on zenoh for a local target (default local)")
+    p.add_argument("--zenoh-connect", action="append", default=[], metavar="ENDPOINT",
+                   help="zenoh endpoint (a router, e.g. tcp/127.0.0.1:7447) where boards and subscribers meet")
+    p.add_argument("--zenoh-listen", action="append", default=[], metavar="ENDPOINT",
+                   help="zenoh endpoint to listen on (subscribers connect here)")
+    p.add_argument("--lookahead", type=int, default=0, metavar="N",
+                   help="windows sent ahead of the awaited estimate (default 0: strict lock-step). Estimates "
+                        "are identical; the link's idle time shrinks, but receive interrupts then land inside "
+                        "measured calls (a few instructions each)")
+    p.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep",
+                   help="lockstep (default): send a window, wait for its estimate, so results do not depend on "
+                        "link or host speed. realtime: send each window when the recording's clock says it is "
+                        "due whatever the board does; measures input-to-estimate latency and counts late "
+                        "windows (estimate after the next window was due), missed windows and overruns")
+    p.add_argument("--speed", type=float, default=1.0, metavar="X",
+                   help="real-time mode: play the recording's clock X times faster (default 1)")
+    p.add_argument("--assert-rmse", type=float, metavar="M", help="exit 1 when rmse_3d exceeds M metres")
+    p.add_argument("--assert-budget", type=float, metavar="FRACTION",
+                   help="exit 1 when the worst window exceeds FRACTION of the 10 ms budget")
+    p.add_argument("--assert-deadlines", action="store_true",
+                   help="real-time mode: exit 1 when any window is late or missed")
+    p.set_defaults(func=cmd_replay)
+    p = sub.add_parser("demo", help="the main job: the default recording into the native and QEMU targets",
+                       description="Replay the default recording into the native program and the STM32F405 "
+                                   "firmware in QEMU in lock-step; assert RMSE <= 0.40 m, the worst 10 ms window "
+                                   "under QEMU (the p99 window of the native program, whose wall clock counts "
+                                   "the host's preemptions) <= 20%% of the budget and native/QEMU agreement "
+                                   "within 2 mm; write "
+                                   "OUT/<target>/metrics.json. The estimator runs with the shipped bias network: the "
+                                   "default recording carries a pose-dependent bias learned from real flights the "
+                                   "shipped network did not train on.")
+    p.add_argument("--recording", type=Path, default=paths.default_recording())
+    p.add_argument("--out", type=Path, default=Path("out/demo"))
+    p.add_argument("--nn", action=argparse.BooleanOptionalAction, default=True,
+                   help="correct with the shipped bias network (default; --no-nn: the robust estimator alone)")
+    p.set_defaults(func=cmd_demo)
+    p = sub.add_parser("bench", help="per-call and per-window cost on native and QEMU against a baseline",
+                       description="Replay a fixed segment in strict lock-step into the native program (ns) and "
+                                   "the QEMU firmware (instructions, deterministic), print per-call and per-window "
+                                   "figures and compare them with the committed baseline; exit 1 when a figure "
+                                   "grew by more than its threshold (instructions 5%%, ns 50%%).")
+    p.add_argument("recording", type=Path, nargs="?", default=paths.default_recording(),
+                   help="recording (default: the shipped default recording)")
+    p.add_argument("--targets", default="native,qemu", help="comma-separated: native, qemu (default both)")
+    p.add_argument("--baseline", type=Path, default=paths.BENCH_BASELINE, help="baseline file (default: the "
+                   "committed benchmarks/baseline.json)")
+    p.add_argument("--update-baseline", action="store_true", help="measure and write the baseline instead")
+    p.add_argument("--start", type=float, help="segment start when writing a baseline (default: take-off)")
+    p.add_argument("--duration", type=float, default=20.0, help="segment length when writing a baseline")
+    p.add_argument("--threshold", type=float, metavar="FRACTION", help="one threshold for every unit")
+    p.add_argument("--json", type=Path, default=Path("out/bench.json"), help="figures and comparison")
+    p.add_argument("--program", type=Path, help="native program to measure (default: build it)")
+    p.add_argument("--firmware", type=Path, help="firmware ELF to measure (default: build it)")
+    p.set_defaults(func=cmd_bench)
+    p = sub.add_parser("report", help="write DIR/report.html from a replay's run.mcap and metrics.json",
+                       description="The trajectory against ground truth, the error over time, per-anchor "
+                                   "innovation statistics and the window-cost histogram against the budget, as "
+                                   "one self-contained HTML page (also written at the end of every replay).")
+    p.add_argument("dir", type=Path, help="a replay's output directory")
+    p.set_defaults(func=cmd_report)
+    p = sub.add_parser("farm", help="replay into many boards in parallel through zenoh (one bridge per board)",
+                       description="Open a zenoh router session here, start one `bridge` process per board "
+                                   "(connected to it), and replay every job through zenoh at once. Jobs: each "
+                                   "recording on each target when either list has one entry, else pairwise. "
+                                   "Writes OUT/boardK/{run.mcap,metrics.json,report.html} and OUT/farm.json.")
+    p.add_argument("recordings", type=Path, nargs="+")
+    p.add_argument("--target", action="append", help="repeatable: native, native-udp, qemu, serial:URL, ...")
+    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--duration", type=float, help="seconds of each recording to replay")
+    p.add_argument("--listen", default="tcp/127.0.0.1:7447", help="the router's endpoint (default %(default)s)")
+    p.add_argument("--no-nn", action="store_true", help="without the bias network")
+    p.set_defaults(func=cmd_farm)
+    p = sub.add_parser("router", help="a zenoh router (a Python session in router mode) for boards and rigs",
+                       description="Run a zenoh router on explicit endpoints (no multicast scouting) until "
+                                   "Ctrl-C: bridges, replays and watchers on other processes or hosts connect to it.")
+    p.add_argument("--listen", action="append", required=True, metavar="ENDPOINT", help="e.g. tcp/0.0.0.0:7447")
+    p.add_argument("--duration", type=float, help="stop after this many seconds (default: until Ctrl-C)")
+    p.set_defaults(func=cmd_router)
+    p = sub.add_parser("watch", help="subscribe to boards' estimates on zenoh and count them",
+                       description="Subscribe to rig/board/BOARD/estimate through a router and count what arrives; "
+                                   "exit when --count estimates arrived (exit 1 if they did not within --timeout).")
+    p.add_argument("--connect", action="append", required=True, metavar="ENDPOINT")
+    p.add_argument("--board", default="*", help="board name or * (default)")
+    p.add_argument("--count", type=int, help="stop after this many estimates")
+    p.add_argument("--timeout", type=float, default=600.0, help="give up after this many seconds")
+    p.add_argument("--json", type=Path, help="write the counts and the last estimate of each board")
+    p.set_defaults(func=cmd_watch)

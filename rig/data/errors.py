@@ -1,0 +1,23 @@
+"""The exceptions that mean bad input: the CLI reports them in one line (exit 2), never
+as a traceback."""
+
+
+class InputError(Exception):
+    """Input the rig cannot use: a damaged or incomplete file, a value out of range."""
+
+
+class LogFormatError(InputError):
+    """The file is not a valid uSD event log (or not a complete one)."""
+
+
+class SurveyError(InputError):
+    """The survey file is missing, malformed or incomplete."""
+
+
+class RecordingError(InputError):
+    """A recording file is missing, unreadable or lacks required content."""
+
+
+# What a command reports as bad input: the rig's own, and the standard library's for
+# values it cannot parse and files it cannot read or write.
+USER_ERRORS: tuple[type[Exception], ...] = (InputError, ValueError, OSError)

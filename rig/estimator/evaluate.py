@@ -1,0 +1,162 @@
+"""Replay a recording through the C estimator in-process and score it.
+
+The replay starts `START_BEFORE_TAKEOFF` seconds before take-off (first ground
+truth above the segment height), where the estimator is initialised with the
+ground-truth pose, as a drone is told its start pose before it flies. From there
+on it sees only IMU and TDOA, in time order, with a STEP every 10 ms.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
+
+from rig.data.recording import Recording
+from rig.estimator import metrics, native
+from rig.estimator.bias_net import DEFAULT_NETWORK, BiasNet
+
+log = logging.getLogger(__name__)
+
+STEP_S = 0.01
+START_BEFORE_TAKEOFF = 1.0
+DIVERGED_RMSE_M = 1.0  # a flight scored worse than this has lost track
+
+
+@dataclass
+class Replay:
+    """Estimator outputs of one replay, on the recording's clock."""
+
+    t: np.ndarray
+    outputs: np.ndarray  # native.OUTPUT_DTYPE
+    estimator_seconds: float
+    t_start: float
+
+    @property
+    def position(self) -> np.ndarray:
+        return self.outputs["pos"].astype(float)
+
+    @property
+    def counters(self) -> np.void:
+        return self.outputs["counters"][-1]
+
+
+def start_time(rec: Recording, rule: metrics.SegmentRule = metrics.SegmentRule()) -> float:
+    return float(max(metrics.takeoff_time(rec.truth, rule) - START_BEFORE_TAKEOFF, rec.truth.t[0]))
+
+
+def truth_pose_at(rec: Recording, t: float) -> tuple[np.ndarray, np.ndarray]:
+    pos = metrics.interpolate_positions(rec.truth, np.array([t]))[0]
+    times, keep = np.unique(rec.truth.t, return_index=True)
+    quat = Slerp(times, Rotation.from_quat(rec.truth.quaternion[keep]))(np.clip(t, times[0], times[-1])).as_quat()
+    return pos, quat
+
+
+def build_events(rec: Recording, t0: float, t_end: float | None = None) -> np.ndarray:
+    """All IMU and TDOA samples in [t0, t_end] plus a STEP every 10 ms, sorted;
+    times are microseconds since t0. Samples at a STEP's instant belong to its window."""
+    t_end = rec.time_span()[1] if t_end is None else t_end
+    parts = []
+
+    def add(kind: int, t: np.ndarray, v: np.ndarray, id_a=None, id_b=None) -> None:
+        keep = (t >= t0) & (t <= t_end)
+        ev = np.zeros(int(keep.sum()), native.EVENT_DTYPE)
+        ev["t_us"] = np.round((t[keep] - t0) * 1e6).astype(np.uint32)
+        ev["kind"] = kind
+        ev["v"][:, : v.shape[1]] = v[keep]
+        if id_a is not None:
+            # ids outside 0..255 cannot be sent; map them to 255, which the estimator rejects as unknown
+            ev["id_a"] = np.where((id_a[keep] >= 0) & (id_a[keep] < 255), id_a[keep], 255)
+            ev["id_b"] = np.where((id_b[keep] >= 0) & (id_b[keep] < 255), id_b[keep], 255)
+        parts.append(ev)
+
+    add(native.EV_ACCEL, rec.accel.t, rec.accel.xyz)
+    add(native.EV_GYRO, rec.gyro.t, rec.gyro.xyz)
+    add(native.EV_TDOA, rec.tdoa.t, rec.tdoa.distance_diff[:, None], rec.tdoa.id_a, rec.tdoa.id_b)
+    steps = np.arange(t0 + STEP_S, t_end, STEP_S)
+    add(native.EV_STEP, steps, np.zeros((len(steps), 1)))
+    events = np.concatenate(parts)
+    return events[np.lexsort((events["kind"], events["t_us"]))]
+
+
+def load_model(path: Path | None = None) -> BiasNet | None:
+    path = DEFAULT_NETWORK if path is None else Path(path)
+    if not path.exists():
+        return None
+    return BiasNet.load(path)
+
+
+def make_estimator(rec: Recording, params: native.EstimatorParams, model: BiasNet | None) -> native.Estimator:
+    est = native.Estimator(params)
+    for anchor in rec.anchors:
+        if 0 <= anchor.id < native.MAX_ANCHORS:
+            est.set_anchor(anchor.id, anchor.position, anchor.quaternion)
+        else:
+            log.warning("anchor id %d is outside the estimator's range 0..%d; ignored", anchor.id,
+                        native.MAX_ANCHORS - 1)
+    if model is not None and params.use_bias_net:
+        est.set_bias_net(model.pack())
+    return est
+
+
+def replay(rec: Recording, params: native.EstimatorParams, model: BiasNet | None = None) -> Replay:
+    t0 = start_time(rec)
+    est = make_estimator(rec, params, model)
+    pos, quat = truth_pose_at(rec, t0)
+    est.reset(0, pos, quat)
+    events = build_events(rec, t0)
+    tic = time.perf_counter()
+    outputs = est.replay(events)
+    elapsed = time.perf_counter() - tic
+    return Replay(t0 + outputs["t_us"].astype(float) * 1e-6, outputs, elapsed, t0)
+
+
+def counter_summary(counters: np.void) -> dict:
+    return {
+        "tdoa_accepted": int(counters["tdoa_accepted"]),
+        "tdoa_downweighted": int(counters["tdoa_downweighted"]),
+        "tdoa_rejected": int(counters["tdoa_rejected"]),
+        "rejected_by_reason": {name: int(n) for name, n in zip(native.REJECT_REASONS, counters["rejected"])},
+        "imu_samples": int(counters["imu_samples"]),
+        "imu_gaps": int(counters["imu_gaps"]),
+        "steps": int(counters["steps"]),
+        "resets": int(counters["resets"]),
+    }
+
+
+def estimator_config(robust: bool = True, use_nn: bool = True, model_path: Path | None = None,
+                     model: BiasNet | None = None, **param_overrides) -> tuple[native.EstimatorParams, BiasNet | None]:
+    """Parameters and bias network of a run (in-process or on a board): `model` when given,
+    else the one at `model_path` or the shipped one. An explicit model path must exist;
+    without the shipped one the run goes on without correction, with a warning."""
+    if not use_nn:
+        model = None
+    elif model is None:
+        model = load_model(model_path)
+        if model is None:
+            if model_path is not None:
+                raise FileNotFoundError(f"no bias network at {model_path}")
+            log.warning("no bias network shipped yet (%s): running without bias correction", DEFAULT_NETWORK)
+    params = native.params_with(robust=int(robust), use_bias_net=int(model is not None), **param_overrides)
+    return params, model
+
+
+def evaluate(rec: Recording, *, robust: bool = True, use_nn: bool = True, model_path: Path | None = None,
+             model: BiasNet | None = None, **param_overrides) -> dict:
+    """Replay and score; the dict is what `rig evaluate --json` writes."""
+    params, model = estimator_config(robust, use_nn, model_path, model, **param_overrides)
+    run = replay(rec, params, model)
+    position = run.position
+    result = metrics.score(run.t, position, rec.truth)
+    counters = counter_summary(run.counters)
+    result.update(counters)
+    result["diverged"] = bool(not np.isfinite(position).all() or counters["resets"] > 0 or result["rmse_3d"] > DIVERGED_RMSE_M)
+    result["estimator_seconds"] = run.estimator_seconds
+    result["flight_seconds"] = float(run.t[-1] - run.t[0]) if len(run.t) else 0.0
+    result["config"] = {"robust": robust, "bias_net": model is not None, "params": params.as_dict(),
+                        "start_s": run.t_start}
+    return result

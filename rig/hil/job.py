@@ -1,0 +1,125 @@
+"""One replay job: a recording into one target through its bridge, with its outputs in
+a directory — the run record (written as it goes, finished on every exit path),
+metrics.json (also after a board failure, with the error) and the HTML report.
+
+`rig replay`, `rig demo` and `rig farm` are this job with different options.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from rig.hil.links import LinkError
+
+log = logging.getLogger(__name__)
+
+METRICS_FILE = "metrics.json"
+
+
+@dataclass
+class EstimatorChoice:
+    """Which estimator the board runs: the robust update or the plain one, with the bias
+    network (the shipped one unless `model_path`) or without."""
+
+    use_nn: bool = True
+    robust: bool = True
+    model_path: Path | None = None
+
+
+class JobFailed(LinkError):
+    """The board or its link failed mid-job; what was recorded is kept (the message says where)."""
+
+    def __init__(self, message: str, result: dict):
+        super().__init__(message)
+        self.result = result
+
+
+def write_json(path: Path, data: dict) -> None:
+    """`data` as indented, key-sorted JSON (what every command writes)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(data, indent=2, sort_keys=True) + "\n")
+    log.info("wrote %s", path)
+
+
+def board_link(target: str, session, board: str):
+    """The rig reaches boards only through a bridge: a remote one (zenoh:NAME) over the
+    session, or an in-process one tapping a local board's link onto the session."""
+    from rig.hil.targets import open_target
+    from rig.hil.zenoh import TapLink, ZenohLink
+
+    if target.startswith("zenoh:"):
+        return ZenohLink(session, target[len("zenoh:"):]).open()
+    return TapLink(open_target(target), session, board)
+
+
+def replay_job(recording: Path, target: str, out: Path, estimator: EstimatorChoice = EstimatorChoice(), *,
+               start: float | None = None, duration: float | None = None, lookahead: int = 0,
+               speed: float | None = None, report: bool = True, session=None, board: str = "local",
+               survey: Path | None = None, progress=None) -> dict:
+    """Replay `recording` into `target` (through zenoh `session`, or a private one) and
+    write OUT/run.mcap, OUT/metrics.json and, with `report`, OUT/report.html. Returns
+    what metrics.json holds; raises JobFailed (after writing both files) when the board
+    or its link failed."""
+    from rig.data.importer import load_any
+    from rig.estimator.evaluate import estimator_config
+    from rig.hil import replay
+    from rig.hil.runrecord import RUN_FILE, RunRecorder
+    from rig.hil.zenoh import open_session
+
+    rec = load_any(recording, survey)
+    params, model = estimator_config(estimator.robust, estimator.use_nn, estimator.model_path)
+    out.mkdir(parents=True, exist_ok=True)
+    recorder = RunRecorder(out / RUN_FILE)
+    info = {"recording": str(recording), "target": target, "bias_net": model is not None,
+            "robust": estimator.robust, "lookahead": lookahead, "mode": "lockstep" if speed is None else "realtime"}
+    began, run, error, own, link = time.monotonic(), None, None, session is None, None
+    try:
+        session = session or open_session()
+        link = board_link(target, session, board)
+        run = replay.run(link, rec, params, model, start=start, duration=duration, lookahead=lookahead,
+                         speed=speed, progress=progress, recorder=recorder)
+    except LinkError as exc:
+        error, run = str(exc), getattr(exc, "session", None)
+        recorder.status(run.t0 if run else 0.0, "rig", -1, error)
+    finally:
+        recorder.close()         # first: the record is whole whatever the link's teardown does
+        try:
+            if link is not None:
+                info["bytes_sent"] = link.bytes_sent
+                link.close()
+        finally:
+            if own and session is not None:
+                session.close()
+    wall = time.monotonic() - began
+    result = score_run(run, rec)
+    info.setdefault("bytes_sent", 0)       # the link never opened
+    result.update(info)
+    result.update({"wall_seconds": wall, "speed": result["n_estimates"] * replay.BUDGET_SECONDS / wall,
+                   "run_record": str(out / RUN_FILE), "run_record_error": recorder.failed, "error": error})
+    write_json(out / METRICS_FILE, result)
+    if error is not None:
+        raise JobFailed(f"{error} (kept: {out / RUN_FILE}, {out / METRICS_FILE} with "
+                        f"{result['n_estimates']} estimates)", result)
+    if report:
+        from rig.hil.report import write_report
+
+        write_report(out)
+    return result
+
+
+def score_run(run, rec) -> dict:
+    """Accuracy and timing of what the board answered; a run cut short before the
+    scored segment still reports its estimates and timing, without accuracy."""
+    from rig.estimator.metrics import MetricsError
+    from rig.hil import replay
+
+    if run is None or not run.estimates:
+        return {"n_estimates": 0}
+    try:
+        return replay.score(run, rec)
+    except MetricsError as exc:
+        return {"n_estimates": len(run.estimates), "timing": replay.timing_summary(run), "score_error": str(exc)}

@@ -1,0 +1,121 @@
+"""A pyserial port carrying rig.hil.protocol frames: the native program's pty, QEMU's
+emulated USART1 over a TCP socket, or any pyserial URL (a real tty, ``socket://``,
+``rfc2217://``)."""
+
+from __future__ import annotations
+
+import fcntl
+import select
+import socket
+import struct
+import subprocess
+import termios
+import time
+from collections import deque
+from dataclasses import dataclass, field
+
+import serial
+from serial.urlhandler import protocol_socket
+
+from rig.hil import protocol
+from rig.hil.links.base import BoardLink, LinkError
+
+# would block in the write for ever, deaf even to Ctrl-C when the signal lands on
+# another of its threads.
+WRITE_TIMEOUT_S = 10.0
+
+
+class SocketPort(protocol_socket.Serial):
+    """pyserial's socket:// port with a true `in_waiting`: the stock one says at most 1,
+    so every read took one byte and a system call (QEMU sends a TCP segment per byte)."""
+
+    @property
+    def in_waiting(self) -> int:
+        if not self.is_open:
+            raise serial.PortNotOpenError()
+        return struct.unpack("I", fcntl.ioctl(self._socket, termios.FIONREAD, b"\0\0\0\0"))[0]
+
+
+def serial_for_url(url: str, write_timeout: float = WRITE_TIMEOUT_S, **kwargs) -> serial.SerialBase:
+    """Every link's port (a path, socket:// or another pyserial URL), with a bound on
+    how long a write may wait for a board that stops reading."""
+    if url.startswith("socket://"):
+        return SocketPort(url, write_timeout=write_timeout, **kwargs)
+    return serial.serial_for_url(url, write_timeout=write_timeout, **kwargs)
+
+
+@dataclass
+class Link(BoardLink):
+    """A serial link (pyserial port) carrying protocol frames."""
+
+    port: serial.SerialBase
+    name: str
+    process: subprocess.Popen | None = None
+    monitor_port: int | None = None          # QEMU's monitor, for a hardware reset
+    parser: protocol.Parser = field(default_factory=protocol.Parser)
+    bytes_sent: int = 0
+    pending: deque = field(default_factory=deque)
+
+    def send(self, payloads: list[bytes]) -> None:
+        data = b"".join(protocol.frame(p) for p in payloads)
+        try:
+            self.port.write(data)
+        except serial.SerialTimeoutException as exc:
+            raise LinkError(f"{self.name}: the board stopped reading (a write waited "
+                            f"{self.port.write_timeout:g} s)") from exc
+        except (serial.SerialException, OSError) as exc:
+            raise LinkError(f"{self.name}: write failed: {exc}") from exc
+        self.bytes_sent += len(data)
+
+    def receive_payloads(self, timeout: float) -> list[bytes]:
+        deadline = time.monotonic() + timeout
+        while True:
+            self._check_alive()
+            try:
+                chunk = self._read(deadline)
+            except (serial.SerialException, OSError) as exc:
+                raise LinkError(f"{self.name}: read failed (board gone?): {exc}") from exc
+            payloads = self.parser.feed(chunk) if chunk else []
+            if payloads or time.monotonic() > deadline:
+                return payloads
+
+    def _read(self, deadline: float) -> bytes:
+        """What is waiting, else wait until `deadline` at most (real-time pacing needs
+        millisecond waits, not the port's read timeout) for the first byte."""
+        waiting = self.port.in_waiting
+        if not waiting and hasattr(self.port, "fileno"):
+            wait = min(self.port.timeout or 0.05, max(0.0, deadline - time.monotonic()))
+            if not select.select([self.port.fileno()], [], [], wait)[0]:
+                return b""
+        # readable with nothing waiting means the other end closed: read() raises then
+        return self.port.read(max(1, self.port.in_waiting))
+
+    def _close_channel(self) -> None:
+        self.port.close()
+
+    def reset_board(self) -> None:
+        """Reset the emulated board as its reset pin would (QEMU's `system_reset`)."""
+        if self.monitor_port is None:
+            raise LinkError(f"{self.name}: no way to reset this board from the rig")
+        try:
+            with socket.create_connection(("127.0.0.1", self.monitor_port), timeout=5) as monitor:
+                monitor.sendall(b"system_reset\n")
+                # the monitor prompts once on connection and again once the command has
+                # run: closing before that may drop the command
+                said = b""
+                while said.count(b"(qemu)") < 2:
+                    chunk = monitor.recv(4096)
+                    if not chunk:
+                        raise LinkError(f"{self.name}: the QEMU monitor closed before confirming the reset")
+                    said += chunk
+        except OSError as exc:
+            raise LinkError(f"{self.name}: cannot reset through the QEMU monitor: {exc}") from exc
+
+
+def open_url(url: str, read_timeout: float = 0.05, baudrate: int = 921_600,
+             write_timeout: float = WRITE_TIMEOUT_S) -> Link:
+    try:
+        port = serial_for_url(url, baudrate=baudrate, timeout=read_timeout, write_timeout=write_timeout)
+    except (serial.SerialException, OSError, ValueError) as exc:
+        raise LinkError(f"cannot open {url}: {exc}") from exc
+    return Link(port, url)

@@ -1,0 +1,355 @@
+"""Replay of a recording into a board over the wire protocol, in lock-step or in real time.
+
+The recording is cut into 10 ms windows exactly as `rig evaluate` does (same start,
+same initial pose, same events). Each window goes out as delta-coded IMU messages
+(accelerometer and gyroscope samples paired), packed TDOA items and a STEP; the host
+then waits for the board's estimate, attitude, counters and timing before sending the
+next window, so results do not depend on link speed.
+
+Real-time mode sends each window when the recording's clock (scaled by `speed`) says
+it is due, whatever the board is doing, and matches answers to windows as they come:
+it measures the input-to-estimate latency and finds late windows (the estimate came
+after the next window was due), missed windows (no estimate at all) and overruns, the
+timing problems lock-step hides.
+
+`wire_events` rebuilds the event stream exactly as the board decodes it (quantised
+IMU and TDOA, paired samples), so the in-process library can be compared with any
+board to float32 precision.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from rig.data.recording import Recording
+from rig.estimator import metrics, native
+from rig.estimator.bias_net import BiasNet
+from rig.estimator.evaluate import build_events, start_time, truth_pose_at
+from rig.hil import protocol
+from rig.hil.links import BoardLink, LinkError
+
+log = logging.getLogger(__name__)
+
+BUDGET_SECONDS = 0.010        # one 10 ms window
+CPU_HZ = 168_000_000          # STM32F405
+REPLY_TIMEOUT_S = 5.0
+LOOKAHEAD = 0                 # strict lock-step; more windows in flight need the board RX ring (1 kB)
+
+
+@dataclass
+class Window:
+    t_us: int                                  # the STEP time
+    imu: list = field(default_factory=list)    # (dt_us, accel[3], gyro[3])
+    tdoa: list = field(default_factory=list)   # (dt_us, id_a, id_b, value)
+
+
+def windows(events: np.ndarray) -> list[Window]:
+    """Group an EVENT_DTYPE stream (as from build_events) into STEP windows; times relative
+    to the previous STEP (0 for the first window, the reset time)."""
+    out, acc, gyro, current, prev = [], [], [], Window(0), 0
+    for ev in events:
+        kind, t = int(ev["kind"]), int(ev["t_us"])
+        if kind == native.EV_ACCEL:
+            acc.append((t - prev, ev["v"].copy()))
+        elif kind == native.EV_GYRO:
+            gyro.append(ev["v"].copy())
+        elif kind == native.EV_TDOA:
+            current.tdoa.append((t - prev, int(ev["id_a"]), int(ev["id_b"]), float(ev["v"][0])))
+        elif kind == native.EV_STEP:
+            # pair the k-th accelerometer with the k-th gyroscope sample of the window
+            current.imu = [(dt, a, g) for (dt, a), g in zip(acc, gyro)]
+            current.t_us = t
+            out.append(current)
+            acc, gyro, current, prev = [], [], Window(0), t
+    return out
+
+
+def window_messages(w: Window, imu: protocol.ImuStream) -> list[bytes]:
+    """A window on the wire: its IMU samples (delta-coded), its TDOAs and the STEP."""
+    msgs = []
+    if w.imu:
+        msgs += imu.encode(protocol.imu_counts([a for _, a, _ in w.imu], [g for _, _, g in w.imu]))
+    return msgs + protocol.tdoa_messages(w.tdoa, w.t_us)
+
+
+_EVENT_KINDS = {"accel": native.EV_ACCEL, "gyro": native.EV_GYRO, "tdoa": native.EV_TDOA, "step": native.EV_STEP}
+
+
+def wire_events(ws: list[Window]) -> np.ndarray:
+    """The events a board makes of `ws` on the wire (quantised IMU stamped at the window
+    start, packed TDOA), decoded by the Python twin of the board service, so the
+    in-process library can be compared with any board to float32 precision."""
+    board, imu, rows = protocol.BoardView(), protocol.ImuStream(), []
+    for w in ws:
+        for payload in window_messages(w, imu):
+            rows += [(t, _EVENT_KINDS[kind], a, b, 0, np.asarray(v, np.float32))
+                     for t, kind, a, b, v in board.events(payload)]
+    return np.array(rows, dtype=native.EVENT_DTYPE)
+
+
+@dataclass
+class Session:
+    """What a replay produced."""
+
+    t0: float
+    unit: str = "ns"
+    timer_hz: int = 0
+    estimates: list = field(default_factory=list)   # (t_us, pos, vel, quat, cov_diag)
+    timing: list = field(default_factory=list)      # protocol.Timing
+    counters: protocol.Counters | None = None
+    statuses: list = field(default_factory=list)
+    windows_sent: int = 0
+    recorder: object | None = None                  # a runrecord.RunRecorder, if recording
+    realtime: RealTime | None = None                # real-time mode only
+
+
+@dataclass
+class RealTime:
+    """Real-time mode bookkeeping: when each window went out, how long its answer took."""
+
+    speed: float
+    sent_at: dict = field(default_factory=dict)     # window t_us -> monotonic time its last byte was sent
+    latency: dict = field(default_factory=dict)     # window t_us -> seconds to its estimate
+    send_lag_max: float = 0.0                       # how far the host itself fell behind the schedule
+
+    @property
+    def period(self) -> float:
+        return BUDGET_SECONDS / self.speed
+
+    def summary(self) -> dict:
+        lat = np.array(list(self.latency.values()), float) * 1e3
+        missed = sorted(t for t in self.sent_at if t not in self.latency)
+        return {
+            "speed": self.speed, "deadline_ms": self.period * 1e3, "windows_sent": len(self.sent_at),
+            "latency_ms": ({"p50": float(np.percentile(lat, 50)), "p99": float(np.percentile(lat, 99)),
+                            "max": float(lat.max())} if len(lat) else None),
+            "late_windows": int((lat > self.period * 1e3).sum()),
+            "missed_windows": len(missed), "first_missed_t_us": missed[:10],
+            "host_send_lag_max_ms": self.send_lag_max * 1e3,
+        }
+
+
+def _expect(link: BoardLink, kind: type, what: str, timeout: float = REPLY_TIMEOUT_S, session: Session | None = None):
+    """Wait for one message of `kind`; other messages are kept in the session (status) or logged."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        msg = link.next_message(min(0.5, max(0.01, deadline - time.monotonic())))
+        if isinstance(msg, kind):
+            return msg
+        if msg is not None:
+            _note(link, msg, session)
+    raise LinkError(f"{link.name}: no answer to {what} within {timeout:.0f} s (target stopped answering)")
+
+
+def _note(link: BoardLink, msg, session: Session | None) -> None:
+    if isinstance(msg, protocol.Status):
+        if session is not None:
+            session.statuses.append(msg)
+            if session.recorder is not None:
+                session.recorder.status(session.t0, "board", msg.code, f"frames ok {msg.frames_ok}, bad "
+                                        f"{msg.frames_bad}, bytes dropped {msg.bytes_dropped}")
+            if msg.code == protocol.STATUS_BOOT:
+                raise LinkError(f"{link.name}: the board reset during the replay (window {session.windows_sent})")
+        if msg.code != protocol.STATUS_BOOT:
+            log.warning("%s: status %d (frames ok %d, bad %d)", link.name, msg.code, msg.frames_ok, msg.frames_bad)
+    elif isinstance(msg, protocol.Ack) and msg.status != 0:
+        raise LinkError(f"{link.name}: message 0x{msg.acked:02x} refused with status {msg.status}")
+
+
+def handshake(link: BoardLink, attempts: int = 10) -> protocol.HelloReply:
+    """Say hello until the board answers (a board still booting drops what it receives)."""
+    for attempt in range(attempts):
+        link.send([protocol.hello()])
+        try:
+            reply = _expect(link, protocol.HelloReply, "hello", timeout=1.0)
+            break
+        except LinkError:
+            if attempt == attempts - 1:
+                raise LinkError(f"{link.name}: no answer to hello after {attempts} attempts") from None
+    if reply.version != protocol.VERSION:
+        raise LinkError(f"{link.name}: protocol version {reply.version}, the rig speaks {protocol.VERSION}")
+    return reply
+
+
+def _acked(link: BoardLink, payloads: list[bytes], what: str) -> None:
+    for payload in payloads:
+        link.send([payload])
+        ack = _expect(link, protocol.Ack, what)
+        if ack.status != 0:
+            raise LinkError(f"{link.name}: {what} refused (status {ack.status})")
+
+
+def configure(link: BoardLink, rec: Recording, params: native.EstimatorParams, model: BiasNet | None,
+              hello: protocol.HelloReply) -> None:
+    _acked(link, [protocol.param(k, float(getattr(params, name)))
+                  for k, (name, _) in enumerate(native.EstimatorParams._fields_)], "parameters")
+    anchors = [a for a in rec.anchors if 0 <= a.id < hello.max_anchors]
+    _acked(link, [protocol.anchor(a.id, a.position, a.quaternion) for a in anchors], "anchors")
+    if model is not None and params.use_bias_net:
+        image = model.pack().tobytes()
+        if len(image) != hello.net_size:
+            raise LinkError(f"{link.name}: the board's network is {hello.net_size} bytes, the model {len(image)}")
+        _acked(link, protocol.net_chunks(image) + [protocol.net_commit(len(image))], "bias network")
+
+
+def run(link: BoardLink, rec: Recording, params: native.EstimatorParams, model: BiasNet | None = None,
+        start: float | None = None, duration: float | None = None, progress=None,
+        lookahead: int = LOOKAHEAD, recorder=None, speed: float | None = None) -> Session:
+    """Handshake, configure, reset at the start pose, then lock-step every window (with
+    `lookahead` further windows already on the wire; 0 is strict send-and-wait), or, with
+    a `speed`, send them in real time at that multiple of the recording's clock. With a
+    `recorder` (runrecord.RunRecorder) every input and answer is recorded as it happens.
+    A LinkError carries the partial session as `.session`."""
+    t0 = start_time(rec) if start is None else start
+    t_end = None if duration is None else t0 + duration
+    session = Session(t0, recorder=recorder)
+    try:
+        hello = handshake(link)
+        session.unit, session.timer_hz = hello.unit, hello.timer_hz
+        configure(link, rec, params, model, hello)
+        pos, quat = truth_pose_at(rec, t0)
+        _acked(link, [protocol.reset(0, pos, quat)], "reset")
+        ws = windows(build_events(rec, t0, t_end))
+        if recorder is not None:
+            recorder.start(rec, t0, t_end if t_end is not None else t0 + len(ws) * BUDGET_SECONDS,
+                           {"target": link.name, "start": t0, "windows": len(ws), "unit": hello.unit})
+        if speed is None:
+            _lock_step(link, ws, session, lookahead, progress)
+        else:
+            session.realtime = RealTime(speed)
+            _real_time(link, ws, session, progress)
+    except LinkError as exc:
+        exc.session = session
+        raise
+    return session
+
+
+def _lock_step(link: BoardLink, ws: list[Window], session: Session, lookahead: int, progress) -> None:
+    imu, sent, limit = protocol.ImuStream(), 0, budget(session.unit, session.timer_hz)
+    for k in progress(range(len(ws))) if progress else range(len(ws)):
+        # Keep `lookahead` windows in flight: the board still answers them strictly in
+        # order (results are those of strict lock-step), but its slow receive overlaps
+        # with the host's encoding and the previous answer.
+        while sent < len(ws) and sent <= k + lookahead:
+            link.send(window_messages(ws[sent], imu))
+            if session.recorder is not None:
+                session.recorder.inputs(session.t0, ws[sent - 1].t_us if sent else 0, ws[sent].imu, ws[sent].tdoa)
+            sent += 1
+        session.windows_sent = sent
+        est = _expect(link, protocol.Estimate, f"window at {ws[k].t_us} us", session=session)
+        att = _expect(link, protocol.Attitude, "attitude", session=session)
+        session.counters = _expect(link, protocol.Counters, "counters", session=session)
+        timing = _expect(link, protocol.Timing, "timing", session=session)
+        session.timing.append(timing)
+        session.estimates.append((est.t_us, est.pos, est.vel, att.quat, att.cov_diag))
+        if session.recorder is not None:
+            session.recorder.answer(session.t0, est, att, session.counters, timing, session.unit, limit)
+
+
+def _real_time(link: BoardLink, ws: list[Window], session: Session, progress) -> None:
+    """Send window k at start + k * period whatever the board does; take answers as
+    they come; after the last window wait for the stragglers."""
+    rt, imu, collector = session.realtime, protocol.ImuStream(), _AnswerCollector(link, session)
+    begin = time.monotonic()
+    for k in progress(range(len(ws))) if progress else range(len(ws)):
+        due = begin + k * rt.period
+        while (now := time.monotonic()) < due:
+            collector.take(link.next_message(due - now))
+        rt.send_lag_max = max(rt.send_lag_max, now - due)
+        link.send(window_messages(ws[k], imu))
+        rt.sent_at[ws[k].t_us] = time.monotonic()
+        session.windows_sent = k + 1
+        if session.recorder is not None:
+            session.recorder.inputs(session.t0, ws[k - 1].t_us if k else 0, ws[k].imu, ws[k].tdoa)
+    last = time.monotonic()
+    while len(rt.latency) < len(rt.sent_at) and time.monotonic() - last < REPLY_TIMEOUT_S:
+        msg = link.next_message(0.1)
+        if msg is not None:
+            collector.take(msg)
+            last = time.monotonic()
+
+
+class _AnswerCollector:
+    """Assembles a window's answer (estimate, attitude, counters, timing, in that order)
+    from messages taken one at a time, and stamps its latency."""
+
+    def __init__(self, link: BoardLink, session: Session) -> None:
+        self.link, self.session, self.estimate, self.arrived, self.parts = link, session, None, 0.0, {}
+
+    def take(self, msg) -> None:
+        if msg is None:
+            return
+        if isinstance(msg, protocol.Estimate):
+            self.estimate, self.arrived, self.parts = msg, time.monotonic(), {}
+        elif isinstance(msg, (protocol.Attitude, protocol.Counters)) and self.estimate is not None:
+            self.parts[type(msg)] = msg
+        elif isinstance(msg, protocol.Timing) and self.estimate is not None:
+            self._complete(msg)
+        else:
+            _note(self.link, msg, self.session)
+
+    def _complete(self, timing: protocol.Timing) -> None:
+        s, est, rt = self.session, self.estimate, self.session.realtime
+        att, counters = self.parts.get(protocol.Attitude), self.parts.get(protocol.Counters)
+        self.estimate = None
+        if att is None or counters is None or est.t_us not in rt.sent_at:
+            log.warning("incomplete or unknown answer for window %d us dropped", est.t_us)
+            return
+        latency = self.arrived - rt.sent_at[est.t_us]
+        rt.latency[est.t_us] = latency
+        s.counters = counters
+        s.timing.append(timing)
+        s.estimates.append((est.t_us, est.pos, est.vel, att.quat, att.cov_diag))
+        if s.recorder is not None:
+            s.recorder.answer(s.t0, est, att, counters, timing, s.unit, budget(s.unit, s.timer_hz), latency)
+
+
+def budget(unit: str, timer_hz: int) -> float:
+    """One 10 ms window in the target's unit (instructions are counted as cycles at 168 MHz)."""
+    if unit == "ns":
+        return BUDGET_SECONDS * 1e9
+    if unit in ("cycles", "instructions"):
+        return BUDGET_SECONDS * CPU_HZ
+    return BUDGET_SECONDS * timer_hz
+
+
+def timing_summary(session: Session) -> dict:
+    window = np.array([t.window for t in session.timing], float)
+    predict = np.array([t.predict for t in session.timing], float)
+    n_tdoa = np.array([t.n_tdoa for t in session.timing], float)
+    total = np.array([t.tdoa_total for t in session.timing], float)
+    tdoa_max = np.array([t.tdoa_max for t in session.timing], float)
+    limit = budget(session.unit, session.timer_hz)
+    if not len(window):
+        return {"unit": session.unit, "budget": limit, "windows": 0}
+    per_tdoa = total[n_tdoa > 0] / n_tdoa[n_tdoa > 0]
+    return {
+        "unit": session.unit, "budget": limit, "windows": int(len(window)),
+        "window_p50": float(np.percentile(window, 50)), "window_p99": float(np.percentile(window, 99)),
+        "window_max": float(window.max()), "window_max_fraction_of_budget": float(window.max() / limit),
+        "overruns": int((window > limit).sum()),
+        "per_call": {
+            "predict": {"p50": float(np.median(predict)), "max": float(predict.max())},
+            "tdoa_update": {"mean": float(per_tdoa.mean()) if len(per_tdoa) else 0.0,
+                            "max": float(tdoa_max.max()), "calls": int(n_tdoa.sum())},
+        },
+    }
+
+
+def score(session: Session, rec: Recording) -> dict:
+    t = session.t0 + np.array([e[0] for e in session.estimates], float) * 1e-6
+    pos = np.array([e[1] for e in session.estimates], float).reshape(-1, 3)
+    result = metrics.score(t, pos, rec.truth)
+    result["n_estimates"] = len(session.estimates)
+    result["timing"] = timing_summary(session)
+    if session.realtime is not None:
+        result["realtime"] = session.realtime.summary()
+    if session.counters is not None:
+        c = session.counters
+        result.update({"tdoa_accepted": c.accepted, "tdoa_downweighted": c.downweighted,
+                       "tdoa_rejected": c.rejected, "resets": c.resets})
+    return result

@@ -1,0 +1,187 @@
+"""Run records: everything a replay sent and received, as `DIR/run.mcap`.
+
+Topics (JSON, with JSON schemas, readable in Foxglove; documented in recordings/README.md):
+
+    /run/input/imu      IMU samples as the board received them (quantised), at their sample time
+    /run/input/tdoa     TDOA measurements as sent
+    /run/truth          ground truth over the replayed span
+    /run/estimate       the board's estimates (position, velocity, attitude, covariance diagonal)
+    /run/timing         cost of each window and call, in the target's unit, with the budget
+    /run/counters       the estimator's cumulative counters after each window
+    /run/status         status messages and the rig's own notes (board reset, link errors)
+    /uwb/anchors        the anchor set
+
+The file is written as the replay goes (small chunks) and finished on every exit path:
+normal end, Ctrl-C, a board failure. A write error (a full disk) stops the recording
+with a clear message; what was written before stays readable (`read_run` recovers the
+complete chunks of an unfinished file).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from mcap.writer import CompressionType
+
+from rig.data.recording import (
+    SCHEMAS,
+    TOPIC_ANCHORS,
+    McapJsonWriter,
+    Recording,
+    RecordingError,
+    anchors_message,
+    number_schema,
+    object_schema,
+    read_topics,
+    vector_schema,
+)
+from rig.hil import protocol
+
+log = logging.getLogger(__name__)
+
+RUN_FILE = "run.mcap"
+METADATA_RUN = "run"
+TOPIC_IMU = "/run/input/imu"
+TOPIC_TDOA = "/run/input/tdoa"
+TOPIC_TRUTH = "/run/truth"
+TOPIC_ESTIMATE = "/run/estimate"
+TOPIC_TIMING = "/run/timing"
+TOPIC_COUNTERS = "/run/counters"
+TOPIC_STATUS = "/run/status"
+CHUNK_BYTES = 256 * 1024      # what an unfinished file can lose at most
+
+_T = number_schema("time on the recording's clock", "s")
+RUN_SCHEMAS = {
+    "uwb_rig.RunImu": object_schema("uwb_rig.RunImu", {
+        "t": _T, "accel": vector_schema("specific force as received (quantised)", "m/s^2"),
+        "gyro": vector_schema("angular rate as received (quantised)", "rad/s")}),
+    "uwb_rig.Estimate": object_schema("uwb_rig.Estimate", {
+        "t": _T, "position": vector_schema("estimated position", "m"), "velocity": vector_schema("estimated velocity", "m/s"),
+        "orientation": {**SCHEMAS["uwb_rig.Pose"]["properties"]["orientation"],
+                        "description": "estimated attitude, unit quaternion body->world"},
+        "cov_diag": {"type": "array", "items": {"type": "number"},
+                     "description": "error-state covariance diagonal (position, velocity, attitude)"}}),
+    "uwb_rig.Timing": object_schema("uwb_rig.Timing", {
+        "t": _T, "unit": {"type": "string", "description": "ns, cycles or instructions"},
+        "budget": number_schema("one 10 ms window in the unit"), "window": number_schema("cost of the whole window"),
+        "predict": number_schema("prediction"), "tdoa_total": number_schema("all TDOA updates"),
+        "tdoa_max": number_schema("most expensive TDOA update"), "n_tdoa": {"type": "integer"},
+        "latency_ms": number_schema("real-time mode only: wall time from the window's last byte sent to its "
+                              "estimate received", "ms")}),
+    "uwb_rig.Counters": object_schema("uwb_rig.Counters", {
+        "t": _T, **{name: {"type": "integer"} for name in protocol.Counters.__dataclass_fields__}}),
+    "uwb_rig.Status": object_schema("uwb_rig.Status", {
+        "t": _T, "source": {"type": "string", "description": "board or rig"},
+        "code": {"type": "integer"}, "message": {"type": "string"}}),
+}
+
+RUN_SCHEMAS["uwb_rig.Timing"]["required"].remove("latency_ms")    # present in real-time mode only
+
+
+def _xyz_dict(v) -> dict:
+    return {"x": float(v[0]), "y": float(v[1]), "z": float(v[2])}
+
+
+@dataclass
+class RunRecorder:
+    """Writes one replay's run record as it happens."""
+
+    path: Path
+    failed: str | None = None
+    messages: int = 0
+    _out: McapJsonWriter | None = None
+    _channels: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        try:
+            self._out = McapJsonWriter(self.path, compression=CompressionType.ZSTD, chunk_size=CHUNK_BYTES)
+        except OSError as exc:
+            self._fail(exc)
+
+    def start(self, rec: Recording, t0: float, t_end: float | None, info: dict) -> None:
+        """Metadata, anchors and the ground truth of the replayed span."""
+        if not self._ready():
+            return
+        self._guard(lambda: self._out.metadata(METADATA_RUN, {k: str(v) for k, v in info.items()}))
+        self._write(TOPIC_ANCHORS, "uwb_rig.AnchorSet", t0, anchors_message(rec.anchors), raw=True)
+        truth = rec.truth
+        end = np.inf if t_end is None else t_end
+        for k in np.flatnonzero((truth.t >= t0 - 0.5) & (truth.t <= end + 0.5)):
+            q = truth.quaternion[k]
+            self._write(TOPIC_TRUTH, "uwb_rig.Pose", float(truth.t[k]), {
+                "t": float(truth.t[k]), "position": _xyz_dict(truth.position[k]),
+                "orientation": {"x": float(q[0]), "y": float(q[1]), "z": float(q[2]), "w": float(q[3])}})
+
+    def inputs(self, t0: float, t_prev_us: int, imu: list, tdoa: list) -> None:
+        """One window's inputs (the Window fields: dt since the previous STEP)."""
+        if imu:
+            acc, gyro = protocol.imu_values(protocol.imu_counts([a for _, a, _ in imu], [g for _, _, g in imu]))
+            for (dt, _, _), a, g in zip(imu, acc, gyro):
+                t = t0 + (t_prev_us + dt) * 1e-6
+                self._write(TOPIC_IMU, "uwb_rig.RunImu", t, {"t": t, "accel": _xyz_dict(a), "gyro": _xyz_dict(g)})
+        for dt, a, b, v in tdoa:
+            t = t0 + (t_prev_us + dt) * 1e-6
+            self._write(TOPIC_TDOA, "uwb_rig.Tdoa", t, {"t": t, "id_a": a, "id_b": b,
+                                                         "distance_diff": float(v) if np.isfinite(v) else None})
+
+    def answer(self, t0: float, est: protocol.Estimate, att: protocol.Attitude, counters: protocol.Counters,
+               timing: protocol.Timing, unit: str, budget: float, latency_s: float | None = None) -> None:
+        t = t0 + est.t_us * 1e-6
+        q = att.quat
+        self._write(TOPIC_ESTIMATE, "uwb_rig.Estimate", t, {
+            "t": t, "position": _xyz_dict(est.pos), "velocity": _xyz_dict(est.vel),
+            "orientation": {"x": q[0], "y": q[1], "z": q[2], "w": q[3]},
+            "cov_diag": [float(c) if np.isfinite(c) else None for c in att.cov_diag]})
+        self._write(TOPIC_TIMING, "uwb_rig.Timing", t, {
+            "t": t, "unit": unit, "budget": budget, "window": timing.window, "predict": timing.predict,
+            "tdoa_total": timing.tdoa_total, "tdoa_max": timing.tdoa_max, "n_tdoa": timing.n_tdoa,
+            **({} if latency_s is None else {"latency_ms": latency_s * 1e3})})
+        self._write(TOPIC_COUNTERS, "uwb_rig.Counters", t, {"t": t, **counters.__dict__})
+
+    def status(self, t: float, source: str, code: int, message: str) -> None:
+        self._write(TOPIC_STATUS, "uwb_rig.Status", t, {"t": t, "source": source, "code": code, "message": message})
+
+    def close(self) -> None:
+        if self._out is not None:
+            self._guard(self._out.close)
+            self._out = None
+
+    # -------------------------------------------------------------------- internals
+    def _ready(self) -> bool:
+        return self._out is not None and self.failed is None
+
+    def _write(self, topic: str, schema: str, t: float, obj, raw: bool = False) -> None:
+        if not self._ready():
+            return
+        def write() -> None:
+            if topic not in self._channels:
+                self._channels[topic] = self._out.channel(topic, schema, RUN_SCHEMAS.get(schema))
+            text = obj if raw else json.dumps(obj)
+            self._out.write(self._channels[topic], t, text)
+        if self._guard(write):
+            self.messages += 1
+
+    def _guard(self, action) -> bool:
+        try:
+            action()
+            return True
+        except OSError as exc:
+            self._fail(exc)
+            return False
+
+    def _fail(self, exc: OSError) -> None:
+        if self.failed is None:
+            self.failed = f"run record {self.path}: {exc.strerror or exc} after {self.messages} messages"
+            log.error("%s; the replay goes on, the record keeps what was written", self.failed)
+
+
+def read_run(path: Path) -> dict[str, list[dict]]:
+    """Every message of a run record by topic; an unfinished file yields its complete chunks."""
+    path = Path(path)
+    if not path.is_file():
+        raise RecordingError(f"no run record at {path}")
+    return read_topics(path)[0]

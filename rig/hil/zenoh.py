@@ -1,0 +1,301 @@
+"""Boards on eclipse-zenoh: the bridge (board side) and the link the rig uses (rig side).
+
+Key expressions, for a board named NAME (docs/service.md):
+
+    rig/board/NAME/alive        liveliness token, held while the bridge owns the board
+    rig/board/NAME/rx           every payload the board sent, raw (one sample each)
+    rig/board/NAME/estimate     decoded messages as JSON: estimate, attitude, counters,
+    rig/board/NAME/timing       timing, status, hello, ack (the last key segment is the
+    rig/board/NAME/...          message kind)
+    rig/board/NAME/tx           payloads for the board: a batch per sample, each payload
+                                preceded by its length byte
+
+Sessions are configured with explicit endpoints and no multicast scouting; publishers
+of board data use CongestionControl.BLOCK (the default drops under load, even on
+loopback); every session is closed on every exit path (an open session with a
+callback subscriber hangs the interpreter at exit).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import queue
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+
+import zenoh
+
+from rig.hil import protocol
+from rig.hil.links import BoardLink, LinkError
+
+log = logging.getLogger(__name__)
+
+PREFIX = "rig/board"
+KINDS = {protocol.HelloReply: "hello", protocol.Ack: "ack", protocol.Estimate: "estimate",
+         protocol.Attitude: "attitude", protocol.Counters: "counters", protocol.Timing: "timing",
+         protocol.Status: "status"}
+
+
+def key(board: str, leaf: str) -> str:
+    return f"{PREFIX}/{board}/{leaf}"
+
+
+def config(mode: str = "peer", listen: list[str] = (), connect: list[str] = ()) -> zenoh.Config:
+    """A session configuration with explicit endpoints only (no multicast scouting)."""
+    conf = zenoh.Config()
+    conf.insert_json5("mode", json.dumps(mode))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("listen/endpoints", json.dumps(list(listen)))
+    conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
+    return conf
+
+
+def open_session(mode: str | None = None, listen: list[str] = (), connect: list[str] = ()) -> zenoh.Session:
+    """A session; by default a client when it only connects (to a router: two peers that
+    reach each other only through a router do not exchange data), else a peer."""
+    mode = mode or ("client" if connect and not listen else "peer")
+    try:
+        return zenoh.open(config(mode, listen, connect))
+    except zenoh.ZError as exc:
+        raise LinkError(f"zenoh: cannot open a {mode} session (listen {list(listen)}, connect "
+                        f"{list(connect)}): {exc}") from exc
+
+
+def pack_batch(payloads: list[bytes]) -> bytes:
+    return b"".join(bytes([len(p)]) + p for p in payloads)
+
+
+def unpack_batch(data: bytes) -> list[bytes]:
+    out, i = [], 0
+    while i < len(data):
+        n = data[i]
+        if n == 0 or i + 1 + n > len(data):
+            raise protocol.ProtocolError("malformed payload batch")
+        out.append(data[i + 1:i + 1 + n])
+        i += 1 + n
+    return out
+
+
+def message_json(msg) -> bytes:
+    return json.dumps(dataclasses.asdict(msg)).encode()
+
+
+def declare_board_publishers(session: zenoh.Session, board: str) -> dict:
+    """The publishers of what a board says (raw and per kind); BLOCK: never dropped."""
+    block = zenoh.CongestionControl.BLOCK
+    return {leaf: session.declare_publisher(key(board, leaf), congestion_control=block)
+            for leaf in ["rx", *KINDS.values()]}
+
+
+def wait_interruptibly(stop: threading.Event, timeout: float | None = None) -> None:
+    """Wait for `stop` (or `timeout`) in short slices, so Ctrl-C is honoured."""
+    deadline = None if timeout is None else time.monotonic() + timeout
+    while not stop.wait(0.2):
+        if deadline is not None and time.monotonic() > deadline:
+            return
+
+
+@dataclass
+class Bridge:
+    """Owns one board link and serves it on a zenoh session until stopped."""
+
+    session: zenoh.Session
+    name: str
+    link: BoardLink
+    published: int = 0
+    error: str | None = None
+    _stop: threading.Event = field(default_factory=threading.Event)
+    _thread: threading.Thread | None = None
+    _entities: list = field(default_factory=list)
+    _publishers: dict = field(default_factory=dict)
+
+    def start(self) -> "Bridge":
+        self._publishers = declare_board_publishers(self.session, self.name)
+        self._entities = [self.session.declare_subscriber(key(self.name, "tx"), self._on_tx),
+                          self.session.liveliness().declare_token(key(self.name, "alive"))]
+        self._thread = threading.Thread(target=self._pump, name=f"bridge {self.name}", daemon=True)
+        self._thread.start()
+        return self
+
+    def _on_tx(self, sample: zenoh.Sample) -> None:
+        try:
+            self.link.send(unpack_batch(sample.payload.to_bytes()))
+        except (LinkError, protocol.ProtocolError) as exc:
+            self._fail(str(exc))
+
+    def _pump(self) -> None:
+        """Board -> zenoh."""
+        while not self._stop.is_set():
+            try:
+                payloads = self.link.receive_payloads(0.05)
+            except LinkError as exc:
+                self._fail(str(exc))
+                return
+            publish(self._publishers, payloads, self.name)
+            self.published += len(payloads)
+
+    def _fail(self, reason: str) -> None:
+        """The board is gone: say so, and drop the liveliness token so rigs notice."""
+        if self.error is None:
+            self.error = reason
+            log.error("bridge %s: %s", self.name, reason)
+            status = protocol.Status(code=-1, frames_ok=0, frames_bad=0, bytes_dropped=0)
+            self._publishers["status"].put(json.dumps({**dataclasses.asdict(status), "error": reason}).encode())
+            self._stop.set()
+
+    def wait(self) -> None:
+        """Block (Ctrl-C-friendly) until stopped."""
+        wait_interruptibly(self._stop)
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5)
+        for entity in self._entities + list(self._publishers.values()):
+            entity.undeclare()
+        self._entities, self._publishers = [], {}
+        self.link.close()
+
+
+@dataclass
+class TapLink(BoardLink):
+    """The in-process bridge for a local board: the rig drives the board's link directly
+    (no extra round trip) while everything the board says is published on zenoh as the
+    served bridge would, under the same keys and liveliness token."""
+
+    link: BoardLink
+    session: zenoh.Session
+    board: str
+    name: str = ""
+    process: object | None = None
+    bytes_sent: int = 0
+    pending: deque = field(default_factory=deque)
+    _publishers: dict = field(default_factory=dict)
+    _token: object | None = None
+
+    def __post_init__(self) -> None:
+        self.name = self.name or f"{self.link.name} (zenoh {self.board})"
+        self._publishers = declare_board_publishers(self.session, self.board)
+        self._token = self.session.liveliness().declare_token(key(self.board, "alive"))
+
+    def send(self, payloads: list[bytes]) -> None:
+        self.link.send(payloads)
+        self.bytes_sent = self.link.bytes_sent
+
+    def receive_payloads(self, timeout: float) -> list[bytes]:
+        payloads = self.link.receive_payloads(timeout)
+        publish(self._publishers, payloads, self.board)
+        return payloads
+
+    def _close_channel(self) -> None:
+        try:
+            self.link.close()
+        finally:
+            for entity in [*self._publishers.values(), self._token]:
+                entity.undeclare()
+            self._publishers, self._token = {}, None
+
+
+def publish(publishers: dict, payloads: list[bytes], board: str) -> None:
+    """Every payload raw, and decoded under its kind."""
+    for payload in payloads:
+        publishers["rx"].put(payload)
+        try:
+            msg = protocol.decode(payload)
+        except protocol.ProtocolError as exc:
+            log.warning("bridge %s: %s", board, exc)
+            continue
+        publishers[KINDS[type(msg)]].put(message_json(msg))
+
+
+@dataclass
+class ZenohLink(BoardLink):
+    """The rig's side: a board reached through its bridge, over a zenoh session."""
+
+    session: zenoh.Session
+    name: str
+    process: object | None = None
+    bytes_sent: int = 0
+    pending: deque = field(default_factory=deque)
+    _inbox: queue.Queue = field(default_factory=queue.Queue)
+    _gone: threading.Event = field(default_factory=threading.Event)
+    _entities: list = field(default_factory=list)
+    _tx: object | None = None
+
+    def open(self, timeout: float = 30.0) -> "ZenohLink":
+        alive = key(self.name, "alive")
+        self._entities = [
+            self.session.declare_subscriber(key(self.name, "rx"), lambda s: self._inbox.put(s.payload.to_bytes())),
+            self.session.liveliness().declare_subscriber(alive, self._on_liveliness),
+        ]
+        self._tx = self.session.declare_publisher(key(self.name, "tx"),
+                                                  congestion_control=zenoh.CongestionControl.BLOCK)
+        deadline = time.monotonic() + timeout
+        while not list(self.session.liveliness().get(alive, timeout=1.0)):
+            if time.monotonic() > deadline:
+                self.close()
+                raise LinkError(f"zenoh board {self.name!r}: no bridge announced {alive} within {timeout:.0f} s")
+        return self
+
+    def _on_liveliness(self, sample: zenoh.Sample) -> None:
+        if sample.kind == zenoh.SampleKind.DELETE:
+            self._gone.set()
+
+    def send(self, payloads: list[bytes]) -> None:
+        self._check_alive()
+        data = pack_batch(payloads)
+        self._tx.put(data)
+        self.bytes_sent += len(data)
+
+    def receive_payloads(self, timeout: float) -> list[bytes]:
+        self._check_alive()
+        try:
+            first = self._inbox.get(timeout=max(0.001, timeout))
+        except queue.Empty:
+            return []
+        out = [first]
+        while not self._inbox.empty():
+            out.append(self._inbox.get_nowait())
+        return out
+
+    def _check_alive(self) -> None:
+        if self._gone.is_set() and self._inbox.empty():
+            raise LinkError(f"zenoh board {self.name!r}: its bridge went away (liveliness token dropped)")
+
+    def _close_channel(self) -> None:
+        for entity in self._entities + ([self._tx] if self._tx is not None else []):
+            entity.undeclare()
+        self._entities, self._tx = [], None
+
+
+@dataclass
+class EstimateCounter:
+    """Counts the estimates each board publishes (a subscriber, for `rig watch`)."""
+
+    session: zenoh.Session
+    boards: str = "*"
+    target: int | None = None
+    counts: dict = field(default_factory=dict)
+    last: dict = field(default_factory=dict)
+    done: threading.Event = field(default_factory=threading.Event)
+    _subscriber: object | None = None
+
+    def start(self) -> "EstimateCounter":
+        self._subscriber = self.session.declare_subscriber(key(self.boards, "estimate"), self._on_estimate)
+        return self
+
+    def _on_estimate(self, sample: zenoh.Sample) -> None:
+        board = str(sample.key_expr).split("/")[2]
+        self.counts[board] = self.counts.get(board, 0) + 1
+        self.last[board] = json.loads(sample.payload.to_bytes())
+        if self.target is not None and sum(self.counts.values()) >= self.target:
+            self.done.set()
+
+    def stop(self) -> None:
+        if self._subscriber is not None:
+            self._subscriber.undeclare()
+            self._subscriber = None
