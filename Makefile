@@ -3,7 +3,7 @@ VENV := .venv
 RIG := $(VENV)/bin/rig
 PYTEST := $(VENV)/bin/pytest
 
-.PHONY: setup demo test default-recording room-bias-net clean
+.PHONY: setup demo test test-fast default-recording room-bias-net clean
 
 setup:
 	./scripts/setup.sh
@@ -14,6 +14,12 @@ demo: setup
 test: setup
 	$(PYTEST) -q
 
+# What to run while working (under 3 minutes): the C unit tests, then every test not
+# marked slow (unit tests and one short native replay).
+test-fast: setup
+	$(MAKE) -s -C estimator_c check
+	$(PYTEST) -q -m "not slow"
+
 # Regenerates recordings/default.mcap byte for byte from its config.
 default-recording: setup
 	$(RIG) simulate --config recordings/default.sim.json -o recordings/default.mcap
@@ -21,7 +27,7 @@ default-recording: setup
 # The pose-dependent bias the default recording carries (its `learned_bias`): a bias
 # network trained only on flights the shipped one (rig/bias/models/bias_net.json) did not
 # train on, so that the shipped network's correction on the default is a transfer to
-# unseen data, not the removal of its own output (docs/diagnosis.md).
+# unseen data, not the removal of its own output (docs/notebook/diagnosis.md).
 room-bias-net: setup
 	$(RIG) train --apart-from rig/bias/models/bias_net.json --out recordings/room_bias_net.json
 

@@ -1,6 +1,6 @@
 """Accuracy benchmark: every shared flight through the C estimator in each configuration.
 
-    .venv/bin/python benchmarks/accuracy.py [--out docs/accuracy.md] [--json out/accuracy.json]
+    .venv/bin/python benchmarks/accuracy.py [--out docs/notebook/accuracy.md] [--json out/accuracy.json]
 
 Prints per-flight and per-group 3D RMSE and writes the Markdown table and a JSON file.
 Configurations: plain EKF update, robust (M-estimation), robust + bias network (when a
@@ -49,7 +49,7 @@ def run_flight(flight: Path) -> dict:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--out", type=Path, default=ROOT / "docs" / "accuracy.md")
+    parser.add_argument("--out", type=Path, default=ROOT / "docs" / "notebook" / "accuracy.md")
     parser.add_argument("--json", type=Path, default=ROOT / "out" / "accuracy.json")
     args = parser.parse_args()
     flights = paths.flights()
@@ -71,7 +71,7 @@ def main() -> None:
     print("\n".join(group_lines))
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps({"flights": rows, "groups": summary}, indent=2) + "\n")
-    text = (ROOT / "docs" / "accuracy.md.in").read_text()
+    text = (ROOT / "docs" / "notebook" / "accuracy.md.in").read_text()
     args.out.write_text(text.replace("{{GROUPS}}", "\n".join(group_lines)).replace("{{FLIGHTS}}", "\n".join(lines)))
     print(f"wrote {args.out} and {args.json}")
 

@@ -1,4 +1,4 @@
-"""Bias-network ablations on the shared flights; regenerates docs/bias.md.
+"""Bias-network ablations on the shared flights; regenerates docs/notebook/bias.md.
 
     .venv/bin/python benchmarks/bias_ablation.py [--json out/bias_ablation.json]
 
@@ -94,7 +94,7 @@ def stats_cells(stats: dict) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--json", type=Path, default=ROOT / "out" / "bias_ablation.json")
-    parser.add_argument("--doc", type=Path, default=ROOT / "docs" / "bias.md")
+    parser.add_argument("--doc", type=Path, default=ROOT / "docs" / "notebook" / "bias.md")
     args = parser.parse_args()
     runs = {"(a) 14 features": train("a14", "14"), "(b) 10 features": train("b10", "10")}
     for anchors in LEAVE_OUT:
@@ -131,7 +131,7 @@ def main() -> None:
     seed_table = ["| seed | " + " | ".join(map(str, seeds)) + " |", "|---|" + "---|" * len(seeds),
                   "| mean 3D RMSE (m) | " + " | ".join(f"{m:.3f}" for m in seeds.values()) + " |",
                   "| lower than without | " + " | ".join(f"{1 - m / base:.0%}" for m in seeds.values()) + " |"]
-    text = (ROOT / "docs" / "bias.md.in").read_text()
+    text = (ROOT / "docs" / "notebook" / "bias.md.in").read_text()
     for key, lines in (("ABLATIONS", table), ("END_TO_END", e2e_table), ("SEEDS", seed_table)):
         text = text.replace("{{" + key + "}}", "\n".join(lines))
     args.doc.write_text(text)

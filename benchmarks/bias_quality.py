@@ -1,4 +1,4 @@
-"""What else moves the 0426 target of the bias network (docs/bias.md): the estimator's
+"""What else moves the 0426 target of the bias network (docs/notebook/bias.md): the estimator's
 TDOA noise with corrected measurements, and dropping the measurements that a second
 network rates worst. Uses ablation (d)'s network, trained without the 0426 flights
 (run benchmarks/bias_ablation.py first).
@@ -25,7 +25,7 @@ sys.path.insert(0, str(ROOT))
 
 from bias_ablation import CACHES, OUT, TEST_DAY  # noqa: E402  - ablation (d): its network, test day, dataset
 
-from rig.bias.dataset import _known_pairs, measurement_features, truth_latency  # noqa: E402
+from rig.bias.dataset import known_pairs, measurement_features, truth_latency  # noqa: E402
 from rig.bias.train import load_or_build_dataset  # noqa: E402
 from rig.data import paths  # noqa: E402
 from rig.data.importer import load_any  # noqa: E402
@@ -71,7 +71,7 @@ def flight_job(name: str, quality) -> dict:
     out = {"without": evaluate(rec, use_nn=False)["rmse_3d"], "with": evaluate(rec, model_path=MODEL)["rmse_3d"]}
     for std in TDOA_STDS:
         out[f"tdoa_std {std}"] = evaluate(rec, model_path=MODEL, tdoa_std=std)["rmse_3d"]
-    rows = np.flatnonzero(_known_pairs(rec))
+    rows = np.flatnonzero(known_pairs(rec))
     features = measurement_features(rec, rows, truth_latency(rec))[0]
     sigma = quality(features)
     for share in DROPPED:

@@ -1,5 +1,5 @@
 """What of the TDOA bias transfers from one flight to another, and from one day to
-another (docs/bias.md, "What transfers"). For each 0426 flight, the robust
+another (docs/notebook/bias.md, "What transfers"). For each 0426 flight, the robust
 estimator's 3D RMSE and the TDOA error spread without and with:
 
 1. a lookup table, the mean error of each anchor pair in each 0.2 m cube of tag
@@ -36,7 +36,7 @@ sys.path.insert(0, str(ROOT))
 from bias_ablation import CACHES, TEST_DAY  # noqa: E402  - the ablations' dataset caches and test day
 
 from rig.bias.config import TrainConfig  # noqa: E402
-from rig.bias.dataset import Samples, _known_pairs, truth_latency  # noqa: E402
+from rig.bias.dataset import Samples, known_pairs, truth_latency  # noqa: E402
 from rig.bias.train import fit, load_or_build_dataset, split_flights  # noqa: E402
 from rig.data import paths
 from rig.data.importer import load_any  # noqa: E402
@@ -99,7 +99,7 @@ class Flight:
     def __init__(self, name: str):
         self.name = name
         self.rec = load_any(paths.data_dir() / "flights" / name)
-        self.rows = np.flatnonzero(_known_pairs(self.rec))
+        self.rows = np.flatnonzero(known_pairs(self.rec))
         tag = metrics.interpolate_positions(self.rec.truth, self.rec.tdoa.t[self.rows] + truth_latency(self.rec))
         self.keys = cell_keys(tag, self.rec.tdoa.id_a[self.rows], self.rec.tdoa.id_b[self.rows])
         self.without = evaluate(self.rec, use_nn=False)["rmse_3d"]

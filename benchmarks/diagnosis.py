@@ -1,6 +1,6 @@
-"""Diagnosis of every shared flight; regenerates the real-data table of docs/diagnosis.md.
+"""Diagnosis of every shared flight; regenerates the real-data table of docs/notebook/diagnosis.md.
 
-    .venv/bin/python benchmarks/diagnosis.py [--out out/diagnosis] [--reuse] [--doc docs/diagnosis.md]
+    .venv/bin/python benchmarks/diagnosis.py [--out out/diagnosis] [--reuse] [--doc docs/notebook/diagnosis.md]
 
 Runs `rig diagnose` on each flight (two at a time) into OUT/<flight>/ (--reuse keeps
 reports already there), prints the tables (the findings; the IMU low-pass the models
@@ -48,7 +48,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--out", type=Path, default=ROOT / "out" / "diagnosis")
     parser.add_argument("--reuse", action="store_true", help="keep reports already in OUT")
-    parser.add_argument("--doc", type=Path, default=ROOT / "docs" / "diagnosis.md")
+    parser.add_argument("--doc", type=Path, default=ROOT / "docs" / "notebook" / "diagnosis.md")
     args = parser.parse_args()
     flights = sorted((paths.data_dir() / "flights").iterdir())
     with ThreadPoolExecutor(2) as pool:
@@ -62,7 +62,7 @@ def main() -> None:
     print(spectra)
     told_apart = identifiability(reports)
     print(told_apart)
-    text = (ROOT / "docs" / "diagnosis.md.in").read_text()
+    text = (ROOT / "docs" / "notebook" / "diagnosis.md.in").read_text()
     args.doc.write_text(text.replace("{{TABLE}}", table).replace("{{IMU_SPECTRUM}}", spectra)
                         .replace("{{IDENTIFIABILITY}}", told_apart))
     print(f"wrote {args.doc} and {args.out / 'summary.json'}")

@@ -1,7 +1,7 @@
 /*
  * Wire protocol between the rig (host) and a board running the estimator
- * (docs/protocol.md). No board dependencies: the firmware, the native program and
- * the fuzzer all link this file; rig/protocol.py is its Python twin.
+ * (docs/reference/protocol.md). No board dependencies: the firmware, the native program and
+ * the fuzzer all link this file; rig/hil/protocol.py is its Python twin.
  *
  * Frame on the wire: COBS(payload || crc16_le(payload)) followed by one 0x00.
  * Payload: one message-type byte, then the fields of that message, little-endian,

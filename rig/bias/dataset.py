@@ -72,7 +72,7 @@ def true_tdoa(position: np.ndarray, a_pos: np.ndarray, b_pos: np.ndarray) -> np.
     return np.linalg.norm(position - b_pos, axis=1) - np.linalg.norm(position - a_pos, axis=1)
 
 
-def _known_pairs(rec: Recording) -> np.ndarray:
+def known_pairs(rec: Recording) -> np.ndarray:
     """Measurements between two different surveyed anchors."""
     d = rec.tdoa
     return World.surveyed(rec.anchors).known_pairs(d.id_a, d.id_b) & (d.id_a != d.id_b)
@@ -81,7 +81,7 @@ def _known_pairs(rec: Recording) -> np.ndarray:
 def _airborne_tdoa(rec: Recording) -> np.ndarray:
     start, end = metrics.flight_window(rec.truth, FLIGHT_RULE)
     t = rec.tdoa.t
-    return (t >= start) & (t <= end) & _known_pairs(rec) & np.isfinite(rec.tdoa.distance_diff)
+    return (t >= start) & (t <= end) & known_pairs(rec) & np.isfinite(rec.tdoa.distance_diff)
 
 
 def _errors(rec: Recording, sel: np.ndarray, latency: float, a_pos: np.ndarray, b_pos: np.ndarray) -> np.ndarray:

@@ -7,7 +7,7 @@ for `patience` epochs, the best epoch's weights kept. A few restarts from differ
 initialisations; the one kept is the one with which the robust estimator tracks the
 validation flights best (lowest mean 3D RMSE, replayed in closed loop): on the shared
 flights the end-to-end result varies by 0.01-0.02 m from one initialisation to the
-next, and the validation TDOA error ranks them poorly (docs/bias.md). Seeded: the same
+next, and the validation TDOA error ranks them poorly (docs/notebook/bias.md). Seeded: the same
 data and seed give the same network.
 """
 

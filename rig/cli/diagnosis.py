@@ -106,7 +106,7 @@ def register(sub) -> None:
                                    "Writes DIR/report.json (findings sorted by evidence), DIR/report.md with "
                                    "plots and DIR/model.json (the fitted effects and the noise they leave, with "
                                    "the IMU's low-pass when its spectrum rolls off, usable as a `rig simulate` "
-                                   "effect list). See docs/diagnosis.md.")
+                                   "effect list). See docs/guide/diagnosis.md.")
     p.add_argument("recording", type=Path, help="recording (MCAP, or a flight log of the shared data)")
     survey_option(p)
     p.add_argument("--out", type=Path, required=True, help="output directory")
@@ -125,7 +125,7 @@ def register(sub) -> None:
                                    "rectification enters as the accelerometer bias it made on its flight, an "
                                    "accelerometer scale as the bias it made there in hover. Replaces "
                                    "the config's effects, keeping its own outliers, IMU noise, rotor vibration and "
-                                   "IMU low-pass (a flight's noise is its own). See docs/diagnosis.md.")
+                                   "IMU low-pass (a flight's noise is its own). See docs/guide/diagnosis.md.")
     p.add_argument("models", type=Path, nargs="+", help="DIR/model.json files of `rig diagnose`")
     p.add_argument("--config", type=Path, required=True, help="the simulation config to update")
     p.set_defaults(func=cmd_combine_models)

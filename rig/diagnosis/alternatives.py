@@ -90,10 +90,9 @@ def in_place_estimates(z: np.ndarray, named: list[Term], pool: list[Term],
     the flight tells the two apart or not, and whether it names the look-alike too
     (then without it on those axes): what another recording of the flight that cannot
     tell them apart reports in the named one's place (axis_alternatives), estimated
-    here, so that the two compare (rig.diagnosis.compare). 0422-log00 names a z scale of 0.89
-    jointly with a z bias of 0.98; with a z scale of 1.03 injected it names a bias and
-    the scale in its place, 1.020, which compares with the untouched flight's scale in
-    its bias's place, not with its joint 0.89."""
+    here, so that the two compare (rig.diagnosis.compare): a scale one recording names
+    jointly with a bias compares with the other's scale in its bias's place, not with
+    its joint estimate."""
     judged_on = z if z_simplest is None else z_simplest
     out = []
     for term in named:

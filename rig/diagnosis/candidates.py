@@ -126,12 +126,12 @@ def candidates(problem: Problem) -> list[Candidate]:
 
 
 def gyro_scale_candidate(problem: Problem) -> Candidate:
-    """Named axis by axis (rig.diagnosis.selection._fewer_axes): a flight turns about z and only
+    """Named axis by axis (rig.diagnosis.selection): a flight turns about z and only
     wobbles about x and y, so its three axes carry very different signal, and a z scale
-    had to pay for all three (0425-traj19: 11.4 against 14). The other IMU vectors are
-    named whole: their axes are measured alike (a bias's columns are constant), and
-    an accelerometer scale named on x and y left a z scale injected to its look-alike,
-    the bias, not in the bias's place (0426-traj7)."""
+    would have to pay for all three. The other IMU vectors are named whole: their axes
+    are measured alike (a bias's columns are constant), and an accelerometer scale
+    named on fewer axes leaves the rest to its look-alike, the bias
+    (docs/notebook/diagnosis-experiments.md)."""
     return Candidate("imu_gyro_scale", "gyro", "scale", 3, neutral=1.0, step=1e-3, prior=0.2, bound=0.5,
                      recorded_weight=problem.truth_noise_share("gyro"), by_axis=True)
 

@@ -5,7 +5,7 @@ An effect transfers to another trajectory if it belongs to the hardware or the r
 (a delay, how the ranges read with the drone on the floor, a clock, an IMU error, the
 TDOA noise), not to one flight's path: NLOS regions, anchor displacements, antenna
 patterns and lever arms, as the diagnosis fits them on real flights, are mostly the
-pose-dependent bias seen along that path (docs/diagnosis.md) and are left out; a
+pose-dependent bias seen along that path (docs/notebook/diagnosis.md) and are left out; a
 config's own `learned_bias` carries that bias to any trajectory and is kept. An
 effect enters when the diagnosis named it on at least half of the flights (a
 property of the room, not of one flight); its parameters are the medians over those
@@ -75,9 +75,8 @@ def fold_accel_scale(effects: list[dict]) -> list[dict]:
     the specific force there, added to its bias. In hover a z scale and a z bias are
     one column, and the diagnosis names one or the other flight by flight (both
     jointly where the thrust varies a little): medians taken over flights apart do
-    not keep the pair together (0425-traj8: a z scale of 0.88 with a z bias of +1.08
-    m/s², together −0.12 in hover; the median scale over the flights that name one
-    and the median bias over all made −0.43). The x and y scales act only on the
+    not keep the pair together (a large scale and a large bias that cancel in hover
+    would each enter a median alone). The x and y scales act only on the
     small horizontal forces, which these flights do not identify, and go."""
     scaled = [e for e in effects if e["effect"] == "imu_accel_scale"]
     if not scaled:

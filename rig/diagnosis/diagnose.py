@@ -88,10 +88,8 @@ log = logging.getLogger(__name__)
 IDENTIFIED_SD_SHARE = 0.5      # a parameter is identified when its standard error is below this share of its prior
 # A named IMU effect is located on an axis when zeroing that axis raises the robust
 # loss by more than this (half a chi-square: about 2 standard errors). The effect has
-# already paid for itself; this says which of its axes carry it. At 4 (2.8 standard
-# errors) a gyroscope scale of 1.05 on all axes, recovered within its tolerance on
-# most flights, was located on all three on one of six, at 2 on two (session 49,
-# docs/diagnosis-experiments.md).
+# already paid for itself; this says which of its axes carry it (why 2:
+# docs/notebook/diagnosis-experiments.md).
 LOCATED_LOSS = 2.0
 
 
@@ -240,11 +238,8 @@ def unnamed_estimates(problem: Problem, channel: Channel, as_recorded: Channel, 
     lever arm; an IMU bias or scale) on the channel as recorded (a drift about a free
     offset), a richer one on `channel` (the NLOS found by shape out) with every
     simplest candidate fitted along. A real flight's own effect below the bar is
-    still there: on 0425-traj5 a drift of −1126 ± 433 ppm, which an injected +2000
-    ppm brought to a named +720; on 0426-traj8 a pattern on anchor 2 of [1.03,
-    −0.04, 0.12] ± 0.25 m, which an injected [0.3, 0.2, 0] brought to a named [1.24,
-    0.15, 0.04]; on 0425-traj17 an x rectification, which a y one injected brought
-    to a named x −0.64. Compared with another recording of the flight that names
+    still there, and an effect added on top of it is named at the sum (examples in
+    docs/notebook/diagnosis-experiments.md). Compared with another recording of the flight that names
     it, this is what the flight had (rig.diagnosis.compare)."""
     fresh = fresh_terms(pool, channel.name)
     parametric = [t for t in named if t.candidate.effect != "nlos"]
@@ -524,7 +519,7 @@ def _on_ground_term(problem: Problem, z: np.ndarray) -> Term | None:
     ON_GROUND_SHAPES that removes most): its evidence must pay for its parameters,
     one fewer than the anchors (only their differences show) and its shape. Not a
     candidate of the selection: the samples on the floor are what tells an injected
-    displacement or pattern of a floor anchor apart (docs/diagnosis-experiments.md, session 32)."""
+    displacement or pattern of a floor anchor apart (docs/notebook/diagnosis-experiments.md)."""
     fits = on_ground_fits(problem, z, ON_GROUND_SHAPES)
     if not fits:
         return None

@@ -113,9 +113,8 @@ def floor_multipath(noise: np.ndarray, heights: np.ndarray, bar: float) -> dict 
     effect with the two parameters, height and extra noise). A second step nested in
     it, more noise still below a lower height or less up to a higher one, is kept
     where its two parameters pay `bar` again: a flight's own floor noise can reach
-    higher than what is added nearer the floor (0422-log02 names 0.05 m below 1.0 m
-    of its own; with 0.2 m added below 0.6 m, one step reads 0.077 m below 1.0 m, two
-    read 0.23 m below 0.6 m on 0.05 m below 1.0 m). `std_m` is the lowest step's extra
+    higher than what is added nearer the floor, and one step would average the two
+    (docs/notebook/diagnosis-experiments.md). `std_m` is the lowest step's extra
     noise over the band above it; `upper_height_m` and `upper_std_m`, with two, the
     upper step's over the flight above it."""
     airborne = heights >= ON_GROUND_M

@@ -44,7 +44,7 @@ LEVELS = np.arange(-4.0, 10.01, 0.25)
 MIN_SIDE_SAMPLES = 50      # samples inside the box, and outside it, that a fit needs
 # A range error this large is a corrupt measurement, not an excess path in a room: left
 # out of the shape fit, where a few at hundreds of noise deviations drag the base's
-# spread up to cover them (a real flight, 0425-traj17) and hide every tail.
+# spread up to cover them and hide every tail.
 GROSS_ERROR_M = 5.0
 
 

@@ -81,8 +81,8 @@ def delay_centre(delays: np.ndarray) -> float:
     anchor nearly alone, where a mean would spread it as −1/n over all the others);
     unlike a median of eight, which averages the middle two, a delay that changes on
     one anchor moves it smoothly by about 1/n of the change, not by up to half of it
-    (0425-traj13: 12 cm added to a middle anchor's delay read as 6.7 cm against its
-    control). A spread scaled by the delays' own MAD would jump with it. Fitted by
+    (a middle anchor's change would read about half as large against its control).
+    A spread scaled by the delays' own MAD would jump with it. Fitted by
     `irls` from their median (delays spread wide apart can leave a flat stretch of
     centres), in units where its Huber threshold is the spread."""
     median, unit = float(np.median(delays)), GAUGE_SPREAD_M / HUBER_C

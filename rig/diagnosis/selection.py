@@ -39,7 +39,7 @@ log = logging.getLogger(__name__)
 
 
 
-def _name(z: np.ndarray, terms: list[Term], pool: list[Term], fixed: list[Term] = ()) -> list[Term]:
+def name_terms(z: np.ndarray, terms: list[Term], pool: list[Term], fixed: list[Term] = ()) -> list[Term]:
     """Backward elimination: every term's evidence is the robust loss it removes given
     all the others but its richer look-alikes, and the weakest goes while it does not
     pay for its parameters. Look-alikes of equal rank are judged given each other, so
@@ -129,7 +129,7 @@ def select(problem: Problem, channel: Channel, pool: list[Candidate]
            ) -> tuple[list[Term], Channel, list[nlos_mixture.NlosShapeFit]]:
     """The channel's effects, named and measured.
 
-    Which terms are named is decided by backward elimination (_name). A named term's
+    Which terms are named is decided by backward elimination (name_terms). A named term's
     estimate is its value in the joint fit of the named terms of its rank or a
     simpler one (ORDER): the simplest explanation takes the signal it can, a richer
     one only what is left (by Frisch-Waugh-Lovell, its fit on the part the simpler
@@ -147,23 +147,22 @@ def select(problem: Problem, channel: Channel, pool: list[Candidate]
     (timing, delays, lever arm) named on the channel as it was stay, with the
     evidence they were named on, and every simplest effect is estimated there: NLOS
     is the richest explanation, and which regions its shape finds must not move
-    them (a lever arm moved by 9 cm) nor drop them (0422-log03's own lever arm and
-    time offset, supported on the channel as recorded, went once shapes on four
-    anchors took part of their signal); it may add one (0425-traj17's own offset
-    less an injected one pays only once its shapes are out); named effects are
+    them nor drop them (shapes on several anchors can take part of a lever arm's or
+    a time offset's signal); it may add one (an offset that pays only once the
+    shapes are out); named effects are
     tried confined in time; the named effects, fitted jointly, are the model that
     re-simulates the recording. Returns the terms, the channel they were fitted on
     and the NLOS found by shape."""
     z = z_before_shapes = channel.z
     folds = channel.folds()
     terms = fresh_terms(pool, channel.name)
-    named = _name(z, terms, terms)
+    named = name_terms(z, terms, terms)
     shapes, simplest = [], []
     if channel.name == "tdoa":
         nlos = nlos_terms(problem, channel, folds, terms)
         if nlos:
             terms += nlos
-            named = _name(z, named + nlos, terms)
+            named = name_terms(z, named + nlos, terms)
     refit(z, named)                 # the NLOS search refits every candidate
     if channel.name == "tdoa":
         taken = {t.candidate.fixed["anchor"] for t in named if t.candidate.effect == "nlos"}
@@ -173,11 +172,11 @@ def select(problem: Problem, channel: Channel, pool: list[Candidate]
             channel = replace(channel, residual=residual)
             z = channel.z
             simplest = [t for t in named if rank_of(t) == 0]
-            named = _name(z, terms, terms, simplest)
+            named = name_terms(z, terms, terms, simplest)
             refit(z, named)
     positions = problem.tag_positions() if channel.name == "tdoa" else None
     if confine_in_time(channel, named, positions):
-        named = _name(z, named, terms, simplest)      # leaves them fitted jointly
+        named = name_terms(z, named, terms, simplest)      # leaves them fitted jointly
     unnamed = unnamed_simplest_terms(terms, named, channel.name)
     estimate_terms(z, named, z_before_shapes, free_offset_terms(named, terms), unnamed)
     _note_look_alikes(z, named, terms)

@@ -210,9 +210,9 @@ def estimate_terms(z: np.ndarray, terms: list[Term], z_simplest: np.ndarray | No
     standard error in that fit; the simplest (rank 0) on `z_simplest` if given. The
     `nuisance` terms (rank 0, not named) are fitted along and not reported; so are
     the `simplest_unnamed` ones (rank 0) for the richer terms, whose estimates then do
-    not depend on which of the simplest effects a recording names (0425-traj5: a
-    time offset and a clock drift named with a displaced anchor injected, and not on
-    the untouched flight, moved the displacement's z by 9 cm)."""
+    not depend on which of the simplest effects a recording names (naming a time
+    offset and a clock drift on one recording only would move a displacement's
+    estimate between it and its control)."""
     for rank in sorted({rank_of(t) for t in terms}):
         reported = [t for t in terms if rank_of(t) <= rank]
         nested = reported + list(nuisance)
@@ -235,9 +235,7 @@ def free_offset_terms(named: list[Term], pool: list[Term]) -> list[Term]:
     """A clock drift is judged and measured about a free time offset, named or not:
     the drift's growth over the flight is what tells it from an offset, and a
     flight's own offset named on one run and not on another would otherwise move the
-    drift by that offset over the flight's mean time (0422-log03: a drift of 2000 ppm
-    added to the flight's own came out as +335 ppm when its −85 ms offset went
-    unnamed)."""
+    drift by that offset over the flight's mean time."""
     effects = {t.candidate.effect for t in named}
     if "clock_drift" not in effects or "time_offset" in effects:
         return []

@@ -6,9 +6,9 @@ from __future__ import annotations
 from pathlib import Path
 
 DEMO_TARGETS = ("native", "qemu")
-# the default recording carries the room's measured effects (docs/diagnosis-guide.md): the
+# the default recording carries the room's measured effects (docs/guide/diagnosis.md): the
 # robust estimator without the bias network gets 0.18-0.35 m (median 0.27) on the real
-# flights of that room (docs/accuracy.md), 0.30 m on it
+# flights of that room (docs/notebook/accuracy.md), 0.30 m on it
 DEMO_MAX_RMSE_M = 0.40
 DEMO_MAX_BUDGET = 0.20
 # The real-time bar is the worst window under QEMU, whose instruction counts are

@@ -1,4 +1,4 @@
-"""Python twin of the wire protocol (estimator_c/include/protocol.h, docs/protocol.md).
+"""Python twin of the wire protocol (estimator_c/include/protocol.h, docs/reference/protocol.md).
 
 Frames are COBS(payload || CRC-16/CCITT-FALSE little-endian) + 0x00; a payload is a
 type byte and little-endian fields, at most 30 bytes (one CRTP app-channel packet).

@@ -1,6 +1,6 @@
 """Boards on eclipse-zenoh: the bridge (board side) and the link the rig uses (rig side).
 
-Key expressions, for a board named NAME (docs/service.md):
+Key expressions, for a board named NAME (docs/guide/service.md):
 
     rig/board/NAME/alive        liveliness token, held while the bridge owns the board
     rig/board/NAME/rx           every payload the board sent, raw (one sample each)

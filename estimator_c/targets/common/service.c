@@ -1,4 +1,4 @@
-/* Message handling of the board service (see service.h and docs/protocol.md). */
+/* Message handling of the board service (see service.h and docs/reference/protocol.md). */
 #include "service.h"
 
 #include <string.h>

@@ -261,9 +261,9 @@ class OnGroundDelay(Effect):
     below `height_m`), every range from anchor k reads `meters[k]` longer than in
     flight, fading out linearly over `fade_m` above that height: the floor lies in
     the direct paths, most to the anchors at its own height, and what arrives first
-    has gone round (real flights: metres, docs/diagnosis.md). Keys are anchor ids;
+    has gone round (real flights: metres, docs/notebook/diagnosis.md). Keys are anchor ids;
     TDOA sees the values only relative to each other. The body, not the antenna: a
-    lever arm fitted to a flight (decimetres on z, docs/diagnosis.md) would otherwise
+    lever arm fitted to a flight (decimetres on z, docs/notebook/diagnosis.md) would otherwise
     move where the floor begins."""
 
     name, stage = "on_ground_delay", SIGNAL

@@ -1,0 +1,192 @@
+"""`rig import`: unit conversions, time order, every real flight imported losslessly."""
+
+from __future__ import annotations
+
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from rigtest import crafted_log, run_rig
+
+from rig.data import paths
+from rig.data.importer import GRAVITY, import_log, infer_uwb_mode, load_any
+from rig.data.recording import read_recording, write_recording
+from rig.data.usdlog import read_log
+
+
+def test_unit_conversions_and_time_order(tmp_path: Path, survey_0425: Path) -> None:
+    log = tmp_path / "log"
+    log.write_bytes(crafted_log(40))
+    rec = import_log(log, survey_0425)
+    np.testing.assert_allclose(rec.accel.xyz[0], [0.0, 0.5 * 9.81, 9.81])  # g → m/s²
+    np.testing.assert_allclose(rec.gyro.xyz[0], [np.pi / 2, -np.pi, 0.0])  # deg/s → rad/s
+    assert rec.accel.t[0] == pytest.approx(1.0)  # µs → s (first event at 1 000 000 µs)
+    assert rec.gyro.t[0] == pytest.approx(1.000017)
+    for series in (rec.accel, rec.gyro, rec.tdoa, rec.truth):
+        assert np.all(np.diff(series.t) >= 0), "streams must be sorted by time"
+    assert GRAVITY == 9.81
+
+
+def test_uwb_mode_inference() -> None:
+    ring = np.arange(80) % 8
+    assert infer_uwb_mode(ring, (ring + 1) % 8, 8) == "TDOA2"
+    rng = np.random.default_rng(0)
+    a = rng.integers(0, 8, 500)
+    assert infer_uwb_mode(a, (a + rng.integers(1, 8, 500)) % 8, 8) == "TDOA3"
+
+
+def _import_and_compare(flight: Path, tmp: Path) -> str | None:
+    """Import one real flight, read it back, compare with the raw log. Returns a problem or None."""
+    decoded = read_log(flight)
+    if not decoded.crc_ok:
+        return f"{flight.name}: CRC not verified"
+    out = tmp / f"{flight.name}.mcap"
+    write_recording(import_log(flight, paths.survey_for(flight)), out)
+    back = read_recording(out)
+    expected = {"estAcceleration": back.accel, "estGyroscope": back.gyro, "estTDOA": back.tdoa,
+                "estPose": back.truth}
+    for event, series in expected.items():
+        if len(series) != decoded.counts()[event]:
+            return f"{flight.name}: {event} {decoded.counts()[event]} in log, {len(series)} in MCAP"
+    raw = decoded.series("estTDOA")
+    order = np.argsort(raw.timestamps_us, kind="stable")
+    if not np.array_equal(raw.values[order, 2], back.tdoa.distance_diff):
+        return f"{flight.name}: TDOA values differ"
+    if not np.allclose(decoded.series("estAcceleration").values[np.argsort(
+            decoded.series("estAcceleration").timestamps_us, kind="stable")] * 9.81, back.accel.xyz, rtol=0, atol=0):
+        return f"{flight.name}: accelerations differ"
+    out.unlink()
+    return None
+
+
+def test_every_shared_flight_imports_without_losing_an_event(tmp_path: Path, data_dir: Path) -> None:
+    flights = paths.flights()
+    assert len(flights) >= 35
+    with ProcessPoolExecutor(max_workers=2) as pool:
+        problems = [p for p in pool.map(_import_and_compare, flights, [tmp_path] * len(flights)) if p]
+    assert problems == []
+
+
+def test_cli_import_writes_an_mcap_with_the_contract_topics(tmp_path: Path, data_dir: Path) -> None:
+    flight = data_dir / "flights" / "0425-traj1"
+    out = tmp_path / "x.mcap"
+    run_rig("import", str(flight), "--survey", str(data_dir / "surveys" / "anchor_0425.txt"), "-o", str(out),
+            check=True)
+    counts: dict[str, int] = {}
+    with open(out, "rb") as stream:
+        for _, channel, _ in make_reader(stream).iter_messages():
+            counts[channel.topic] = counts.get(channel.topic, 0) + 1
+    log_counts = read_log(flight).counts()
+    assert counts[next(t for t in counts if "tdoa" in t)] == log_counts["estTDOA"]
+    assert counts[next(t for t in counts if "truth" in t)] == log_counts["estPose"]
+    imu_topics = [t for t in counts if "imu" in t]
+    assert sorted(counts[t] for t in imu_topics) == sorted([log_counts["estAcceleration"],
+                                                            log_counts["estGyroscope"]])
+
+
+@pytest.mark.parametrize("damage", ["truncate", "corrupt"])
+def test_cli_import_of_a_damaged_log_fails_cleanly(tmp_path: Path, data_dir: Path, damage: str) -> None:
+    data = bytearray((data_dir / "flights" / "0425-traj2").read_bytes())
+    if damage == "truncate":
+        data = data[: len(data) * 2 // 3]
+    else:
+        data[len(data) // 3] ^= 0xFF
+    log = tmp_path / "damaged"
+    log.write_bytes(bytes(data))
+    out = tmp_path / "out.mcap"
+    proc = run_rig("import", str(log), "--survey", str(data_dir / "surveys" / "anchor_0425.txt"), "-o", str(out))
+    assert proc.returncode != 0
+    assert "CRC-32" in proc.stderr and "--salvage" in proc.stderr
+    assert "Traceback" not in proc.stderr
+    assert not out.exists()
+
+
+def test_cli_salvage_imports_the_valid_prefix_with_a_warning(tmp_path: Path, data_dir: Path) -> None:
+    source = data_dir / "flights" / "0425-traj2"
+    data = source.read_bytes()
+    log = tmp_path / "truncated"
+    log.write_bytes(data[: len(data) // 2])
+    out = tmp_path / "out.mcap"
+    proc = run_rig("import", str(log), "--survey", str(data_dir / "surveys" / "anchor_0425.txt"), "-o", str(out),
+                   "--salvage")
+    assert proc.returncode == 0, proc.stderr
+    assert "salvage" in proc.stderr.lower() and "not decoded" in proc.stderr
+    rec = read_recording(out)
+    full = read_log(source).counts()
+    assert 0 < len(rec.accel) < full["estAcceleration"]
+    assert rec.metadata["crc"].startswith("bad")
+
+
+@pytest.mark.parametrize("damage", ["truncate", "corrupt"])
+def test_a_cut_or_damaged_recording_is_read_up_to_the_damage_with_a_warning(tmp_path: Path, data_dir: Path,
+                                                                           damage: str) -> None:
+    whole = tmp_path / "whole.mcap"
+    write_recording(load_any(data_dir / "flights" / "0425-traj2"), whole)
+    data = bytearray(whole.read_bytes())
+    if damage == "truncate":                                  # a writer killed, a copy cut short
+        data = data[: len(data) * 3 // 4]
+    else:
+        data[len(data) // 2] ^= 0xFF
+    damaged = tmp_path / "damaged.mcap"
+    damaged.write_bytes(bytes(data))
+    proc = run_rig("evaluate", str(damaged))
+    assert proc.returncode == 0, proc.stderr
+    assert "unfinished or damaged" in proc.stderr and "Traceback" not in proc.stderr
+    original, salvaged = read_recording(whole), read_recording(damaged)
+    n = len(salvaged.accel)
+    assert 0 < n < len(original.accel) and salvaged.anchors == original.anchors
+    assert salvaged.metadata == original.metadata
+    np.testing.assert_array_equal(salvaged.accel.xyz, original.accel.xyz[:n])   # nothing damaged decoded
+
+
+def test_a_recording_cut_before_its_first_chunk_is_a_clear_error(tmp_path: Path) -> None:
+    data = paths.default_recording().read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: len(data) // 2])
+    proc = run_rig("evaluate", str(cut))
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert "cannot read" in proc.stderr and "no message before the damage" in proc.stderr
+
+
+def test_cli_reports_a_missing_file_without_traceback(tmp_path: Path) -> None:
+    proc = run_rig("import", str(tmp_path / "nope"), "--survey", str(tmp_path / "nope.txt"), "-o",
+                   str(tmp_path / "o.mcap"))
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr and "cannot read" in proc.stderr
+
+
+def _shifted_survey(source: Path, target: Path, dx: float) -> None:
+    """The survey with every point moved by dx along x (so every anchor is)."""
+    lines = []
+    for line in source.read_text().splitlines():
+        fields = line.split(",")
+        if len(fields) == 4 and not line.startswith("#"):
+            fields[1] = f"{float(fields[1]) + dx:.6f}"
+        lines.append(",".join(fields))
+    target.parent.mkdir(parents=True, exist_ok=True)
+    target.write_text("\n".join(lines) + "\n")
+
+
+def test_a_flight_log_finds_its_survey_beside_it_or_by_option(tmp_path: Path, data_dir: Path) -> None:
+    """A copy of the data tree (flights/ and surveys/) with altered files uses its own
+    survey; a log renamed away from its day needs --survey, and says so."""
+    shared = data_dir / "surveys" / "anchor_0425.txt"
+    flight = tmp_path / "tree" / "flights" / "0425-traj2"
+    flight.parent.mkdir(parents=True)
+    flight.write_bytes((data_dir / "flights" / "0425-traj2").read_bytes())
+    _shifted_survey(shared, tmp_path / "tree" / "surveys" / "anchor_0425.txt", 1.0)
+    own = {a.id: a.position for a in load_any(flight).anchors}
+    for anchor in load_any(data_dir / "flights" / "0425-traj2").anchors:
+        assert np.allclose(np.subtract(own[anchor.id], anchor.position), [1.0, 0.0, 0.0])
+
+    renamed = tmp_path / "altered-flight"
+    renamed.write_bytes(flight.read_bytes())
+    out = tmp_path / "same.mcap"
+    proc = run_rig("inject", str(renamed), "--effects", "[]", "-o", str(out))
+    assert proc.returncode == 2 and "cannot read survey" in proc.stderr and "Traceback" not in proc.stderr
+    proc = run_rig("inject", str(renamed), "--survey", str(shared), "--effects", "[]", "-o", str(out))
+    assert proc.returncode == 0, proc.stderr
+    assert [a.id for a in read_recording(out).anchors] == [a.id for a in load_any(flight).anchors]
+    proc = run_rig("inject", str(out), "--survey", str(shared), "--effects", "[]", "-o", str(tmp_path / "x.mcap"))
+    assert proc.returncode == 2 and "carries its own anchors" in proc.stderr

@@ -1,0 +1,174 @@
+"""The C estimator through its Python binding: tracking, robustness, bad input.
+
+`test_estimator_under_sanitizers` reruns this module against the ASan/UBSan build."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+from rigtest import ROOT, run_rig, simulate_exact
+
+from rig.data.importer import import_log
+from rig.data.recording import Recording, read_recording, write_recording
+from rig.estimator import native
+from rig.estimator.evaluate import build_events, evaluate, make_estimator, start_time, truth_pose_at
+
+
+def _sim(survey: Path, effects: list[dict], duration: float = 20.0, **kw) -> Recording:
+    return simulate_exact(survey, effects=effects, duration=duration, **kw)
+
+
+def _start(rec: Recording, params=None) -> tuple[native.Estimator, np.ndarray, float]:
+    params = params or native.params_with(use_bias_net=0)
+    est = make_estimator(rec, params, None)
+    t0 = start_time(rec)
+    pos, quat = truth_pose_at(rec, t0)
+    est.reset(0, pos, quat)
+    return est, build_events(rec, t0), t0
+
+
+def test_noiseless_flight_is_tracked_to_millimetres(survey_0425: Path) -> None:
+    rec = _sim(survey_0425, [])
+    for robust in (True, False):
+        result = evaluate(rec, robust=robust, use_nn=False)
+        assert result["rmse_3d"] < 0.005, (robust, result["rmse_3d"])
+        assert not result["diverged"] and result["tdoa_rejected"] == 0
+
+
+def test_outlier_bursts_do_not_break_tracking(survey_0425: Path) -> None:
+    rec = _sim(survey_0425, [{"effect": "tdoa_noise", "params": {"std_m": 0.1}},
+                             {"effect": "imu_noise", "params": {"accel_std": 0.1, "gyro_std": 0.01}}])
+    rng = np.random.default_rng(3)
+    bursts = [(9.0, 10.0), (14.0, 15.5), (19.0, 19.5)]
+    for lo, hi in bursts:  # half the measurements of each burst are 1-5 m off
+        inside = (rec.tdoa.t >= lo) & (rec.tdoa.t < hi) & (rng.random(len(rec.tdoa.t)) < 0.5)
+        rec.tdoa.distance_diff[inside] += rng.uniform(1.0, 5.0, inside.sum()) * rng.choice([-1, 1], inside.sum())
+    result = evaluate(rec, robust=True, use_nn=False)
+    assert not result["diverged"]
+    assert result["max_3d"] < 0.5, "an outlier burst pulled the estimate away"
+    assert result["rmse_3d"] < 0.15
+    assert result["tdoa_rejected"] + result["tdoa_downweighted"] > 100
+
+
+def test_rig_evaluate_tells_measurements_refused_at_input_from_those_the_update_rejects(tmp_path: Path) -> None:
+    rec = read_recording(ROOT / "recordings" / "default.mcap")
+    rec.tdoa.distance_diff[::50] = np.nan
+    write_recording(rec, tmp_path / "nan.mcap")
+    proc = run_rig("evaluate", str(tmp_path / "nan.mcap"), "--json", str(tmp_path / "e.json"), check=True)
+    result = json.loads((tmp_path / "e.json").read_text())
+    by_reason = result["rejected_by_reason"]
+    assert 100 < by_reason["nonfinite"] <= len(rec.tdoa.t[::50])     # those from take-off on
+    line = re.search(r"(\d+) rejected \(gate (\d+), robust weight (\d+)\); refused before the update: (.*?);",
+                     proc.stdout)
+    assert line, proc.stdout
+    rejected, gate, weight = map(int, line.groups()[:3])
+    assert rejected == result["tdoa_rejected"] == gate + weight and gate == by_reason["gate"]
+    assert f"nonfinite {by_reason['nonfinite']}" in line.group(4) and "gate" not in line.group(4)
+
+
+def test_every_bad_input_is_counted_by_reason_and_never_reaches_the_state(survey_0425: Path) -> None:
+    rec = _sim(survey_0425, [{"effect": "tdoa_noise", "params": {"std_m": 0.05}}], duration=10.0)
+    est, events, _ = _start(rec)
+    tdoa = np.flatnonzero(events["kind"] == native.EV_TDOA)
+    imu = np.flatnonzero(events["kind"] == native.EV_ACCEL)
+    bad = events.copy()
+    bad["v"][tdoa[10:20], 0] = np.nan
+    bad["v"][tdoa[20:25], 0] = np.inf
+    bad["id_a"][tdoa[30:40]] = 12          # not configured
+    bad["id_b"][tdoa[40:45]] = 250         # out of range
+    bad["id_b"][tdoa[50:55]] = bad["id_a"][tdoa[50:55]]
+    bad["v"][tdoa[60:66], 0] = 40.0        # larger than any anchor separation
+    bad["v"][imu[100:110], 1] = np.nan
+    late = bad[tdoa[200]].copy()
+    late["t_us"] = 0                       # time going backwards
+    gap = (bad["t_us"] > 4_000_000) & (bad["t_us"] < 4_300_000) & (bad["kind"] < native.EV_TDOA)
+    cut = tdoa[300]
+    stream = np.concatenate([bad[:cut], late[None], bad[cut:]])
+    stream = stream[~np.concatenate([gap[:cut], [False], gap[cut:]])]
+    out = est.replay(stream)
+    reasons = dict(zip(native.REJECT_REASONS, out["counters"][-1]["rejected"].tolist()))
+    assert reasons["nonfinite"] == 10 + 5 + 10
+    assert reasons["unknown_anchor"] == 15
+    assert reasons["same_anchor"] == 5
+    assert reasons["exceeds_baseline"] >= 6
+    assert reasons["time_backwards"] == 1
+    assert out["counters"][-1]["imu_gaps"] >= 25
+    assert np.all(np.isfinite(out["pos"])) and np.all(np.isfinite(out["cov_diag"]))
+    truth = np.column_stack([np.interp(out["t_us"] * 1e-6 + start_time(rec), rec.truth.t, rec.truth.position[:, i])
+                             for i in range(3)])
+    assert np.max(np.linalg.norm(out["pos"] - truth, axis=1)) < 0.3
+
+
+def test_covariance_stays_symmetric_positive_definite_over_a_real_flight(data_dir: Path) -> None:
+    rec = import_log(data_dir / "flights" / "0426-traj7", data_dir / "surveys" / "anchor_0426.txt")
+    est, events, _ = _start(rec, native.params_with(use_bias_net=0))
+    steps = np.flatnonzero(events["kind"] == native.EV_STEP)
+    lo = 0
+    for hi in steps[99::100]:  # check once a second
+        est.replay(events[lo: hi + 1])
+        lo = hi + 1
+        P = est.covariance()
+        np.testing.assert_allclose(P, P.T, atol=1e-9)
+        assert np.linalg.eigvalsh(P.astype(float)).min() > 0.0
+
+
+def test_diverged_state_is_reset_and_counted(survey_0425: Path) -> None:
+    rec = _sim(survey_0425, [], duration=8.0)
+    est, events, _ = _start(rec)
+    # Start 40 m off with a confident prior: the estimate cannot reconcile and must reset.
+    events["v"][events["kind"] == native.EV_ACCEL] *= 30.0
+    out = est.replay(events)
+    assert out["counters"][-1]["resets"] >= 1
+    assert np.all(np.isfinite(out["pos"]))
+    assert np.all(np.abs(out["pos"]) <= 50.0)
+
+
+def test_sixty_seconds_of_flight_take_well_under_a_second(survey_0425: Path) -> None:
+    rec = _sim(survey_0425, [{"effect": "tdoa_noise", "params": {"std_m": 0.1}}], duration=60.0, tdoa_hz=400.0)
+    result = evaluate(rec, use_nn=False)
+    assert result["flight_seconds"] > 60.0
+    assert result["estimator_seconds"] < 0.5
+
+
+def test_estimator_under_sanitizers() -> None:
+    if os.environ.get("UWB_RIG_UNDER_SANITIZERS"):
+        return  # this is the inner run
+    lib = native.build("sanitize")
+    runtime = subprocess.run(["gcc", "-print-file-name=libasan.so"], capture_output=True, text=True).stdout.strip()
+    env = {**os.environ, "UWB_RIG_ESTIMATOR_LIB": str(lib), "LD_PRELOAD": runtime,
+           "ASAN_OPTIONS": "detect_leaks=0", "UBSAN_OPTIONS": "print_stacktrace=1:halt_on_error=1",
+           "UWB_RIG_UNDER_SANITIZERS": "1", "PYTHONPATH": str(ROOT)}
+    proc = subprocess.run([sys.executable, "-m", "pytest", "-q", "-x", "-p", "no:cacheprovider", __file__,
+                           "-k", "not sixty_seconds and not real_flight and not shared_flight"],
+                          env=env, capture_output=True, text=True, timeout=900, cwd=ROOT)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    assert "passed" in proc.stdout and "ERROR: AddressSanitizer" not in proc.stderr
+
+
+def test_no_shared_flight_diverges_in_any_configuration_and_robust_averages_under_30_cm(data_dir: Path) -> None:
+    from concurrent.futures import ProcessPoolExecutor
+
+    from rig.data import paths
+
+    with ProcessPoolExecutor(max_workers=2) as pool:
+        rows = list(pool.map(_both_configs, paths.flights()))
+    diverged = [(name, cfg) for name, res in rows for cfg, r in res.items() if r["diverged"]]
+    assert diverged == []
+    assert np.mean([res["robust"]["rmse_3d"] for _, res in rows]) <= 0.30
+
+
+def _both_configs(flight: Path) -> tuple[str, dict]:
+    """Every configuration, with and without the shipped bias network."""
+    from rig.data import paths
+
+    rec = import_log(flight, paths.survey_for(flight))
+    return flight.name, {"robust": evaluate(rec, robust=True, use_nn=False),
+                         "plain": evaluate(rec, robust=False, use_nn=False),
+                         "robust+nn": evaluate(rec, robust=True, use_nn=True),
+                         "plain+nn": evaluate(rec, robust=False, use_nn=True)}

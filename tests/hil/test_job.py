@@ -1,0 +1,38 @@
+"""A replay job from Python, as `rig replay` runs it: the native program on a pty, the
+outputs in a directory (metrics.json, a run record the stock MCAP reader reads, the
+report), and a board that does not exist reported with what was kept."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from mcap.reader import make_reader
+
+from rig.data import paths
+from rig.hil.checks import assertions
+from rig.hil.job import EstimatorChoice, JobFailed, replay_job
+from rig.hil.runrecord import TOPIC_ESTIMATE
+
+
+def test_a_short_native_replay_writes_its_metrics_record_and_report(tmp_path: Path) -> None:
+    result = replay_job(paths.default_recording(), "native", tmp_path, EstimatorChoice(), duration=8.0)
+    assert json.loads((tmp_path / "metrics.json").read_text()) == json.loads(json.dumps(result))
+    assert result["n_estimates"] >= 799 and result["error"] is None and result["bias_net"]
+    assert assertions(result, 0.4, 0.2, "window_p99") == []
+    with open(tmp_path / "run.mcap", "rb") as stream:       # finished: the stock reader's summary is there
+        reader = make_reader(stream)
+        counts = reader.get_summary().statistics.channel_message_counts
+        topics = {c.id: c.topic for c in reader.get_summary().channels.values()}
+    assert {topics[k]: n for k, n in counts.items()}[TOPIC_ESTIMATE] == result["n_estimates"]
+    assert (tmp_path / "report.html").stat().st_size > 10_000
+
+
+def test_a_board_that_cannot_be_reached_fails_the_job_and_keeps_its_outputs(tmp_path: Path) -> None:
+    with pytest.raises(JobFailed, match="cannot open") as failure:
+        replay_job(paths.default_recording(), "serial:/dev/nonexistent-board", tmp_path, EstimatorChoice(),
+                   duration=1.0)
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert metrics["n_estimates"] == 0 and "cannot open" in metrics["error"] == failure.value.result["error"]
+    assert (tmp_path / "run.mcap").is_file()

@@ -1,0 +1,261 @@
+"""Lock-step replay into real targets: the native program on a pty (under sanitizers)
+and the STM32F405 firmware in QEMU, against the in-process library."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rigtest import RIG
+
+from rig.data.importer import load_any
+from rig.estimator import native
+from rig.estimator.evaluate import build_events, load_model, make_estimator, start_time, truth_pose_at
+from rig.hil import protocol, replay, targets
+from rig.hil.links import CrtpLink, LinkError, open_url
+
+
+@pytest.fixture(scope="module")
+def real_rec(data_dir: Path):
+    return load_any(data_dir / "flights" / "0426-traj1")
+
+
+def library_estimates(rec, params, model, duration: float) -> np.ndarray:
+    """The in-process library fed exactly what a board decodes."""
+    t0 = start_time(rec)
+    est = make_estimator(rec, params, model)
+    pos, quat = truth_pose_at(rec, t0)
+    est.reset(0, pos, protocol.quantize(quat, protocol.QUAT_LSB).astype(np.float32) * protocol.QUAT_LSB)
+    return est.replay(replay.wire_events(replay.windows(build_events(rec, t0, t0 + duration))))
+
+
+def run_target(link, rec, params, model, duration):
+    try:
+        return replay.run(link, rec, params, model, duration=duration)
+    finally:
+        link.close()
+
+
+def positions(session) -> np.ndarray:
+    return np.array([e[1] for e in session.estimates], np.float32)
+
+
+def test_native_program_under_sanitizers_equals_the_library(default_rec) -> None:
+    native.make("program-asan")
+    params, model = native.params_with(), load_model()
+    link = targets.open_native(native.ESTIMATOR_DIR / "build" / "estimator_native-asan")
+    session = run_target(link, default_rec, params, model, duration=6.0)
+    lib = library_estimates(default_rec, params, model, 6.0)
+    assert len(session.estimates) == len(lib) >= 599
+    np.testing.assert_array_equal(positions(session), lib["pos"])
+    assert session.unit == "ns" and all(t.window > 0 for t in session.timing)
+
+
+def test_cflib_udp_link_to_the_native_program_equals_the_library(default_rec) -> None:
+    """The Crazyflie path: cflib's real udp:// link driver, CRTP app-channel packets, the
+    native program's UDP endpoint (under sanitizers)."""
+    native.make("program-asan")
+    params, model = native.params_with(), load_model()
+    link = targets.open_native_udp(native.ESTIMATOR_DIR / "build" / "estimator_native-asan")
+    assert isinstance(link, CrtpLink) and link.name.startswith("crazyflie udp://127.0.0.1:")
+    session = run_target(link, default_rec, params, model, duration=4.0)
+    lib = library_estimates(default_rec, params, model, 4.0)
+    assert len(session.estimates) == len(lib) >= 399
+    np.testing.assert_array_equal(positions(session), lib["pos"])
+    assert session.counters.imu_lost == 0
+
+
+def test_qemu_firmware_matches_native_on_a_real_flight_and_counts_are_deterministic(real_rec) -> None:
+    params, model = native.params_with(), load_model()
+    duration = 12.0
+    lib = library_estimates(real_rec, params, model, duration)
+    first = run_target(targets.open_qemu(), real_rec, params, model, duration)
+    second = run_target(targets.open_qemu(), real_rec, params, model, duration=2.0)
+    assert first.unit == "instructions"
+    np.testing.assert_allclose(positions(first), lib["pos"], atol=2e-3)
+    # identical instruction counts run to run (QEMU -icount): the calls inside a STEP exactly; the
+    # window also holds the receive interrupts' entry and exit, a few instructions per byte
+    calls = lambda s: [(t.predict, t.tdoa_total, t.tdoa_max) for t in s.timing]  # noqa: E731
+    assert calls(first)[:len(second.timing)] == calls(second)
+    a = np.array([t.window for t in first.timing[:len(second.timing)]], float)
+    b = np.array([t.window for t in second.timing], float)
+    assert np.abs(a - b).max() <= 0.01 * a.max()
+    summary = replay.timing_summary(first)
+    assert summary["window_max"] <= 0.2 * summary["budget"]
+    assert summary["per_call"]["tdoa_update"]["calls"] > 100
+
+
+def test_cli_replay_writes_metrics_and_asserts(tmp_path: Path, data_dir: Path) -> None:
+    flight = data_dir / "flights" / "0426-traj1"
+    ok = subprocess.run([*RIG, "replay", str(flight), "--target", "native", "--out", str(tmp_path / "a"),
+                         "--duration", "15", "--assert-rmse", "1.0", "--assert-budget", "1.0"],
+                        capture_output=True, text=True, timeout=300)
+    # the native program's windows are host wall-clock time (a sanitizer build sharing the
+    # machine): the whole 10 ms budget here; the tight limits are the QEMU target's, in
+    # deterministic instruction counts
+    assert ok.returncode == 0, ok.stderr
+    metrics = json.loads((tmp_path / "a" / "metrics.json").read_text())
+    for key in ("rmse_3d", "rmse_xyz", "n_estimates"):
+        assert key in metrics
+    timing = metrics["timing"]
+    for key in ("unit", "budget", "window_p50", "window_p99", "window_max", "overruns", "per_call"):
+        assert key in timing
+    assert timing["unit"] == "ns" and timing["budget"] == 1e7
+    bad = subprocess.run([*RIG, "replay", str(flight), "--target", "native", "--out", str(tmp_path / "b"),
+                          "--duration", "15", "--assert-rmse", "0.001"], capture_output=True, text=True, timeout=300)
+    assert bad.returncode == 1 and "assertion failed: rmse_3d" in bad.stderr
+    over = subprocess.run([*RIG, "replay", str(flight), "--target", "native", "--out", str(tmp_path / "c"),
+                           "--duration", "3", "--assert-budget", "1e-6"], capture_output=True, text=True, timeout=300)
+    assert over.returncode == 1 and "of the budget" in over.stderr
+
+
+def test_corrupt_bytes_mid_stream_are_dropped_and_counted(default_rec) -> None:
+    params = native.params_with(use_bias_net=0)
+    link = targets.open_native()
+    original = link.send
+    sent = {"n": 0}
+
+    def noisy_send(payloads):
+        sent["n"] += 1
+        if sent["n"] % 50 == 0:  # a burst of line noise between windows
+            link.port.write(bytes(range(1, 40)) + b"\x00")
+        original(payloads)
+
+    link.send = noisy_send
+    session = run_target(link, default_rec, params, None, duration=5.0)
+    clean = library_estimates(default_rec, params, None, 5.0)
+    np.testing.assert_array_equal(positions(session), clean["pos"])
+    bad = [s for s in session.statuses if s.code == protocol.STATUS_BAD_FRAME]
+    assert bad and bad[-1].frames_bad >= 5
+
+
+def test_a_target_that_stops_answering_fails_clearly_within_seconds(default_rec) -> None:
+    link = targets.open_native()
+    original = link.send
+    state = {"n": 0, "stopped_at": None}
+
+    def send_then_freeze(payloads):
+        state["n"] += 1
+        original(payloads)
+        if state["n"] == 100:  # mid-replay the board hangs
+            os.kill(link.process.pid, signal.SIGSTOP)
+            state["stopped_at"] = time.monotonic()
+
+    link.send = send_then_freeze
+    try:
+        with pytest.raises(LinkError, match="stopped answering"):
+            replay.run(link, default_rec, native.params_with(use_bias_net=0), None, duration=5.0)
+        assert time.monotonic() - state["stopped_at"] < 10
+    finally:
+        os.kill(link.process.pid, signal.SIGCONT)
+        link.close()
+
+
+def test_a_board_that_stops_reading_fails_the_write_instead_of_blocking_for_ever() -> None:
+    """A real pty whose other end nobody reads (a board stuck with its receive
+    interrupt off): once its buffer is full the write gives up with a clear error."""
+    board_side, rig_side = os.openpty()
+    link = open_url(os.ttyname(rig_side), write_timeout=0.5)
+    try:
+        began = time.monotonic()
+        with pytest.raises(LinkError, match="the board stopped reading"):
+            for _ in range(10_000):                  # 1 MB of hellos: far beyond a pty's buffer
+                link.send([protocol.hello()] * 20)
+        assert time.monotonic() - began < 5.0 and link.bytes_sent > 0
+    finally:
+        link.close()
+        os.close(board_side)
+        os.close(rig_side)
+
+
+def test_a_board_that_resets_mid_replay_fails_clearly_and_keeps_the_record(default_rec, tmp_path: Path) -> None:
+    """A real reset: QEMU's system_reset reboots the firmware mid-replay; the board
+    announces its boot, the replay stops with a clear error and the run record keeps
+    every estimate received before, and the board's boot status."""
+    from rig.hil.runrecord import TOPIC_ESTIMATE, TOPIC_STATUS, RunRecorder, read_run
+
+    link = targets.open_qemu()
+    original, count = link.send, {"n": 0}
+
+    def send_then_reset(payloads):
+        count["n"] += 1
+        original(payloads)
+        if count["n"] == 300:
+            link.reset_board()
+
+    link.send = send_then_reset
+    recorder = RunRecorder(tmp_path / "run.mcap")
+    try:
+        with pytest.raises(LinkError, match="reset during the replay") as failure:
+            replay.run(link, default_rec, native.params_with(use_bias_net=0), None, duration=8.0, recorder=recorder)
+    finally:
+        link.close()
+        recorder.close()
+    record = read_run(tmp_path / "run.mcap")
+    received = failure.value.session.estimates
+    assert 200 < len(received) < 300 and len(record[TOPIC_ESTIMATE]) == len(received)
+    assert any(r["code"] == protocol.STATUS_BOOT for r in record[TOPIC_STATUS])
+
+
+def test_real_time_mode_gives_the_lock_step_estimates_and_counts_a_lost_window(default_rec) -> None:
+    """Real time at 2x on the native program: every window answered in order with the
+    same estimates as lock-step, latencies measured; a window lost on the link (the
+    radio dropped it) is counted as missed and the replay carries on."""
+    params = native.params_with(use_bias_net=0)
+    lock = run_target(targets.open_native(), default_rec, params, None, duration=6.0)
+    link, original, calls = targets.open_native(), None, {"n": 0}
+    original = link.send
+
+    def drop_one_window(payloads):
+        calls["n"] += 1
+        if calls["n"] != 300:       # the 300th send is a window (handshake and set-up come first)
+            original(payloads)
+
+    link.send = drop_one_window
+    try:
+        rt = replay.run(link, default_rec, params, None, duration=6.0, speed=2.0)
+    finally:
+        link.close()
+    summary = rt.realtime.summary()
+    assert summary["windows_sent"] == len(lock.estimates)
+    assert summary["missed_windows"] == 1 and len(rt.estimates) == len(lock.estimates) - 1
+    assert 0 < summary["latency_ms"]["p50"] < summary["deadline_ms"]
+    lost = summary["first_missed_t_us"][0]
+    same = [e for e in lock.estimates if e[0] < lost]
+    np.testing.assert_array_equal(positions(rt)[:len(same)], np.array([e[1] for e in same], np.float32))
+
+
+def test_real_time_mode_exposes_the_slow_qemu_link_that_lock_step_hides(tmp_path: Path) -> None:
+    """QEMU's emulated UART takes about 75 us a byte: lock-step hides it (every window
+    still meets the board's budget), real time at 3x the recording's clock shows the
+    estimates falling ever further behind; --assert-deadlines fails the run, the run
+    record carries each window's latency."""
+    out = tmp_path / "rt"
+    proc = subprocess.run([*RIG, "replay", "recordings/default.mcap", "--target", "qemu", "--duration", "8",
+                           "--mode", "realtime", "--speed", "3", "--assert-deadlines", "--assert-budget", "0.2",
+                           "--out", str(out)], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 1, proc.stdout + proc.stderr
+    assert "late windows" in proc.stderr and "budget" not in proc.stderr
+    result = json.loads((out / "metrics.json").read_text())
+    rt = result["realtime"]
+    assert result["mode"] == "realtime" and result["timing"]["overruns"] == 0
+    assert rt["missed_windows"] == 0 and rt["late_windows"] > rt["windows_sent"] // 2
+    assert rt["latency_ms"]["max"] > 10 * rt["deadline_ms"]       # a backlog that grows, not jitter
+    from rig.hil.runrecord import TOPIC_TIMING, read_run
+    latency = [r["latency_ms"] for r in read_run(out / "run.mcap")[TOPIC_TIMING]]
+    assert len(latency) == result["n_estimates"] and max(latency) == pytest.approx(rt["latency_ms"]["max"])
+
+
+def test_a_run_too_short_to_score_still_reports_and_fails_its_accuracy_assertion(tmp_path: Path) -> None:
+    proc = subprocess.run([*RIG, "replay", "recordings/default.mcap", "--target", "native", "--duration", "3",
+                           "--assert-rmse", "0.3", "--out", str(tmp_path)], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 1 and "no rmse_3d to compare" in proc.stderr, proc.stderr
+    result = json.loads((tmp_path / "metrics.json").read_text())
+    assert result["n_estimates"] == 299 and "scored segment" in result["score_error"]   # windows in 3 s
+    assert result["timing"]["windows"] == 299 and (tmp_path / "report.html").exists()
