@@ -33,7 +33,8 @@ from rig.estimator import native  # noqa: E402
 from rig.estimator.bias_net import HIDDEN, INPUTS, BiasNet  # noqa: E402
 from rig.estimator.evaluate import build_events, load_model, start_time, truth_pose_at  # noqa: E402
 
-FUNCTIONS = ("ekf_predict", "tdoa_update", "tdoa_update_plain", "tdoa_update_robust", "bn_features", "bn_predict")
+FUNCTIONS = ("ekf_predict", "tdoa_update", "ekf_scalar_update", "ekf_robust_scalar_update", "bn_features",
+             "bn_predict")
 CONFIGURATIONS = {"plain": {"robust": 0, "use_bias_net": 0},
                   "robust": {"robust": 1, "use_bias_net": 0},
                   "robust+nn": {"robust": 1, "use_bias_net": 1}}
