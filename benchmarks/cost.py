@@ -30,23 +30,24 @@ from rig.data import paths
 from rig.data.importer import load_any  # noqa: E402
 from rig.data.recording import Recording  # noqa: E402
 from rig.estimator import native  # noqa: E402
-from rig.estimator.bias_net import HIDDEN, INPUTS, BiasNet  # noqa: E402
+from rig.estimator.bias_net import FORMS, BiasNet, shape  # noqa: E402
 from rig.estimator.evaluate import build_events, load_model, start_time, truth_pose_at  # noqa: E402
 
 FUNCTIONS = ("ekf_predict", "tdoa_update", "ekf_scalar_update", "ekf_robust_scalar_update", "bn_features",
-             "bn_predict")
+             "bn_predict", "bn_link_bias")
 CONFIGURATIONS = {"plain": {"robust": 0, "use_bias_net": 0},
                   "robust": {"robust": 1, "use_bias_net": 0},
                   "robust+nn": {"robust": 1, "use_bias_net": 1}}
 TARGET_ROBUST_NN = 17_000
 
 
-def random_net(seed: int = 0) -> BiasNet:
-    """Same shape and cost as a trained network (inference has no data-dependent branches)."""
+def random_net(form: str, seed: int = 0) -> BiasNet:
+    """Same shape and cost as a trained network of `form` (inference has no data-dependent branches)."""
     rng = np.random.default_rng(seed)
-    shapes = [(HIDDEN, INPUTS), (HIDDEN, HIDDEN), (HIDDEN, HIDDEN), (1, HIDDEN)]
+    n_in, hidden = shape(form)
+    shapes = [(hidden, n_in), (hidden, hidden), (hidden, hidden), (1, hidden)]
     return BiasNet([rng.normal(0, 0.3, s) for s in shapes], [rng.normal(0, 0.1, s[0]) for s in shapes],
-                   np.zeros(INPUTS), np.ones(INPUTS), 0.1, 0.0)
+                   np.zeros(n_in), np.ones(n_in), 0.1, 0.0, form)
 
 
 def write_session(path: Path, rec: Recording, params: native.EstimatorParams, net: BiasNet | None) -> None:
@@ -106,11 +107,13 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("recording", nargs="?", type=Path, help="MCAP recording or shared flight directory")
     parser.add_argument("--json", type=Path, default=ROOT / "out" / "cost.json")
+    parser.add_argument("--random", choices=FORMS, metavar="FORM",
+                        help="a network of random weights of this form instead of the shipped one")
     args = parser.parse_args()
     source = args.recording or default_recording()
     rec = load_any(source)
-    model = load_model()
-    net = model if model is not None else random_net()
+    model = None if args.random else load_model()
+    net = model if model is not None else random_net(args.random or FORMS[0])
     native.make("bench")
     binary = native.ESTIMATOR_DIR / "build" / "bench_replay"
     results = {}
@@ -123,6 +126,7 @@ def main() -> None:
                                             for fn, v in results[name].items()))
     robust_nn = results["robust+nn"]["tdoa_update"]["instructions_per_call"]
     summary = {"recording": str(source), "network": "shipped model" if model is not None else "random weights",
+               "form": net.form,
                "unit": "x86-64 instructions (callgrind Ir), -O2", "configurations": results,
                "robust_update_with_network_per_call": robust_nn, "target_per_call": TARGET_ROBUST_NN,
                "within_target": robust_nn <= TARGET_ROBUST_NN}

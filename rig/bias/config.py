@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from rig.estimator.bias_net import INPUTS
+from rig.estimator.bias_net import FORMS, INPUTS
 
 FEATURES_FROM = ("estimate", "truth")   # the tag pose the features are computed from
 
@@ -27,7 +27,10 @@ class TrainConfig:
     weight_decay: float = 1e-5
     max_epochs: int = 60
     patience: int = 5           # epochs without validation improvement before stopping
-    features: list[int] = field(default_factory=lambda: list(range(INPUTS)))  # others are zeroed
+    features: list[int] = field(default_factory=lambda: list(range(INPUTS)))  # others are zeroed (pair form)
+    # "link": one network of a tag-anchor link's features, TDOA bias = g(B) - g(A); "pair":
+    # a network of the measurement's 14 features (rig.estimator.bias_net)
+    form: str = FORMS[0]
 
     def __post_init__(self) -> None:
         if self.restarts < 1:
@@ -37,6 +40,10 @@ class TrainConfig:
                              f"are outside 0..{RESTART_STRIDE - 1}")
         if self.select_by not in SELECT_BY:
             raise ValueError(f"select_by must be one of {SELECT_BY}, got {self.select_by!r}")
+        if self.form not in FORMS:
+            raise ValueError(f"form must be one of {FORMS}, got {self.form!r}")
+        if self.form == "link" and sorted(self.features) != list(range(INPUTS)):
+            raise ValueError("a feature subset applies to the pair form only (the link form takes a link's 7)")
 
     def init_seed(self, restart: int) -> int:
         """Restart i of seed s initialises with s * RESTART_STRIDE + i: two seeds never share one."""

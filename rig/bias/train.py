@@ -26,7 +26,7 @@ import numpy as np
 from rig.bias.config import TrainConfig
 from rig.bias.dataset import Samples
 from rig.data import paths
-from rig.estimator.bias_net import HIDDEN, INPUTS, BiasNet
+from rig.estimator.bias_net import BiasNet, link_features, shape
 
 log = logging.getLogger(__name__)
 
@@ -70,10 +70,30 @@ def _torch():
     return torch
 
 
-def _mlp(torch):
+def _model(torch, form: str):
+    """The network to train: the pair form maps a measurement's 14 standardised features
+    to its bias; the link form applies one network g to both links' 7 standardised
+    features and returns g(B) − g(A)."""
     nn = torch.nn
-    return nn.Sequential(nn.Linear(INPUTS, HIDDEN), nn.ReLU(), nn.Linear(HIDDEN, HIDDEN), nn.ReLU(),
-                         nn.Linear(HIDDEN, HIDDEN), nn.ReLU(), nn.Linear(HIDDEN, 1))
+    n_in, hidden = shape(form)
+    mlp = nn.Sequential(nn.Linear(n_in, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU(),
+                        nn.Linear(hidden, hidden), nn.ReLU(), nn.Linear(hidden, 1))
+    if form == "pair":
+        return mlp
+
+    class LinkDifference(nn.Module):
+        def __init__(self):
+            super().__init__()
+            self.g = mlp
+
+        def forward(self, x):
+            return self.g(x[:, n_in:]) - self.g(x[:, :n_in])
+
+    return LinkDifference()
+
+
+def _linears(model) -> list:
+    return [m for m in (model.g if hasattr(model, "g") else model) if hasattr(m, "weight")]
 
 
 def _masked(features: np.ndarray, keep: list[int]) -> np.ndarray:
@@ -86,16 +106,34 @@ def _normalisation(x: np.ndarray, keep: list[int]) -> tuple[np.ndarray, np.ndarr
     mean = x.mean(axis=0)
     std = x.std(axis=0)
     scale = np.where(std > 1e-9, 1.0 / np.maximum(std, 1e-9), 0.0)
-    dropped = np.setdiff1d(np.arange(INPUTS), keep)
+    dropped = np.setdiff1d(np.arange(x.shape[1]), keep)
     mean[dropped], scale[dropped] = 0.0, 0.0  # a dropped feature cannot reach the network
     return mean, scale
 
 
-def _to_bias_net(model, in_mean, in_scale, out_scale, out_offset) -> BiasNet:
-    linears = [m for m in model if hasattr(m, "weight")]
+def _network_inputs(features: np.ndarray, config: TrainConfig) -> np.ndarray:
+    """What the network's standardisation sees: the kept measurement features (pair
+    form), or link A's features then link B's, side by side (link form)."""
+    if config.form == "link":
+        return np.hstack(link_features(features)).astype(np.float64)
+    return _masked(features, config.features)
+
+
+def _standardisation(train_set: Samples, config: TrainConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Input mean and scale: per feature (pair form), or per link feature over both
+    links' rows stacked (link form: one network sees either link)."""
+    x = _network_inputs(train_set.features, config)
+    if config.form == "link":
+        n = x.shape[1] // 2
+        return _normalisation(np.vstack([x[:, :n], x[:, n:]]), list(range(n)))
+    return _normalisation(x, config.features)
+
+
+def _to_bias_net(model, in_mean, in_scale, out_scale, out_offset, form: str) -> BiasNet:
+    linears = _linears(model)
     return BiasNet([m.weight.detach().double().numpy().copy() for m in linears],
                    [m.bias.detach().double().numpy().copy() for m in linears],
-                   in_mean, in_scale, float(out_scale), float(out_offset))
+                   in_mean, in_scale, float(out_scale), float(out_offset), form)
 
 
 def train(train_set: Samples, validation_set: Samples, config: TrainConfig = TrainConfig(),
@@ -104,12 +142,14 @@ def train(train_set: Samples, validation_set: Samples, config: TrainConfig = Tra
     lowest `score` (default: the validation error); returns it with its training history and
     every restart's result."""
     torch = _torch()
-    x_train = _masked(train_set.features, config.features)
-    in_mean, in_scale = _normalisation(x_train, config.features)
-    out_offset, out_scale = float(train_set.label.mean()), float(train_set.label.std())
+    in_mean, in_scale = _standardisation(train_set, config)
+    # a difference of link biases has no offset of its own
+    out_offset = float(train_set.label.mean()) if config.form == "pair" else 0.0
+    out_scale = float(train_set.label.std())
+    repeat = 2 if config.form == "link" else 1          # the link form standardises both links alike
 
     def tensors(samples: Samples):
-        x = (_masked(samples.features, config.features) - in_mean) * in_scale
+        x = (_network_inputs(samples.features, config) - np.tile(in_mean, repeat)) * np.tile(in_scale, repeat)
         y = (samples.label - out_offset) / out_scale
         return torch.tensor(x, dtype=torch.float32), torch.tensor(y[:, None], dtype=torch.float32)
 
@@ -118,7 +158,7 @@ def train(train_set: Samples, validation_set: Samples, config: TrainConfig = Tra
     runs = []
     for restart in range(config.first_restart, config.first_restart + config.restarts):
         model, run = _train_once(torch, data, config, restart, progress)
-        net = _to_bias_net(model, in_mean, in_scale, out_scale, out_offset)
+        net = _to_bias_net(model, in_mean, in_scale, out_scale, out_offset, config.form)
         if score is not None:
             run["validation_rmse_3d"] = score(net)
         runs.append((net, run))
@@ -146,7 +186,7 @@ def _train_once(torch, data: tuple, config: TrainConfig, restart: int, progress=
     init_seed = config.init_seed(restart)
     torch.manual_seed(init_seed)
     rng = np.random.default_rng(init_seed)
-    model = _mlp(torch)
+    model = _model(torch, config.form)
     optimiser = torch.optim.Adam(model.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay)
     loss_fn = torch.nn.MSELoss()
     best, best_state, best_epoch, history = np.inf, None, -1, []

@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 from rig.bias.config import FEATURES_FROM, SELECT_BY, TrainConfig
+from rig.estimator.bias_net import FORMS
 from rig.cli.common import EXIT_OK, CliError, progress
 from rig.data import paths
 from rig.data.paths import SHIPPED_BIAS_NET as DEFAULT_NETWORK
@@ -29,8 +30,11 @@ def cmd_train(args: argparse.Namespace) -> int:
                        + (f" apart from {args.apart_from}'s training flights" if args.apart_from else ""))
     if args.restarts < 1:
         raise CliError(f"--restarts must be at least 1, got {args.restarts}")
-    config = TrainConfig(seed=args.seed, restarts=args.restarts, select_by=args.select_by,
-                         max_epochs=args.max_epochs, features=FEATURE_SETS[args.features])
+    try:
+        config = TrainConfig(seed=args.seed, restarts=args.restarts, select_by=args.select_by,
+                             max_epochs=args.max_epochs, features=FEATURE_SETS[args.features], form=args.form)
+    except ValueError as exc:
+        raise CliError(str(exc)) from exc
     anchors = [int(a) for a in args.exclude_anchors.split(",")] if args.exclude_anchors else []
     prov = run_training(flights, args.out, test_prefixes=args.test, exclude_anchors=anchors, config=config,
                         dataset_cache=args.dataset_cache, command=["rig", *sys.argv[1:]],
@@ -64,6 +68,9 @@ def register(sub) -> None:
     p.add_argument("--test", nargs="+", metavar="PREFIX",
                    help="these flights are the test set (default: a seeded 15%% of the flights)")
     p.add_argument("--exclude-anchors", metavar="K,K", help="leave these anchors out of training; test on them")
+    p.add_argument("--form", choices=FORMS, default=TrainConfig().form,
+                   help="link (default): one network of a tag-anchor link's 7 features, TDOA bias = g(B) - g(A); "
+                        "pair: a network of the measurement's 14 features (the paper's form)")
     p.add_argument("--features", choices=("14", "10"), default="14",
                    help="10 drops the anchors' orientation (the tag's angles in each anchor's frame)")
     p.add_argument("--features-from", choices=FEATURES_FROM, default=FEATURES_FROM[0],

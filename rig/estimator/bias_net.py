@@ -1,9 +1,16 @@
-"""The bias network as data: float weights with their normalisation, quantised
-to the int8 layout of the C `bias_net_t` (per-output scales), saved as JSON.
+"""The bias correction as data: float weights with their normalisation, quantised to
+the int8 layout of the C `bias_net_t` (per-output scales), saved as JSON.
+
+Two forms (estimator_c/include/bias_net.h):
+- "pair": a network of the 14 features of a measurement, 14-30-30-30-1, whose output
+  is the TDOA bias;
+- "link": one network g of the 7 features of a tag-anchor link, 7-20-20-20-1, shared
+  by every link; the TDOA bias is g(link B) − g(link A), the difference of the two
+  links' range biases.
 
 Layer l computes y = relu(W_l x + b_l) (no ReLU on the output layer); inputs are
-standardised as (x - in_mean) * in_scale; the bias in metres is
-out_scale * y + out_offset.
+standardised as (x - in_mean) * in_scale; the output in metres is
+out_scale * y + out_offset (the link form's offset cancels in the difference: 0).
 """
 
 from __future__ import annotations
@@ -16,38 +23,80 @@ import numpy as np
 
 from rig.data import paths
 
-INPUTS, HIDDEN = 14, 30
+INPUTS, HIDDEN = 14, 30               # the measurement's features; the pair form's hidden width
+LINK_INPUTS, LINK_HIDDEN = 7, 20      # one link's features; the link form's hidden width
+FORMS = ("link", "pair")
+FORM_CODE = {"pair": 0, "link": 1}    # bias_net_t.form
+# Which of the 14 measurement features belong to link A and to link B (BN_LINK_A/B).
+LINK_A = [0, 1, 2, 6, 8, 10, 12]
+LINK_B = [3, 4, 5, 7, 9, 11, 13]
 DEFAULT_NETWORK = paths.SHIPPED_BIAS_NET
-LANES = 32  # C storage width of a layer (BN_LANES): two zero neurons of padding
+LANES = 32  # C storage width of a pair layer (BN_LANES): two zero neurons of padding
 
-NET_DTYPE = np.dtype([
-    ("in_mean", "<f4", INPUTS), ("in_scale", "<f4", INPUTS), ("out_scale", "<f4"), ("out_offset", "<f4"),
-    ("w1", "i1", (INPUTS, LANES)), ("w2", "i1", (HIDDEN, LANES)), ("w3", "i1", (HIDDEN, LANES)),
-    ("w4", "i1", HIDDEN),
-    ("s1", "<f4", LANES), ("s2", "<f4", LANES), ("s3", "<f4", LANES), ("s4", "<f4"),
-    ("b1", "<f4", LANES), ("b2", "<f4", LANES), ("b3", "<f4", LANES), ("b4", "<f4"),
-], align=True)
+
+def _layer_dtype(n_in: int, hidden: int, lanes: int, offset: bool) -> np.dtype:
+    return np.dtype([
+        ("in_mean", "<f4", n_in), ("in_scale", "<f4", n_in), ("out_scale", "<f4"),
+        *([("out_offset", "<f4")] if offset else []),
+        ("w1", "i1", (n_in, lanes)), ("w2", "i1", (hidden, lanes)), ("w3", "i1", (hidden, lanes)),
+        ("w4", "i1", hidden),
+        ("s1", "<f4", lanes), ("s2", "<f4", lanes), ("s3", "<f4", lanes), ("s4", "<f4"),
+        ("b1", "<f4", lanes), ("b2", "<f4", lanes), ("b3", "<f4", lanes), ("b4", "<f4"),
+    ], align=True)
+
+
+PAIR_DTYPE = _layer_dtype(INPUTS, HIDDEN, LANES, offset=True)
+LINK_DTYPE = _layer_dtype(LINK_INPUTS, LINK_HIDDEN, LANES, offset=False)
+# bias_net_t: the form, then a union of the two layouts.
+NET_DTYPE = np.dtype({"names": ["form", "pair", "link"], "formats": ["<u4", PAIR_DTYPE, LINK_DTYPE],
+                      "offsets": [0, 4, 4], "itemsize": 4 + max(PAIR_DTYPE.itemsize, LINK_DTYPE.itemsize)})
+
+
+def shape(form: str) -> tuple[int, int]:
+    """Inputs and hidden width of a form's network."""
+    return (LINK_INPUTS, LINK_HIDDEN) if form == "link" else (INPUTS, HIDDEN)
+
+
+def link_features(features: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The link features of rows of measurement features: link A's and link B's."""
+    features = np.atleast_2d(features)
+    return features[:, LINK_A], features[:, LINK_B]
 
 
 @dataclass
 class BiasNet:
     """Float weights (PyTorch layout: W[out, in]) and the model's normalisation."""
 
-    weights: list[np.ndarray]  # shapes (30,14), (30,30), (30,30), (1,30)
-    biases: list[np.ndarray]   # shapes (30,), (30,), (30,), (1,)
+    weights: list[np.ndarray]  # pair: (30,14), (30,30), (30,30), (1,30); link: (20,7), (20,20), (20,20), (1,20)
+    biases: list[np.ndarray]
     in_mean: np.ndarray
     in_scale: np.ndarray
     out_scale: float = 1.0
     out_offset: float = 0.0
+    form: str = "pair"
 
-    def predict(self, features: np.ndarray) -> np.ndarray:
-        """Float reference inference on rows of raw features."""
-        x = (np.atleast_2d(features) - self.in_mean) * self.in_scale
+    def __post_init__(self) -> None:
+        if self.form not in FORMS:
+            raise ValueError(f"form must be one of {FORMS}, not {self.form!r}")
+
+    def _network(self, x: np.ndarray) -> np.ndarray:
+        x = (np.atleast_2d(x) - self.in_mean) * self.in_scale
         for k, (w, b) in enumerate(zip(self.weights, self.biases)):
             x = x @ w.T + b
             if k < len(self.weights) - 1:
                 x = np.maximum(x, 0.0)
-        return x[:, 0] * self.out_scale + self.out_offset
+        return x[:, 0] * self.out_scale
+
+    def link_bias(self, links: np.ndarray) -> np.ndarray:
+        """The link form's range bias (m) of rows of link features."""
+        return self._network(links)
+
+    def predict(self, features: np.ndarray) -> np.ndarray:
+        """Float reference inference on rows of raw measurement features: the TDOA bias (m)."""
+        if self.form == "link":
+            a, b = link_features(features)
+            return self.link_bias(b) - self.link_bias(a)
+        return self._network(features) + self.out_offset
 
     def quantized(self) -> "BiasNet":
         """The same network with weights rounded exactly as `pack` stores them."""
@@ -56,26 +105,32 @@ class BiasNet:
             q, scale = _quantize_rows(w)
             weights.append(q.astype(np.float64) * scale[:, None])
         return BiasNet(weights, [b.copy() for b in self.biases], self.in_mean, self.in_scale,
-                       self.out_scale, self.out_offset)
+                       self.out_scale, self.out_offset, self.form)
 
     def pack(self) -> np.ndarray:
         """One NET_DTYPE record, laid out like the C bias_net_t."""
         rec = np.zeros((), NET_DTYPE)
-        rec["in_mean"], rec["in_scale"] = self.in_mean, self.in_scale
-        rec["out_scale"], rec["out_offset"] = self.out_scale, self.out_offset
+        rec["form"] = FORM_CODE[self.form]
+        layout = rec[self.form]
+        hidden = shape(self.form)[1]
+        layout["in_mean"], layout["in_scale"], layout["out_scale"] = self.in_mean, self.in_scale, self.out_scale
+        if self.form == "pair":
+            layout["out_offset"] = self.out_offset
         for k, (w, b) in enumerate(zip(self.weights, self.biases), start=1):
             q, scale = _quantize_rows(w)
-            if k < 4:  # C stores input-major, HIDDEN neurons in LANES slots (padding stays zero)
-                rec[f"w{k}"][:, :HIDDEN] = q.T
-                rec[f"s{k}"][:HIDDEN] = scale
-                rec[f"b{k}"][:HIDDEN] = b
+            if k < 4:  # C stores input-major, `hidden` neurons in its lanes (padding stays zero)
+                layout[f"w{k}"][:, :hidden] = q.T
+                layout[f"s{k}"][:hidden] = scale
+                layout[f"b{k}"][:hidden] = b
             else:
-                rec[f"w{k}"], rec[f"s{k}"], rec[f"b{k}"] = q[0], scale[0], b[0]
+                layout[f"w{k}"], layout[f"s{k}"], layout[f"b{k}"] = q[0], scale[0], b[0]
+        rec[self.form] = layout
         return np.ascontiguousarray(rec.reshape(1))
 
     def to_json(self) -> dict:
+        n_in, hidden = shape(self.form)
         return {
-            "architecture": f"{INPUTS}-{HIDDEN}-{HIDDEN}-{HIDDEN}-1 relu",
+            "form": self.form, "architecture": f"{n_in}-{hidden}-{hidden}-{hidden}-1 relu",
             "in_mean": self.in_mean.tolist(), "in_scale": self.in_scale.tolist(),
             "out_scale": self.out_scale, "out_offset": self.out_offset,
             "weights": [w.tolist() for w in self.weights], "biases": [b.tolist() for b in self.biases],
@@ -85,7 +140,7 @@ class BiasNet:
     def from_json(cls, obj: dict) -> "BiasNet":
         return cls([np.array(w, float) for w in obj["weights"]], [np.array(b, float) for b in obj["biases"]],
                    np.array(obj["in_mean"], float), np.array(obj["in_scale"], float),
-                   float(obj["out_scale"]), float(obj["out_offset"]))
+                   float(obj["out_scale"]), float(obj["out_offset"]), obj.get("form", "pair"))
 
     def save(self, path: Path) -> None:
         Path(path).write_text(json.dumps(self.to_json()) + "\n")
@@ -103,14 +158,18 @@ def _quantize_rows(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return q, scale
 
 
-def identity_probe_net(feature: int, gain: float = 1.0, offset: float = 0.0) -> BiasNet:
-    """A network whose output is computable by hand: bias = gain * relu(feature) + offset.
+def identity_probe_net(feature: int, gain: float = 1.0, offset: float = 0.0, form: str = "pair") -> BiasNet:
+    """A network whose output is computable by hand: pair form, bias = gain * relu(feature)
+    + offset; link form, the link bias is gain * relu(link feature), so the TDOA bias is
+    gain * (relu(B's) − relu(A's)).
 
     Neuron 0 of each hidden layer passes the (positive part of the) chosen raw
     feature through; every other weight is zero. Used to test the C inference."""
-    w1 = np.zeros((HIDDEN, INPUTS)); w1[0, feature] = 1.0
-    w2 = np.zeros((HIDDEN, HIDDEN)); w2[0, 0] = 1.0
-    w3 = np.zeros((HIDDEN, HIDDEN)); w3[0, 0] = 1.0
-    w4 = np.zeros((1, HIDDEN)); w4[0, 0] = 1.0
-    zeros = [np.zeros(HIDDEN)] * 3 + [np.zeros(1)]
-    return BiasNet([w1, w2, w3, w4], zeros, np.zeros(INPUTS), np.ones(INPUTS), gain, offset)
+    n_in, hidden = shape(form)
+    w1 = np.zeros((hidden, n_in)); w1[0, feature] = 1.0
+    w2 = np.zeros((hidden, hidden)); w2[0, 0] = 1.0
+    w3 = np.zeros((hidden, hidden)); w3[0, 0] = 1.0
+    w4 = np.zeros((1, hidden)); w4[0, 0] = 1.0
+    zeros = [np.zeros(hidden)] * 3 + [np.zeros(1)]
+    return BiasNet([w1, w2, w3, w4], zeros, np.zeros(n_in), np.ones(n_in), gain, offset if form == "pair" else 0.0,
+                   form)

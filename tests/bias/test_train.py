@@ -16,13 +16,15 @@ from rig.bias.dataset import Samples
 from rig.bias.train import provenance_path, run_training, split_flights, train, trained_on
 from rig.data.recording import read_recording
 from rig.estimator import native
-from rig.estimator.bias_net import DEFAULT_NETWORK
+from rig.estimator.bias_net import DEFAULT_NETWORK, link_features
 from rig.estimator.evaluate import evaluate
 
 
 def synthetic_samples(n_flights: int, per_flight: int, seed: int) -> Samples:
-    """Features of random tag positions in a real-sized room; the bias is a smooth function
-    of the elevation of the tag in anchor A's frame (an antenna pattern) plus noise."""
+    """Features of random tag positions in a real-sized room; the bias lives on links, as
+    a UWB range bias does: each link's range reads a smooth function of the tag's
+    elevation and azimuth in the anchor's frame (an antenna pattern) too long, and the
+    TDOA bias is link B's less link A's, plus noise."""
     rng = np.random.default_rng(seed)
     anchors = np.array([[-3, -4, 0.2], [-3, 4, 3.0], [4, 4, 0.2], [4, -4, 3.0]], float)
     level = np.tile(np.eye(3), (1, 1, 1))
@@ -34,21 +36,37 @@ def synthetic_samples(n_flights: int, per_flight: int, seed: int) -> Samples:
         ib = (ia + 1 + rng.integers(0, 3, n)) % 4
         rots = np.repeat(level, n, axis=0)
         feats = native.features_batch(tag, rots, anchors[ia], rots, anchors[ib], rots)
-        bias = 0.3 * np.sin(2 * feats[:, 10]) + 0.1 * np.cos(feats[:, 6])
+        pattern = lambda elevation, azimuth: 0.3 * np.sin(2 * elevation) + 0.1 * np.cos(azimuth)  # noqa: E731
+        bias = pattern(feats[:, 11], feats[:, 7]) - pattern(feats[:, 10], feats[:, 6])
         label = bias + rng.normal(0, 0.05, n)
         parts.append(Samples(feats, label, np.full(n, f"sim{k}"), ia, ib, np.arange(n) * 0.02))
     return Samples.concatenate(parts)
 
 
-def test_training_recovers_a_known_learnable_bias() -> None:
+@pytest.mark.parametrize("form", ["link", "pair"])
+def test_training_recovers_a_known_learnable_bias(form: str) -> None:
     data = synthetic_samples(6, 3000, seed=1)
     train_set = data.select(np.isin(data.flight, ["sim0", "sim1", "sim2", "sim3"]))
     val_set = data.select(data.flight == "sim4")
     test_set = data.select(data.flight == "sim5")
-    net, _ = train(train_set, val_set, TrainConfig(max_epochs=40))
+    net, _ = train(train_set, val_set, TrainConfig(max_epochs=40, form=form))
+    assert net.form == form
     residual = test_set.label - net.quantized().predict(test_set.features)
     assert test_set.label.std() > 0.15
     assert residual.std() < 0.07  # noise is 0.05: the bias itself is learned
+
+
+def test_the_link_form_learns_each_links_own_bias() -> None:
+    """What the link form learns is a range bias per link: the same function whichever
+    side of the measurement the link is on (up to a constant every link shares, which a
+    difference cannot see)."""
+    data = synthetic_samples(5, 3000, seed=4)
+    net, _ = train(data.select(data.flight != "sim4"), data.select(data.flight == "sim4"),
+                   TrainConfig(max_epochs=40, form="link"))
+    links = np.vstack(link_features(data.features[:2000]))
+    truth = 0.3 * np.sin(2 * links[:, 5]) + 0.1 * np.cos(links[:, 3])       # elevation, azimuth in the anchor's frame
+    learned = net.link_bias(links)
+    assert np.std((learned - learned.mean()) - (truth - truth.mean())) < 0.05
 
 
 def test_same_seed_same_network_other_seed_other_network() -> None:
@@ -138,7 +156,8 @@ def test_fresh_training_reproduces_the_shipped_model(tmp_path: Path, data_dir: P
     assert kept["selected_by"] == "validation_rmse_3d" and len(kept["restarts"]) == 3
     assert kept["validation_rmse_3d"] == min(r["validation_rmse_3d"] for r in kept["restarts"])
     # The kept restart alone (the others only lost the selection): a third of the training time.
-    config = TrainConfig(seed=kept["config"]["seed"], first_restart=kept["restart"], restarts=1)
+    config = TrainConfig(seed=kept["config"]["seed"], first_restart=kept["restart"], restarts=1,
+                         form=kept["config"].get("form", "pair"))
     prov = run_training(flights, tmp_path / "bias_net.json", config=config)
     assert prov["split"] == shipped["split"]
     assert prov["training"]["validation_mse"] == pytest.approx(kept["validation_mse"], abs=0.01)
@@ -164,7 +183,8 @@ def test_the_default_recordings_bias_is_learned_on_flights_the_shipped_network_d
     assert trained_on(DEFAULT_NETWORK) == set(shipped["split"]["train"])
     assert set(room["flights"]) == set(shipped["flights"]) - trained_on(DEFAULT_NETWORK)   # --apart-from
     kept = room["training"]
-    config = TrainConfig(seed=kept["config"]["seed"], first_restart=kept["restart"], restarts=1)
+    config = TrainConfig(seed=kept["config"]["seed"], first_restart=kept["restart"], restarts=1,
+                         form=kept["config"].get("form", "pair"))       # a model written before forms: pair
     prov = run_training([data_dir / "flights" / name for name in room["flights"]], tmp_path / "room.json",
                         config=config)
     assert prov["split"] == room["split"]

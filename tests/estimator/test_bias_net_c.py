@@ -9,7 +9,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from rig.estimator import native
-from rig.estimator.bias_net import HIDDEN, INPUTS, BiasNet, identity_probe_net
+from rig.estimator.bias_net import INPUTS, LINK_A, LINK_B, BiasNet, identity_probe_net, shape
 from rig.estimator.native import ESTIMATOR_DIR
 
 LEVEL = [0.0, 0.0, 0.0, 1.0]
@@ -74,11 +74,26 @@ def test_probe_network_output_is_computable_by_hand() -> None:
         assert native.predict_bias(packed, features) == pytest.approx(0.5 * max(z, 0.0) + 0.01, abs=1e-6)
 
 
-def test_c_and_python_inference_agree_to_float32_precision() -> None:
+def test_the_link_form_is_the_difference_of_the_two_links_biases() -> None:
+    """Link bias = 0.5 relu(the link's anchor-minus-tag z): a measurement between an anchor
+    2 m above the tag (B) and one level with it (A) reads 0.5 × 2 − 0 = 1 m; swapped, −1 m."""
+    packed = identity_probe_net(feature=2, gain=0.5, form="link").pack()
+    features = np.zeros(INPUTS)
+    features[LINK_B[2]] = 2.0
+    assert native.predict_bias(packed, features) == pytest.approx(1.0, abs=1e-6)
+    features[LINK_A[2]], features[LINK_B[2]] = 2.0, 0.0
+    assert native.predict_bias(packed, features) == pytest.approx(-1.0, abs=1e-6)
+    features[LINK_B[2]] = 2.0        # the same link bias on both sides cancels
+    assert native.predict_bias(packed, features) == pytest.approx(0.0, abs=1e-6)
+
+
+@pytest.mark.parametrize("form", ["pair", "link"])
+def test_c_and_python_inference_agree_to_float32_precision(form: str) -> None:
     rng = np.random.default_rng(0)
-    shapes = [(HIDDEN, INPUTS), (HIDDEN, HIDDEN), (HIDDEN, HIDDEN), (1, HIDDEN)]
+    n_in, hidden = shape(form)
+    shapes = [(hidden, n_in), (hidden, hidden), (hidden, hidden), (1, hidden)]
     net = BiasNet([rng.normal(0, 0.4, s) for s in shapes], [rng.normal(0, 0.1, s[0]) for s in shapes],
-                  rng.normal(0, 1, INPUTS), rng.uniform(0.5, 2, INPUTS), 0.2, -0.01)
+                  rng.normal(0, 1, n_in), rng.uniform(0.5, 2, n_in), 0.2, -0.01 if form == "pair" else 0.0, form)
     reference = net.quantized()
     packed = net.pack()
     x = rng.normal(0, 2, (200, INPUTS))
