@@ -39,13 +39,14 @@ from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")       # two processes on two cores
 ROOT = Path(__file__).resolve().parent.parent
-sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
+sys.path[:0] = [str(ROOT), str(ROOT / "tests"), str(ROOT / "tests" / "diagnosis")]
 
-import test_diagnose as cases  # noqa: E402  - the cases and their tolerances are the suite's
+import diagnosis_cases as cases  # noqa: E402  - the cases and their tolerances are the suite's
 
 from rig.data import paths
 from rig.data.importer import load_any  # noqa: E402
 from rig.diagnosis import compare  # noqa: E402
+from rig.diagnosis.diagnose import diagnose  # noqa: E402
 from rig.diagnosis.candidates import candidates  # noqa: E402
 from rig.diagnosis.diagnose import nlos_identifiability  # noqa: E402
 from rig.sim.effects import Region  # noqa: E402
@@ -65,31 +66,31 @@ HELD_OUT_FLIGHTS = ["0422-log02", "0425-traj3", "0425-traj10", "0425-traj15", "0
 # tolerance of the suite's kind for its size: whether the tool generalises beyond the
 # cases it was built on. label: (effect, params, check)
 VARIANTS = {
-    "time_offset -50 ms": ("time_offset", {"seconds": -0.05}, cases._scalar_close("seconds", 0.35)),
-    "time_offset +100 ms": ("time_offset", {"seconds": 0.1}, cases._scalar_close("seconds", 0.35)),
-    "clock_drift -1500 ppm": ("clock_drift", {"ppm": -1500.0}, cases._scalar_close("ppm", 0.25)),
-    "anchor_delay 1 -0.15 m": ("anchor_delay", {"anchor": 1, "meters": -0.15}, cases._scalar_close("meters", 0.25)),
-    "anchor_delay 7 +0.10 m": ("anchor_delay", {"anchor": 7, "meters": 0.1}, cases._scalar_close("meters", 0.25)),
+    "time_offset -50 ms": ("time_offset", {"seconds": -0.05}, cases.scalar_close("seconds", 0.35)),
+    "time_offset +100 ms": ("time_offset", {"seconds": 0.1}, cases.scalar_close("seconds", 0.35)),
+    "clock_drift -1500 ppm": ("clock_drift", {"ppm": -1500.0}, cases.scalar_close("ppm", 0.25)),
+    "anchor_delay 1 -0.15 m": ("anchor_delay", {"anchor": 1, "meters": -0.15}, cases.scalar_close("meters", 0.25)),
+    "anchor_delay 7 +0.10 m": ("anchor_delay", {"anchor": 7, "meters": 0.1}, cases.scalar_close("meters", 0.25)),
     "anchor_position 0 up 0.2 m": ("anchor_position", {"anchor": 0, "offset_m": [0.0, 0.0, 0.2]},
-                                   cases._vector_close("offset_m", 0.06)),
+                                   cases.vector_close("offset_m", 0.06)),
     "anchor_position 6 oblique": ("anchor_position", {"anchor": 6, "offset_m": [-0.15, 0.1, 0.1]},
-                                  cases._vector_close("offset_m", 0.06)),
+                                  cases.vector_close("offset_m", 0.06)),
     "imu_accel_bias 3 axes": ("imu_accel_bias", {"bias_mps2": [0.1, -0.1, 0.1]},
-                              cases._vector_close("bias_mps2", 0.03)),
-    "imu_gyro_bias x, y": ("imu_gyro_bias", {"bias_rps": [0.01, -0.01, 0.0]}, cases._vector_close("bias_rps", 0.004)),
+                              cases.vector_close("bias_mps2", 0.03)),
+    "imu_gyro_bias x, y": ("imu_gyro_bias", {"bias_rps": [0.01, -0.01, 0.0]}, cases.vector_close("bias_rps", 0.004)),
     "imu_accel_scale z 0.97": ("imu_accel_scale", {"scale": [1.0, 1.0, 0.97]},
                                lambda got, want, slack=1.0: abs(got["scale"][2] - 0.97) < 0.01 * slack),
     "imu_accel_scale 3 axes 1.03": ("imu_accel_scale", {"scale": [1.03, 1.03, 1.03]},
-                                    cases._vector_close("scale", 0.01)),
-    "imu_gyro_scale 3 axes 1.05": ("imu_gyro_scale", {"scale": [1.05, 1.05, 1.05]}, cases._vector_close("scale", 0.03)),
+                                    cases.vector_close("scale", 0.01)),
+    "imu_gyro_scale 3 axes 1.05": ("imu_gyro_scale", {"scale": [1.05, 1.05, 1.05]}, cases.vector_close("scale", 0.03)),
     "imu_gyro_scale z 0.9": ("imu_gyro_scale", {"scale": [1.0, 1.0, 0.9]},
                              lambda got, want, slack=1.0: abs(got["scale"][2] - 0.9) < 0.03 * slack),
-    "lever_arm y 6 cm": ("lever_arm", {"offset_m": [0.0, 0.06, 0.0]}, cases._vector_close("offset_m", 0.03)),
-    "lever_arm x, y 5 cm": ("lever_arm", {"offset_m": [0.05, -0.05, 0.0]}, cases._vector_close("offset_m", 0.03)),
+    "lever_arm y 6 cm": ("lever_arm", {"offset_m": [0.0, 0.06, 0.0]}, cases.vector_close("offset_m", 0.03)),
+    "lever_arm x, y 5 cm": ("lever_arm", {"offset_m": [0.05, -0.05, 0.0]}, cases.vector_close("offset_m", 0.03)),
     "antenna_pattern 5": ("antenna_pattern", {"anchor": 5, "coeffs_m": [-0.2, 0.0, 0.3]},
-                          cases._vector_close("coeffs_m", 0.15)),
+                          cases.vector_close("coeffs_m", 0.15)),
     "antenna_pattern 0": ("antenna_pattern", {"anchor": 0, "coeffs_m": [0.0, -0.3, 0.2]},
-                          cases._vector_close("coeffs_m", 0.15)),
+                          cases.vector_close("coeffs_m", 0.15)),
     "nlos 1 x < 0": ("nlos", {"anchor": 1, "fraction": 0.5, "mean_excess_m": 0.3,
                               "region": {"min": [-5, -5, -1], "max": [0, 5, 5]}}, cases.CASES["nlos"][1]),
     "nlos 3 above 1 m": ("nlos", {"anchor": 3, "fraction": 0.5, "mean_excess_m": 0.3,
@@ -121,14 +122,14 @@ def diagnosed(job: tuple[str, str, str, dict]) -> tuple[str, str, list, list | N
     control = None
     if flight == "sim":
         survey = paths.data_dir() / "surveys" / "anchor_0425.txt"
-        diagnosis = cases.diagnose(simulate(cases.sim_case(survey, name, effects)))
+        diagnosis = diagnose(simulate(cases.sim_case(survey, name, effects)))
         if cases.own_sim_control(name):
-            control = _listed(cases.diagnose(simulate(cases.sim_case(survey, name, []))))
+            control = _listed(diagnose(simulate(cases.sim_case(survey, name, []))))
     else:
         rec = load_any(paths.data_dir() / "flights" / flight)
         if effects:
             rec = inject(rec, effects, seed=1, predictor=Predictor(rec))
-        diagnosis = cases.diagnose(rec)
+        diagnosis = diagnose(rec)
     shown = shown_in(diagnosis, name, params) if effects else None
     samples = compare.TdoaSamples.of(diagnosis).to_json() if name == compare.NLOS or not effects else None
     return flight, label, _listed(diagnosis), control, asdict(shown) if shown else None, samples
@@ -150,7 +151,7 @@ def _listed(diagnosis) -> dict:
     it does not name and the look-alikes in its named effects' places, as it estimates
     them."""
     report = diagnosis.to_json()
-    return {"findings": report["findings"], "unnamed": report["unnamed_estimates"],
+    return {"findings": compare.every_fit(report), "unnamed": report["unnamed_estimates"],
             "in_place": report["in_place_estimates"]}
 
 
@@ -165,7 +166,7 @@ def judge(found: dict, control: dict, name: str, params: dict, check, real: bool
         if alone:
             judge_alone(found, own, name, params, check, real, samples)
         else:
-            cases._check(found, own, name, params, check, real=real, samples=samples,
+            cases.check_case(found, own, name, params, check, real=real, samples=samples,
                          control_samples=control_samples, control_unnamed=cases.keyed(control["unnamed"]),
                          control_in_place=control.get("in_place", ()))
         return True, "found"
@@ -182,14 +183,14 @@ def judge_alone(found: dict, own: dict, name: str, params: dict, check, real: bo
     found). Where it is located is still judged over the injected recording's own
     positions, which such a check has too."""
     if name != compare.NLOS:
-        cases._check(found, own, name, params, check, real=real, samples=samples)
+        cases.check_case(found, own, name, params, check, real=real, samples=samples)
         return
     key = (name, (params["anchor"],))
     assert key in found, f"{name} not named; found {sorted(found)}"
     shift = compare.mean_shift(found[key]["params"]) - (compare.mean_shift(own[key]["params"]) if key in own else 0.0)
     assert check({"mean_shift_m": shift}, params), f"{name}: a mean shift of {shift:.3f} m beyond the control's"
     assert found[key]["fit_after"] < found[key]["fit_before"]
-    cases._check_region(found[key]["params"], params, samples)
+    cases.check_region(found[key]["params"], params, samples)
 
 
 def main() -> None:

@@ -18,10 +18,10 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
+sys.path[:0] = [str(ROOT), str(ROOT / "tests" / "diagnosis")]
 
 import numpy as np  # noqa: E402
-from test_diagnose import CASES  # noqa: E402  - the suite's concealed cases, for their sizes
+from diagnosis_cases import CASES  # noqa: E402  - the suite's concealed cases, for their sizes
 
 from rig.data import paths
 from rig.data.importer import load_any  # noqa: E402

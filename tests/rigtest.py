@@ -93,3 +93,20 @@ def run_rig(*args: str, cwd: Path = ROOT, check: bool = False, timeout: float = 
     if check:
         assert result.returncode == 0, result.stderr
     return result
+
+
+def start(*args: str) -> subprocess.Popen:
+    """A child as from a terminal: SIGINT at its default disposition (a runner that started
+    the tests in the background may have left it ignored, and a program started with
+    SIGINT ignored rightly keeps ignoring it)."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    return subprocess.Popen(list(args), cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+
+
+def finished_mcap(path: Path) -> bool:
+    """Whether the stock MCAP reader finds the file finished (its summary written)."""
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as f:
+        return make_reader(f).get_summary() is not None

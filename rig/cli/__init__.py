@@ -17,7 +17,7 @@ import signal
 import sys
 
 from rig.cli import bias, data, diagnosis, estimator, hil, sim
-from rig.cli.common import EXIT_BAD_INPUT, CliError
+from rig.cli.common import EXIT_BAD_INPUT, CliError, stop_on_signals
 from rig.data import paths
 
 GROUPS = (data, sim, estimator, bias, hil, diagnosis)
@@ -42,6 +42,7 @@ def main(argv: list[str] | None = None) -> int:
 
     # a rig that seems stuck says where: `kill -USR1 PID` prints every thread's stack
     faulthandler.register(signal.SIGUSR1, all_threads=True)
+    stop_on_signals()
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
@@ -50,6 +51,7 @@ def main(argv: list[str] | None = None) -> int:
     except (CliError, *USER_ERRORS) as exc:
         print(f"rig {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except KeyboardInterrupt:
-        print(f"rig {args.command}: interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:
+        signum = getattr(exc, "signum", signal.SIGINT)
+        print(f"rig {args.command}: interrupted ({signal.Signals(signum).name})", file=sys.stderr)
+        return 128 + signum             # the shell's convention: 130 for SIGINT, 143 for SIGTERM

@@ -56,8 +56,12 @@ def print_diagnosis(result, report: dict) -> None:
 
     for name, c in report["channels"].items():
         print(f"{name}: mismatch {c['fit_before']:.4g} -> {c['fit_after']:.4g} ({c['samples']} samples)")
-    for f in result.findings:
+    for f in result.explained:
         print(f"  {f.effect:16s} evidence {f.evidence:9.1f}  {describe(f)}")
+    if result.not_explained:
+        print(f"  not explained ({len(result.not_explained)} fits beyond their effect's physical bound, in report.md):")
+    for f in result.not_explained:
+        print(f"    {f.effect:16s} evidence {f.evidence:9.1f}  {describe(f)}")
     noise = fx.params_by_name(report["model"])
     if "imu_lowpass" in noise:
         lowpass = noise["imu_lowpass"]

@@ -61,10 +61,10 @@ def estimator_choice(args: argparse.Namespace):
 
 def cmd_replay(args: argparse.Namespace) -> int:
     from rig.hil.checks import assertions, deadline_failures
+    from rig.hil.job import check_options
     from rig.hil.zenoh import open_session
 
-    if not args.speed > 0:
-        raise CliError(f"--speed must be a positive number, not {args.speed}")
+    check_options(args.target, args.board, args.start, args.duration, args.lookahead, args.speed)
     session = open_session(None, args.zenoh_listen, args.zenoh_connect)
     try:
         result = replay_into(args.recording, args.target, args.out, estimator_choice(args), start=args.start,

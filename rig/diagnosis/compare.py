@@ -397,6 +397,13 @@ def by_size(listed: list[dict]) -> list[dict]:
                                          -(c["change_std_errs"] or 0.0)))
 
 
+def every_fit(report: dict) -> list[dict]:
+    """A report's findings and the fits it leaves not explained: a change of the flight
+    can move either, and an effect beyond its bound on one recording may be within it
+    on the other."""
+    return report["findings"] + report.get("not_explained", [])
+
+
 @dataclass
 class AgainstControl:
     """A recording and a control recording of the same flight, both diagnosed, and what
@@ -420,7 +427,7 @@ def diagnose_against(rec: Recording, control_rec: Recording, control_name: str, 
     if differs is not None:
         against["how_it_differs"] = differs
     against["changes"] = [
-        c.to_json() for c in changes(report["findings"], control_report["findings"], diagnosis.identifiability,
+        c.to_json() for c in changes(every_fit(report), every_fit(control_report), diagnosis.identifiability,
                                      diagnosis.cross_talk, TdoaSamples.of(diagnosis),
                                      control_report.get("unnamed_estimates", ()), report["unnamed_estimates"],
                                      TdoaSamples.of(control), control_report.get("in_place_estimates", ()),

@@ -146,6 +146,18 @@ class Diagnosis:
     tdoa_left: np.ndarray | None = None
     mismatch: dict = field(default_factory=dict)       # where recording and simulation differ (mismatch.locate)
 
+    @property
+    def explained(self) -> list[Finding]:
+        """The findings within their effect's physical bounds: what the report names."""
+        return [f for f in self.findings if not f.beyond_bound]
+
+    @property
+    def not_explained(self) -> list[Finding]:
+        """Fits larger than their effect can physically be: they stand for something the
+        catalog does not model (on real flights, the pose-dependent bias of the
+        antennas and the airframe) and say where the residual lies, not what it is."""
+        return [f for f in self.findings if f.beyond_bound]
+
     def channel_fits(self) -> dict:
         return {name: {"samples": int(len(r)), "gross_errors_left_out": self.problem.left_out[name],
                        "unusable_left_out": self.problem.unusable[name],
@@ -157,7 +169,8 @@ class Diagnosis:
     def to_json(self) -> dict:
         rec = self.problem.rec
         return {"recording": rec.metadata.get("source", ""), "duration_s": float(rec.truth.t[-1] - rec.truth.t[0]),
-                "findings": [f.to_json() for f in self.findings], "channels": self.channel_fits(),
+                "findings": [f.to_json() for f in self.explained],
+                "not_explained": [f.to_json() for f in self.not_explained], "channels": self.channel_fits(),
                 "unknown_anchors": self.problem.unknown_anchors,
                 "mismatch": self.mismatch,
                 "model": [e.to_json() for e in self.model] + self.noise_model,

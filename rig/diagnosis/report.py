@@ -128,9 +128,9 @@ def _markdown(diagnosis: Diagnosis, report: dict, images: list[tuple[str, str]])
                   f"): {unusable}.", ""]
     lines += _where_lines(report["mismatch"])
     lines += ["## What physics the simulation left out", ""]
-    if not diagnosis.findings:
+    if not diagnosis.explained:
         lines.append("Nothing: no catalog effect removes enough of the mismatch to pay for its parameters.")
-    for k, f in enumerate(diagnosis.findings, 1):
+    for k, f in enumerate(diagnosis.explained, 1):
         alike = (" Nearly as good an explanation: " + ", ".join(a["candidate"] for a in f.look_alikes) + "."
                  if f.look_alikes else "")
         unnamed_axes = {f"[{AXES.index(axis)}]" for axis in f.not_named_axes}     # an IMU finding has one parameter
@@ -154,12 +154,28 @@ def _markdown(diagnosis: Diagnosis, report: dict, images: list[tuple[str, str]])
               "`alternative_to` the other in report.json). Once one anchor's delay is supported, every "
               "anchor's delay is reported (some with little evidence of their own): TDOA measures them relative "
               "to each other.", ""]
+    lines += _not_explained_lines(diagnosis)
     lines += _against_control_lines(report.get("against_control"))
     lines += _identifiability_lines(report["identifiability"])
     lines += _noise_lines(report["model"])
     for title, name in images:
         lines += [f"## {title}", "", f"![{title}]({name})", ""]
     return "\n".join(lines)
+
+
+def _not_explained_lines(diagnosis: Diagnosis) -> list[str]:
+    """Where the residual lies that no effect of the catalog explains within its bounds."""
+    if not diagnosis.not_explained:
+        return []
+    lines = ["## Not explained", "",
+             "The mismatch these fits remove is real, but each is larger than its effect can physically be, so "
+             "none is a finding and the re-simulation leaves them out (report.json's `not_explained`). They say "
+             "where the residual lies; on real flights it is mostly the pose-dependent bias of the UWB "
+             "antennas and the airframe, which the catalog does not model.", ""]
+    for f in diagnosis.not_explained:
+        place = f"anchor {', '.join(map(str, f.anchors))}" if f.anchors else f"the {f.channel} channel"
+        lines.append(f"- on {place}, as a {f.effect} would (evidence {f.evidence:.1f}): {describe(f)}")
+    return lines + [""]
 
 
 def _against_control_lines(against: dict | None) -> list[str]:

@@ -9,6 +9,10 @@ from __future__ import annotations
 
 import json
 import logging
+import math
+import os
+import re
+import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,6 +22,11 @@ from rig.hil.links import LinkError
 log = logging.getLogger(__name__)
 
 METRICS_FILE = "metrics.json"
+# How a job ended (metrics.json's `ended`): every board answered; a signal stopped it;
+# the board or its link failed; the rig itself failed.
+ENDED = ("completed", "interrupted", "board_lost", "error")
+BOARD_NAME = re.compile(r"[A-Za-z0-9_.-]+")      # no zenoh wildcard or separator (* ** $ / #) in a name
+TARGET = re.compile(r"native|native-udp|qemu|(serial|crazyflie|zenoh):.+")
 
 
 @dataclass
@@ -39,10 +48,40 @@ class JobFailed(LinkError):
 
 
 def write_json(path: Path, data: dict) -> None:
-    """`data` as indented, key-sorted JSON (what every command writes)."""
+    """`data` as indented, key-sorted JSON (what every command writes), atomically: a
+    temporary file beside it, renamed over it once whole, so a reader never sees half a
+    file and a failed write (a full disk) leaves what was there. A failure names the file."""
+    text = json.dumps(data, indent=2, sort_keys=True) + "\n"
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(data, indent=2, sort_keys=True) + "\n")
+    fd, temporary = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w") as stream:
+            stream.write(text)
+        os.replace(temporary, path)
+    except OSError as exc:
+        Path(temporary).unlink(missing_ok=True)
+        raise OSError(exc.errno, f"cannot write {path}: {exc.strerror}") from exc
     log.info("wrote %s", path)
+
+
+def check_options(target: str, board: str = "local", start: float | None = None, duration: float | None = None,
+                  lookahead: int = 0, speed: float | None = None) -> None:
+    """Refuse option values a replay cannot use, before anything starts or is written
+    (ValueError, saying the rule)."""
+    if not TARGET.fullmatch(target):
+        raise ValueError(f"unknown target {target!r} (native, native-udp, qemu, serial:URL, crazyflie:URI or "
+                         "zenoh:NAME)")
+    for name in ([board] + ([target[len("zenoh:"):]] if target.startswith("zenoh:") else [])):
+        if not BOARD_NAME.fullmatch(name):
+            raise ValueError(f"board name {name!r}: letters, digits, '_', '.' and '-' only (no wildcard or '/')")
+    if start is not None and not math.isfinite(start):
+        raise ValueError(f"--start must be a finite time, not {start}")
+    if duration is not None and not duration > 0:
+        raise ValueError(f"--duration must be a positive number of seconds, not {duration}")
+    if lookahead < 0:
+        raise ValueError(f"--lookahead must be 0 (strict lock-step) or more windows, not {lookahead}")
+    if speed is not None and not speed > 0:
+        raise ValueError(f"--speed must be a positive number, not {speed}")
 
 
 def board_link(target: str, session, board: str):
@@ -63,28 +102,41 @@ def replay_job(recording: Path, target: str, out: Path, estimator: EstimatorChoi
     """Replay `recording` into `target` (through zenoh `session`, or a private one) and
     write OUT/run.mcap, OUT/metrics.json and, with `report`, OUT/report.html. Returns
     what metrics.json holds; raises JobFailed (after writing both files) when the board
-    or its link failed."""
+    or its link failed. Interrupted (a signal) it finishes both files, marked
+    `ended: interrupted`, and raises the interruption on."""
+    from rig.data.errors import InputError
     from rig.data.importer import load_any
-    from rig.estimator.evaluate import estimator_config
+    from rig.estimator.evaluate import estimator_config, start_time
     from rig.hil import replay
     from rig.hil.runrecord import RUN_FILE, RunRecorder
     from rig.hil.zenoh import open_session
 
+    check_options(target, board, start, duration, lookahead, speed)
     rec = load_any(recording, survey)
+    first, last = start_time(rec) if start is None else start, float(rec.time_span()[1])
+    if first >= last:
+        raise InputError(f"--start {first:g} s is past the end of {recording} ({last:g} s on its clock)")
     params, model = estimator_config(estimator.robust, estimator.use_nn, estimator.model_path)
     out.mkdir(parents=True, exist_ok=True)
     recorder = RunRecorder(out / RUN_FILE)
     info = {"recording": str(recording), "target": target, "bias_net": model is not None,
             "robust": estimator.robust, "lookahead": lookahead, "mode": "lockstep" if speed is None else "realtime"}
-    began, run, error, own, link = time.monotonic(), None, None, session is None, None
+    began, run, error, own, link, ended, stop = time.monotonic(), None, None, session is None, None, ENDED[0], None
     try:
         session = session or open_session()
         link = board_link(target, session, board)
         run = replay.run(link, rec, params, model, start=start, duration=duration, lookahead=lookahead,
                          speed=speed, progress=progress, recorder=recorder)
     except LinkError as exc:
-        error, run = str(exc), getattr(exc, "session", None)
+        error, run, ended = str(exc), getattr(exc, "session", None), "board_lost"
         recorder.status(run.t0 if run else 0.0, "rig", -1, error)
+    except KeyboardInterrupt as exc:          # SIGINT, SIGTERM, SIGHUP: finish everything, then stop
+        stop, run, ended = exc, getattr(exc, "session", None), "interrupted"
+        error = f"interrupted by {exc.args[0] if exc.args else 'SIGINT'}"
+        recorder.status(run.t0 if run else 0.0, "rig", -1, error)
+    except Exception as exc:
+        error, ended, stop = f"{type(exc).__name__}: {exc}", "error", exc
+        recorder.status(0.0, "rig", -1, error)
     finally:
         recorder.close()         # first: the record is whole whatever the link's teardown does
         try:
@@ -99,8 +151,11 @@ def replay_job(recording: Path, target: str, out: Path, estimator: EstimatorChoi
     info.setdefault("bytes_sent", 0)       # the link never opened
     result.update(info)
     result.update({"wall_seconds": wall, "speed": result["n_estimates"] * replay.BUDGET_SECONDS / wall,
-                   "run_record": str(out / RUN_FILE), "run_record_error": recorder.failed, "error": error})
+                   "run_record": str(out / RUN_FILE), "run_record_error": recorder.failed, "error": error,
+                   "ended": ended})
     write_json(out / METRICS_FILE, result)
+    if stop is not None:
+        raise stop
     if error is not None:
         raise JobFailed(f"{error} (kept: {out / RUN_FILE}, {out / METRICS_FILE} with "
                         f"{result['n_estimates']} estimates)", result)

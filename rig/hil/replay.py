@@ -203,7 +203,8 @@ def run(link: BoardLink, rec: Recording, params: native.EstimatorParams, model: 
     `lookahead` further windows already on the wire; 0 is strict send-and-wait), or, with
     a `speed`, send them in real time at that multiple of the recording's clock. With a
     `recorder` (runrecord.RunRecorder) every input and answer is recorded as it happens.
-    A LinkError carries the partial session as `.session`."""
+    A LinkError, or an interruption (KeyboardInterrupt: SIGINT, SIGTERM, SIGHUP), carries
+    the partial session as `.session`."""
     t0 = start_time(rec) if start is None else start
     t_end = None if duration is None else t0 + duration
     session = Session(t0, recorder=recorder)
@@ -222,7 +223,7 @@ def run(link: BoardLink, rec: Recording, params: native.EstimatorParams, model: 
         else:
             session.realtime = RealTime(speed)
             _real_time(link, ws, session, progress)
-    except LinkError as exc:
+    except (LinkError, KeyboardInterrupt) as exc:
         exc.session = session
         raise
     return session

@@ -9,7 +9,9 @@
 
 from __future__ import annotations
 
+import ctypes
 import shutil
+import signal
 import socket
 import subprocess
 import time
@@ -22,6 +24,22 @@ from rig.hil.links import BoardLink, CrtpLink, Link, LinkError, open_crazyflie, 
 from rig.hil.links.serial_port import serial_for_url
 
 QEMU = "qemu-system-arm"
+PR_SET_PDEATHSIG = 1
+# looked up once, here: the child between fork and exec must not load anything
+_prctl = ctypes.CDLL(None, use_errno=True).prctl
+
+
+def _die_with_the_rig() -> None:
+    """In a child, before it runs: the kernel sends it SIGTERM when the rig (the thread
+    that started it) ends, however it ends, SIGKILL included, so no board process
+    outlives the rig."""
+    _prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+
+
+def start_child(args: list[str], **kwargs) -> subprocess.Popen:
+    """A board process of the rig's: in its own session (a Ctrl-C at the terminal reaches
+    the rig, which then closes the board in order) and ended with the rig."""
+    return subprocess.Popen(args, preexec_fn=_die_with_the_rig, start_new_session=True, **kwargs)
 # -icount shift=0: one instruction per virtual nanosecond, so TIM2 counts instructions
 # deterministically; sleep=off: never wait for the host clock.
 QEMU_ARGS = ["-M", "netduinoplus2", "-nographic", "-icount", "shift=0,sleep=off"]
@@ -36,7 +54,7 @@ def _free_port() -> int:
 
 def open_native(program: Path | None = None, read_timeout: float = 0.05) -> Link:
     program = program or _build_for_target(native.NATIVE_PROGRAM, "program")
-    proc = subprocess.Popen([str(program), "--pty"], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc = start_child([str(program), "--pty"], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     line = proc.stdout.readline().decode().strip()
     if not line.startswith("PTY "):
         proc.kill()
@@ -52,7 +70,7 @@ def open_qemu(firmware: Path | None = None, read_timeout: float = 0.05, connect_
     port_number, monitor_port = _free_port(), _free_port()
     serial_arg = f"tcp:127.0.0.1:{port_number},server=on,wait=on,nodelay=on"
     monitor_arg = f"tcp:127.0.0.1:{monitor_port},server=on,wait=off"
-    proc = subprocess.Popen([QEMU, *QEMU_ARGS, "-kernel", str(firmware), "-serial", serial_arg,
+    proc = start_child([QEMU, *QEMU_ARGS, "-kernel", str(firmware), "-serial", serial_arg,
                              "-monitor", monitor_arg],
                             stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     deadline = time.monotonic() + connect_timeout
@@ -71,7 +89,7 @@ def open_qemu(firmware: Path | None = None, read_timeout: float = 0.05, connect_
 def open_native_udp(program: Path | None = None) -> CrtpLink:
     """The native program on its UDP endpoint, reached through cflib's udp:// driver."""
     program = program or _build_for_target(native.NATIVE_PROGRAM, "program")
-    proc = subprocess.Popen([str(program), "--udp", "0"], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc = start_child([str(program), "--udp", "0"], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     line = proc.stdout.readline().decode().strip()
     if not line.startswith("UDP "):
         proc.kill()

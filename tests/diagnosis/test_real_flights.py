@@ -142,6 +142,20 @@ def test_the_report_says_what_the_real_flight_cannot_tell_apart(tmp_path: Path, 
                      r"antenna_pattern on anchors 0, 1, 2, 3, 4, 5, 6, 7 \(told apart from [0-9.]+ m on", markdown)
 
 
+def test_a_fit_beyond_its_physical_bound_is_not_explained_never_a_finding(tmp_path: Path, real_diagnosis) -> None:
+    """The real flight's pose-dependent bias loads catalog terms beyond any size they can
+    physically have (anchors "displaced" by metres): report.json names none of them as a
+    finding, lists them under `not_explained` with where they lie, and report.md has a
+    section for them."""
+    report = write_report(real_diagnosis, tmp_path, "0426-traj1")
+    assert report["not_explained"], "the real flight's bias loads some term beyond its bound"
+    assert not any(f.get("beyond_physical_bound") for f in report["findings"])
+    assert all(f["beyond_physical_bound"] and f["where"] is not None for f in report["not_explained"])
+    markdown = (tmp_path / "report.md").read_text()
+    assert "## Not explained" in markdown
+    assert markdown.count("as a ") >= len(report["not_explained"])
+
+
 def test_the_lever_arms_cross_talk_is_how_the_fitted_delays_move_with_it(real_diagnosis) -> None:
     """On the real flight: the ranges a lever arm of [2, −1, 1] cm moves, fitted with the
     delays alone (the lever arm held at none, that much short of its own), move the

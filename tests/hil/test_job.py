@@ -20,6 +20,7 @@ def test_a_short_native_replay_writes_its_metrics_record_and_report(tmp_path: Pa
     result = replay_job(paths.default_recording(), "native", tmp_path, EstimatorChoice(), duration=8.0)
     assert json.loads((tmp_path / "metrics.json").read_text()) == json.loads(json.dumps(result))
     assert result["n_estimates"] >= 799 and result["error"] is None and result["bias_net"]
+    assert result["ended"] == "completed"
     assert assertions(result, 0.4, 0.2, "window_p99") == []
     with open(tmp_path / "run.mcap", "rb") as stream:       # finished: the stock reader's summary is there
         reader = make_reader(stream)
@@ -35,4 +36,5 @@ def test_a_board_that_cannot_be_reached_fails_the_job_and_keeps_its_outputs(tmp_
                    duration=1.0)
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     assert metrics["n_estimates"] == 0 and "cannot open" in metrics["error"] == failure.value.result["error"]
+    assert metrics["ended"] == "board_lost"
     assert (tmp_path / "run.mcap").is_file()

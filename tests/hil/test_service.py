@@ -6,7 +6,6 @@ Ctrl-C)."""
 from __future__ import annotations
 
 import json
-import os
 import signal
 import socket
 import subprocess
@@ -14,8 +13,7 @@ import sys
 import time
 from pathlib import Path
 
-from mcap.reader import make_reader
-from rigtest import RIG, ROOT, exit_status, run_rig
+from rigtest import RIG, exit_status, finished_mcap, run_rig, start
 
 from rig.hil.runrecord import read_run
 
@@ -24,15 +22,6 @@ def _free_endpoint() -> str:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return f"tcp/127.0.0.1:{s.getsockname()[1]}"
-
-
-def _start(*args: str) -> subprocess.Popen:
-    """A child as from a terminal: SIGINT at its default disposition (a runner that started
-    the tests in the background may have left it ignored, and a program started with
-    SIGINT ignored rightly keeps ignoring it)."""
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    return subprocess.Popen(list(args), cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
 
 
 def _topics(path: Path) -> dict[str, int]:
@@ -46,7 +35,7 @@ def _router(endpoint: str, duration_s: int) -> subprocess.Popen:
     """`rig router` listening on `endpoint`, once it accepts connections: a client (a
     bridge, a watcher) that connects before then finds no router and exits, which a
     fixed sleep of a second left to chance on a loaded machine."""
-    router = _start(*RIG, "router", "--listen", endpoint, "--duration", str(duration_s))
+    router = start(*RIG, "router", "--listen", endpoint, "--duration", str(duration_s))
     host, port = endpoint.removeprefix("tcp/").rsplit(":", 1)
     deadline = time.monotonic() + ROUTER_START_S
     while True:
@@ -60,18 +49,13 @@ def _router(endpoint: str, duration_s: int) -> subprocess.Popen:
             time.sleep(0.1)
 
 
-def _finished(path: Path) -> bool:
-    with open(path, "rb") as f:
-        return make_reader(f).get_summary() is not None
-
-
 def test_held_out_flight_into_qemu_is_recorded_and_published_to_another_process(tmp_path: Path, data_dir) -> None:
     endpoint = _free_endpoint()
     router = _router(endpoint, 300)
     try:
-        watcher = _start(*RIG, "watch", "--connect", endpoint, "--board", "qemu0", "--count", "1000",
+        watcher = start(*RIG, "watch", "--connect", endpoint, "--board", "qemu0", "--count", "1000",
                          "--timeout", "240", "--json", str(tmp_path / "watch.json"))
-        vanishing = _start(*RIG, "watch", "--connect", endpoint, "--timeout", "240")
+        vanishing = start(*RIG, "watch", "--connect", endpoint, "--timeout", "240")
         time.sleep(2.0)
         vanishing.kill()                       # a subscriber that vanishes must not disturb the run
         out = tmp_path / "run"
@@ -85,7 +69,7 @@ def test_held_out_flight_into_qemu_is_recorded_and_published_to_another_process(
     metrics = json.loads((out / "metrics.json").read_text())
     n = metrics["n_estimates"]
     assert 1199 <= n <= 1200 and metrics["timing"]["unit"] == "instructions"   # 12 s at 100 Hz
-    assert _finished(out / "run.mcap")
+    assert finished_mcap(out / "run.mcap")
     counts = _topics(out / "run.mcap")
     assert counts["/run/estimate"] == counts["/run/timing"] == n
     assert counts["/run/input/imu"] > 9000 and counts["/run/input/tdoa"] > 2000 and counts["/run/truth"] > 1000
@@ -101,7 +85,7 @@ def test_four_boards_in_parallel_through_one_router(tmp_path: Path) -> None:
     jobs = json.loads((out / "farm.json").read_text())["jobs"]
     assert len(jobs) == 4 and all(j["error"] is None and 1199 <= j["n_estimates"] <= 1200 for j in jobs)
     for k in range(4):
-        assert _finished(out / f"board{k}" / "run.mcap")
+        assert finished_mcap(out / f"board{k}" / "run.mcap")
         assert _topics(out / f"board{k}" / "run.mcap")["/run/estimate"] == jobs[k]["n_estimates"]
         assert (out / f"board{k}" / "report.html").exists()
     assert len({j["rmse_3d"] for j in jobs}) == 1            # the same answers on every board
@@ -110,11 +94,11 @@ def test_four_boards_in_parallel_through_one_router(tmp_path: Path) -> None:
 def test_a_board_lost_mid_run_keeps_the_record_and_says_so(tmp_path: Path) -> None:
     endpoint = _free_endpoint()
     router = _router(endpoint, 120)
-    bridge = _start(sys.executable, "-m", "bridge", "--target", "native", "--name", "b0", "--connect", endpoint)
+    bridge = start(sys.executable, "-m", "bridge", "--target", "native", "--name", "b0", "--connect", endpoint)
     try:
         out = tmp_path / "run"
         # in real time (30 s of flight) the bridge surely goes while windows are flowing
-        replay = _start(*RIG, "replay", "recordings/default.mcap", "--target", "zenoh:b0", "--zenoh-connect",
+        replay = start(*RIG, "replay", "recordings/default.mcap", "--target", "zenoh:b0", "--zenoh-connect",
                         endpoint, "--out", str(out), "--mode", "realtime")
         time.sleep(14.0)                                      # well into the scored segment
         bridge.kill()                                         # the board and its bridge vanish
@@ -126,7 +110,7 @@ def test_a_board_lost_mid_run_keeps_the_record_and_says_so(tmp_path: Path) -> No
         router.wait(timeout=10)
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["error"] and metrics["n_estimates"] > 0
-    assert _finished(out / "run.mcap")
+    assert finished_mcap(out / "run.mcap")
     rows = read_run(out / "run.mcap")
     assert len(rows["/run/estimate"]) == metrics["n_estimates"]
     assert rows["/run/status"][-1]["source"] == "rig"
@@ -134,7 +118,7 @@ def test_a_board_lost_mid_run_keeps_the_record_and_says_so(tmp_path: Path) -> No
 
 def test_ctrl_c_finishes_the_run_record(tmp_path: Path) -> None:
     out = tmp_path / "run"
-    replay = _start(*RIG, "replay", "recordings/default.mcap", "--target", "qemu", "--out", str(out))
+    replay = start(*RIG, "replay", "recordings/default.mcap", "--target", "qemu", "--out", str(out))
     deadline = time.monotonic() + 120
     record = out / "run.mcap"
     while time.monotonic() < deadline and (not record.exists() or record.stat().st_size < 30_000):
@@ -142,7 +126,7 @@ def test_ctrl_c_finishes_the_run_record(tmp_path: Path) -> None:
     time.sleep(3.0)                                           # windows are flowing
     replay.send_signal(signal.SIGINT)
     assert exit_status(replay, 60) == 130
-    assert _finished(out / "run.mcap")
+    assert finished_mcap(out / "run.mcap")
     assert len(read_run(out / "run.mcap").get("/run/estimate", [])) > 0
 
 
@@ -155,3 +139,4 @@ def test_a_full_disk_is_reported_and_the_replay_still_scores(tmp_path: Path) -> 
     assert "No space left on device" in proc.stderr
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["n_estimates"] >= 1199 and "No space left" in metrics["run_record_error"]
+    assert metrics["ended"] == "completed"

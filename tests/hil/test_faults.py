@@ -1,0 +1,88 @@
+"""A replay stopped or misused loses nothing: SIGTERM and SIGHUP stop the rig as Ctrl-C
+does, with the run record finished, metrics.json saying how the run ended and no board
+process left behind; option values a replay cannot use are refused before anything
+starts; JSON is written whole or not at all."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import time
+from pathlib import Path
+
+import pytest
+from rigtest import RIG, exit_status, finished_mcap, run_rig, start
+
+from rig.hil.job import write_json
+from rig.hil.runrecord import read_run
+
+
+def board_processes() -> set[int]:
+    """The native estimator programs running on this machine."""
+    found = set()
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                if b"estimator_native" in (entry / "cmdline").read_bytes():
+                    found.add(int(entry.name))
+            except OSError:
+                pass                              # it ended while we looked
+    return found
+
+
+@pytest.mark.parametrize("signum, status", [(signal.SIGTERM, 143), (signal.SIGHUP, 129)])
+def test_a_signal_mid_replay_finishes_the_record_says_how_it_ended_and_leaves_no_board(
+        tmp_path: Path, signum: int, status: int) -> None:
+    before = board_processes()
+    out = tmp_path / "run"
+    replay = start(*RIG, "replay", "recordings/default.mcap", "--target", "native", "--mode", "realtime",
+                   "--out", str(out))
+    record, deadline = out / "run.mcap", time.monotonic() + 120
+    while time.monotonic() < deadline and (not record.exists() or record.stat().st_size < 30_000):
+        time.sleep(0.2)                                    # anchors and ground truth are on disk
+    time.sleep(3.0)                                        # windows are flowing
+    replay.send_signal(signum)
+    assert exit_status(replay, 60) == status
+    assert signal.Signals(signum).name in replay.stderr.read()
+    assert finished_mcap(out / "run.mcap")                # the stock reader opens it
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["ended"] == "interrupted" and signal.Signals(signum).name in metrics["error"]
+    assert 0 < metrics["n_estimates"] == len(read_run(out / "run.mcap")["/run/estimate"])
+    assert read_run(out / "run.mcap")["/run/status"][-1]["message"].startswith("interrupted")
+    time.sleep(0.5)
+    assert board_processes() <= before, "the native program outlived the rig"
+
+
+@pytest.mark.parametrize("option, rule", [
+    (["--target", "nonsense"], "unknown target 'nonsense'"),
+    (["--board", "*"], "board name '*'"),
+    (["--target", "zenoh:a/b"], "board name 'a/b'"),
+    (["--duration", "0"], "--duration must be a positive number"),
+    (["--duration", "-3"], "--duration must be a positive number"),
+    (["--lookahead", "-1"], "--lookahead must be 0"),
+    (["--start", "1e9"], "is past the end of"),
+])
+def test_an_option_value_a_replay_cannot_use_is_refused_before_anything_starts(tmp_path: Path, option: list[str],
+                                                                               rule: str) -> None:
+    began = time.monotonic()
+    proc = run_rig("replay", "recordings/default.mcap", "--out", str(tmp_path / "run"), *option, timeout=60)
+    assert proc.returncode == 2, proc.stderr
+    assert rule in proc.stderr and "Traceback" not in proc.stderr
+    assert not (tmp_path / "run").exists()                # nothing written
+    assert time.monotonic() - began < 30                  # and no board waited for
+
+
+def test_json_is_written_whole_or_not_at_all(tmp_path: Path, monkeypatch) -> None:
+    path = tmp_path / "metrics.json"
+    write_json(path, {"rmse_3d": 0.2})
+    real_replace = os.replace
+
+    def full_disk(source, destination):
+        raise OSError(28, "No space left on device")
+    monkeypatch.setattr(os, "replace", full_disk)
+    with pytest.raises(OSError, match=f"cannot write {path}"):
+        write_json(path, {"rmse_3d": 0.3})
+    monkeypatch.setattr(os, "replace", real_replace)
+    assert json.loads(path.read_text()) == {"rmse_3d": 0.2}    # what was there stays
+    assert [p.name for p in tmp_path.iterdir()] == ["metrics.json"]   # no temporary left behind
