@@ -26,9 +26,12 @@ The protocol is fixed here, before any result is looked at:
   the spread (min–max) over seeds.
 
 Nothing here is tuned on the test flights: a form is chosen by these figures (the
-day and mode splits first: the checks that matter are new flights and new days), and
-the shipped model is then trained by `rig train`'s default recipe (seed 0, flights cut
-70/15/15), as the pair network it replaces was.
+day and mode splits first: the checks that matter are new flights and new days). The
+shipped model is then trained on every shared flight but a seeded 15 % kept for
+validation (`rig train --all-flights`, seed 0): the checks that matter most are new
+flights of the days these were flown on, and every flight of those days is data about
+their anchors; this page, not a held-out share of the shared flights, is the estimate
+of its transfer.
 """
 
 from __future__ import annotations

@@ -290,10 +290,12 @@ def load_or_build_dataset(flights: list[Path], cache: Path | None, progress=None
 
 
 def run_training(flights: list[Path], out: Path, *, test_prefixes: list[str] | None = None,
-                 exclude_anchors: list[int] = (), config: TrainConfig = TrainConfig(),
+                 all_flights: bool = False, exclude_anchors: list[int] = (), config: TrainConfig = TrainConfig(),
                  dataset_cache: Path | None = None, command: list[str] | None = None,
                  progress=None, features_from: str = "estimate") -> dict:
-    """Build the dataset, split by flight, train, write OUT (model JSON) and its provenance."""
+    """Build the dataset, split by flight, train, write OUT (model JSON) and its provenance.
+    With `all_flights`, no flight is held out for testing: every flight but the
+    validation ones trains (how transfer is measured instead: benchmarks/bias_validation.py)."""
     import torch
 
     samples, latency = load_or_build_dataset(flights, dataset_cache, progress, features_from)
@@ -301,7 +303,7 @@ def run_training(flights: list[Path], out: Path, *, test_prefixes: list[str] | N
     test = [n for n in names if any(n.startswith(p) for p in test_prefixes)] if test_prefixes else None
     if test_prefixes and not test:
         raise ValueError(f"no flight name starts with {test_prefixes}")
-    split = split_flights(names, config.seed, test)
+    split = split_flights(names, config.seed, [] if all_flights else test)
     net, report = fit(samples, split, config, exclude_anchors, progress,
                       flight_dir=Path(flights[0]).parent if flights else None)
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -36,7 +36,8 @@ def cmd_train(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise CliError(str(exc)) from exc
     anchors = [int(a) for a in args.exclude_anchors.split(",")] if args.exclude_anchors else []
-    prov = run_training(flights, args.out, test_prefixes=args.test, exclude_anchors=anchors, config=config,
+    prov = run_training(flights, args.out, test_prefixes=args.test, all_flights=args.all_flights,
+                        exclude_anchors=anchors, config=config,
                         dataset_cache=args.dataset_cache, command=["rig", *sys.argv[1:]],
                         progress=progress(desc="training", total=None), features_from=args.features_from)
     t = prov["training"]
@@ -67,6 +68,9 @@ def register(sub) -> None:
                         "tested on what this one learns (how recordings/room_bias_net.json is made)")
     p.add_argument("--test", nargs="+", metavar="PREFIX",
                    help="these flights are the test set (default: a seeded 15%% of the flights)")
+    p.add_argument("--all-flights", action="store_true",
+                   help="hold no flight out for testing: every flight but the validation ones trains (how the "
+                        "shipped model is made; its transfer is measured by benchmarks/bias_validation.py)")
     p.add_argument("--exclude-anchors", metavar="K,K", help="leave these anchors out of training; test on them")
     p.add_argument("--form", choices=FORMS, default=TrainConfig().form,
                    help="link (default): one network of a tag-anchor link's 7 features, TDOA bias = g(B) - g(A); "

@@ -39,7 +39,7 @@ from rig.data.recording import (
     read_topics,
     vector_schema,
 )
-from rig.hil import protocol
+from rig.hil import foxglove, protocol
 
 log = logging.getLogger(__name__)
 
@@ -52,6 +52,13 @@ TOPIC_ESTIMATE = "/run/estimate"
 TOPIC_TIMING = "/run/timing"
 TOPIC_COUNTERS = "/run/counters"
 TOPIC_STATUS = "/run/status"
+# Foxglove's well-known schemas beside the project's own: the flight in 3D, the notes as
+# log lines, the position error as a plot
+TOPIC_FOXGLOVE_ESTIMATE = "/foxglove/estimate"
+TOPIC_FOXGLOVE_TRUTH = "/foxglove/truth"
+TOPIC_FOXGLOVE_ANCHORS = "/foxglove/anchors"
+TOPIC_FOXGLOVE_LOG = "/foxglove/log"
+TOPIC_POSITION_ERROR = "/run/position_error"
 CHUNK_BYTES = 256 * 1024      # what an unfinished file can lose at most
 
 _T = number_schema("time on the recording's clock", "s")
@@ -80,6 +87,11 @@ RUN_SCHEMAS = {
 }
 
 RUN_SCHEMAS["uwb_rig.Timing"]["required"].remove("latency_ms")    # present in real-time mode only
+RUN_SCHEMAS["uwb_rig.PositionError"] = object_schema("uwb_rig.PositionError", {
+    "t": _T, "error_m": number_schema("distance from the estimate to the ground truth at its time", "m"),
+    "x": number_schema("estimate − truth, x", "m"), "y": number_schema("estimate − truth, y", "m"),
+    "z": number_schema("estimate − truth, z", "m")})
+RUN_SCHEMAS.update(foxglove.SCHEMAS)
 
 
 def _xyz_dict(v) -> dict:
@@ -95,6 +107,7 @@ class RunRecorder:
     messages: int = 0
     _out: McapJsonWriter | None = None
     _channels: dict = field(default_factory=dict)
+    _truth: tuple | None = None          # times and positions of the ground truth, for the position error
 
     def __post_init__(self) -> None:
         try:
@@ -108,13 +121,17 @@ class RunRecorder:
             return
         self._guard(lambda: self._out.metadata(METADATA_RUN, {k: str(v) for k, v in info.items()}))
         self._write(TOPIC_ANCHORS, "uwb_rig.AnchorSet", t0, anchors_message(rec.anchors), raw=True)
+        self._write(TOPIC_FOXGLOVE_ANCHORS, "foxglove.SceneUpdate", t0, foxglove.anchors_scene(t0, rec.anchors))
         truth = rec.truth
         end = np.inf if t_end is None else t_end
-        for k in np.flatnonzero((truth.t >= t0 - 0.5) & (truth.t <= end + 0.5)):
-            q = truth.quaternion[k]
-            self._write(TOPIC_TRUTH, "uwb_rig.Pose", float(truth.t[k]), {
-                "t": float(truth.t[k]), "position": _xyz_dict(truth.position[k]),
+        span = np.flatnonzero((truth.t >= t0 - 0.5) & (truth.t <= end + 0.5))
+        self._truth = (truth.t[span], truth.position[span])
+        for k in span:
+            q, t = truth.quaternion[k], float(truth.t[k])
+            self._write(TOPIC_TRUTH, "uwb_rig.Pose", t, {
+                "t": t, "position": _xyz_dict(truth.position[k]),
                 "orientation": {"x": float(q[0]), "y": float(q[1]), "z": float(q[2]), "w": float(q[3])}})
+            self._write(TOPIC_FOXGLOVE_TRUTH, "foxglove.PoseInFrame", t, foxglove.pose_in_frame(t, truth.position[k], q))
 
     def inputs(self, t0: float, t_prev_us: int, imu: list, tdoa: list) -> None:
         """One window's inputs (the Window fields: dt since the previous STEP)."""
@@ -136,6 +153,8 @@ class RunRecorder:
             "t": t, "position": _xyz_dict(est.pos), "velocity": _xyz_dict(est.vel),
             "orientation": {"x": q[0], "y": q[1], "z": q[2], "w": q[3]},
             "cov_diag": [float(c) if np.isfinite(c) else None for c in att.cov_diag]})
+        self._write(TOPIC_FOXGLOVE_ESTIMATE, "foxglove.PoseInFrame", t, foxglove.pose_in_frame(t, est.pos, q))
+        self._position_error(t, est.pos)
         self._write(TOPIC_TIMING, "uwb_rig.Timing", t, {
             "t": t, "unit": unit, "budget": budget, "window": timing.window, "predict": timing.predict,
             "tdoa_total": timing.tdoa_total, "tdoa_max": timing.tdoa_max, "n_tdoa": timing.n_tdoa,
@@ -144,6 +163,19 @@ class RunRecorder:
 
     def status(self, t: float, source: str, code: int, message: str) -> None:
         self._write(TOPIC_STATUS, "uwb_rig.Status", t, {"t": t, "source": source, "code": code, "message": message})
+        self._write(TOPIC_FOXGLOVE_LOG, "foxglove.Log", t,
+                    foxglove.log(t, "error" if code < 0 else "warning", source, f"{message} (code {code})"))
+
+    def _position_error(self, t: float, position) -> None:
+        """Estimate − truth at the estimate's time, while the ground truth covers it."""
+        if self._truth is None or len(self._truth[0]) < 2 or not self._truth[0][0] <= t <= self._truth[0][-1]:
+            return
+        times, positions = self._truth
+        truth = [np.interp(t, times, positions[:, i]) for i in range(3)]
+        error = [float(p) - q for p, q in zip(position, truth)]
+        self._write(TOPIC_POSITION_ERROR, "uwb_rig.PositionError", t, {
+            "t": t, "error_m": foxglove.finite(float(np.linalg.norm(error))),
+            **{k: foxglove.finite(v) for k, v in zip("xyz", error)}})
 
     def close(self) -> None:
         if self._out is not None:

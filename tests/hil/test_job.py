@@ -13,7 +13,8 @@ from mcap.reader import make_reader
 from rig.data import paths
 from rig.hil.checks import assertions
 from rig.hil.job import EstimatorChoice, JobFailed, replay_job
-from rig.hil.runrecord import TOPIC_ESTIMATE
+from rig.hil.runrecord import (TOPIC_ESTIMATE, TOPIC_FOXGLOVE_ANCHORS, TOPIC_FOXGLOVE_ESTIMATE,
+                                TOPIC_FOXGLOVE_TRUTH, TOPIC_POSITION_ERROR)
 
 
 def test_a_short_native_replay_writes_its_metrics_record_and_report(tmp_path: Path) -> None:
@@ -28,6 +29,31 @@ def test_a_short_native_replay_writes_its_metrics_record_and_report(tmp_path: Pa
         topics = {c.id: c.topic for c in reader.get_summary().channels.values()}
     assert {topics[k]: n for k, n in counts.items()}[TOPIC_ESTIMATE] == result["n_estimates"]
     assert (tmp_path / "report.html").stat().st_size > 10_000
+
+
+def test_the_run_record_opens_in_foxglove_as_a_3d_scene(tmp_path: Path) -> None:
+    """Beside the project's topics: the estimate and the ground truth as foxglove.PoseInFrame,
+    the anchors as a foxglove.SceneUpdate, the notes as foxglove.Log, and the position
+    error as a plottable topic that agrees with the scored RMSE."""
+    result = replay_job(paths.default_recording(), "native", tmp_path, EstimatorChoice(), duration=8.0, report=False)
+    with open(tmp_path / "run.mcap", "rb") as stream:
+        reader = make_reader(stream)
+        summary = reader.get_summary()
+        schema_of = {c.topic: summary.schemas[c.schema_id].name for c in summary.channels.values()}
+        messages = {}
+        for _, channel, message in reader.iter_messages():
+            messages.setdefault(channel.topic, []).append(json.loads(message.data))
+    assert schema_of[TOPIC_FOXGLOVE_ESTIMATE] == schema_of[TOPIC_FOXGLOVE_TRUTH] == "foxglove.PoseInFrame"
+    assert schema_of[TOPIC_FOXGLOVE_ANCHORS] == "foxglove.SceneUpdate"
+    estimates = messages[TOPIC_FOXGLOVE_ESTIMATE]
+    assert len(estimates) == result["n_estimates"] and {e["frame_id"] for e in estimates} == {"world"}
+    first = messages[TOPIC_ESTIMATE][0]
+    assert estimates[0]["pose"]["position"] == first["position"]
+    assert estimates[0]["timestamp"]["sec"] + estimates[0]["timestamp"]["nsec"] * 1e-9 == pytest.approx(first["t"])
+    [scene] = messages[TOPIC_FOXGLOVE_ANCHORS]
+    assert sorted(e["id"] for e in scene["entities"]) == [f"anchor{k}" for k in range(8)]
+    errors = [m["error_m"] for m in messages[TOPIC_POSITION_ERROR]]
+    assert len(errors) >= result["n_estimates"] - 2 and max(errors) < 1.0
 
 
 def test_a_board_that_cannot_be_reached_fails_the_job_and_keeps_its_outputs(tmp_path: Path) -> None:
