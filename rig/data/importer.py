@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from rig.data.recording import PoseSeries, Recording, TdoaSeries, Vec3Series
+from rig.data.errors import SurveyError
 from rig.data.survey import parse_survey
 from rig.data.usdlog import DecodedLog, LogFormatError, read_log
 
@@ -65,9 +66,11 @@ def import_log(log_path: Path, survey_path: Path, *, salvage: bool = False, uwb_
     id_b = tdoa[:, 1].astype(int)
     known = {a.id for a in anchors}
     unknown = sorted((set(id_a.tolist()) | set(id_b.tolist())) - known)
-    if unknown:
-        log.warning("%s: TDOA samples name anchor id(s) %s absent from the survey; kept as recorded",
-                    log_path, unknown)
+    if unknown:         # the survey does not match the log: a wrong day's, or a line lost
+        counts = {k: int(np.sum((id_a == k) | (id_b == k))) for k in unknown}
+        raise SurveyError(f"{survey_path}: the log's TDOA samples use anchor(s) "
+                          f"{', '.join(f'{k} ({n} samples)' for k, n in counts.items())}, which this survey lacks "
+                          f"(it has {sorted(known)}): is it the survey of {Path(log_path).name}'s day?")
     mode = uwb_mode or infer_uwb_mode(id_a, id_b, len(anchors))
     metadata = {
         "source": str(log_path),

@@ -86,6 +86,7 @@ def parse_survey(path: Path) -> list[Anchor]:
         raise SurveyError(f"cannot read survey {path}: {exc.strerror}") from exc
     antennas: dict[int, np.ndarray] = {}
     markers: dict[tuple[int, int], np.ndarray] = {}
+    defined_at: dict[str, int] = {}
     for lineno, line in enumerate(text.splitlines(), 1):
         line = line.strip()
         if not line or line.startswith("#"):
@@ -102,6 +103,9 @@ def parse_survey(path: Path) -> list[Anchor]:
             raise SurveyError(f"{path}:{lineno}: expected 'name,x,y,z', got {line!r}") from None
         if not np.all(np.isfinite(point)):
             raise SurveyError(f"{path}:{lineno}: non-finite coordinate in {line!r}")
+        if fields[0] in defined_at:              # which of two positions is the anchor's? neither can be trusted
+            raise SurveyError(f"{path}:{lineno}: {fields[0]} is defined again (first on line {defined_at[fields[0]]})")
+        defined_at[fields[0]] = lineno
         if match["ant"] is not None:
             antennas[int(match["ant"])] = point
         else:

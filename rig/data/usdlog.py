@@ -157,6 +157,9 @@ def _check_crc(data: bytes) -> bool:
 
 def decode(data: bytes, *, salvage: bool = False, source: str = "<bytes>") -> DecodedLog:
     """Decode a whole log held in memory. See the module docstring for the rules."""
+    if not data or data[0] != MAGIC:         # before the CRC: a file that is no log at all says so
+        found = f"starts with 0x{data[0]:02X}" if data else "is empty"
+        raise LogFormatError(f"{source}: not a uSD event log (it {found}; a log starts with the magic 0x{MAGIC:02X})")
     crc_ok = _check_crc(data)
     dropped: list[str] = []
     if not crc_ok:

@@ -190,3 +190,35 @@ def test_a_flight_log_finds_its_survey_beside_it_or_by_option(tmp_path: Path, da
     assert [a.id for a in read_recording(out).anchors] == [a.id for a in load_any(flight).anchors]
     proc = run_rig("inject", str(out), "--survey", str(shared), "--effects", "[]", "-o", str(tmp_path / "x.mcap"))
     assert proc.returncode == 2 and "carries its own anchors" in proc.stderr
+
+
+@pytest.mark.parametrize("content", [b"", bytes(np.random.default_rng(0).integers(0, 256, 4096, dtype=np.uint8)) + b"x"],
+                         ids=["empty", "random bytes"])
+def test_a_file_that_is_no_log_at_all_says_so(tmp_path: Path, survey_0425: Path, content: bytes) -> None:
+    log = tmp_path / "log"
+    log.write_bytes(content if content[:1] != b"\xbc" else b"\x00" + content)
+    for salvage in ([], ["--salvage"]):
+        proc = run_rig("import", str(log), "--survey", str(survey_0425), "-o", str(tmp_path / "out.mcap"), *salvage)
+        assert proc.returncode == 2
+        assert "not a uSD event log" in proc.stderr and "CRC" not in proc.stderr
+        assert not (tmp_path / "out.mcap").exists() and not list(tmp_path.glob("*.partial"))
+
+
+def test_a_survey_that_is_not_the_logs_is_refused(tmp_path: Path, survey_0425: Path) -> None:
+    """A survey listing an anchor twice (which position is right?) or lacking one the log
+    uses (another day's survey) is refused with the line or the anchor, not imported."""
+    log = tmp_path / "log"
+    log.write_bytes(crafted_log(40))
+    lines = survey_0425.read_text().splitlines()
+    first = next(k for k, line in enumerate(lines) if line.startswith("anchorAnt3,"))
+    twice = tmp_path / "twice.txt"
+    twice.write_text("\n".join(lines + [lines[first].replace(",", ",1", 1)]) + "\n")
+    proc = run_rig("import", str(log), "--survey", str(twice), "-o", str(tmp_path / "out.mcap"))
+    assert proc.returncode == 2
+    assert f"twice.txt:{len(lines) + 1}: anchorAnt3 is defined again (first on line {first + 1})" in proc.stderr
+    lacking = tmp_path / "lacking.txt"
+    lacking.write_text("\n".join(line for line in lines if not line.startswith(("anchorAnt5", "anchor5_"))) + "\n")
+    proc = run_rig("import", str(log), "--survey", str(lacking), "-o", str(tmp_path / "out.mcap"))
+    assert proc.returncode == 2
+    assert "use anchor(s) 5" in proc.stderr and "which this survey lacks" in proc.stderr
+    assert not (tmp_path / "out.mcap").exists()
