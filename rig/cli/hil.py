@@ -11,15 +11,18 @@ from rig.cli.common import EXIT_FAILED, EXIT_OK, CliError, add_estimator_options
 from rig.data import paths
 
 
-def replay_into(recording: Path, target: str, out: Path, estimator, **options) -> dict:
+def replay_into(recording: Path, target: str, out: Path, estimator, junit: Path | None = None, **options) -> dict:
     """One replay job (rig.hil.job) with its summary printed; a board that failed is a
-    one-line error that names what was kept."""
+    one-line error that names what was kept (and, with `junit`, a failed testcase)."""
+    from rig.hil.checks import write_junit
     from rig.hil.job import JobFailed, replay_job
 
     try:
         result = replay_job(recording, target, out, estimator, progress=progress(desc=f"replay {target}"),
                             **options)
     except JobFailed as exc:
+        if junit is not None:
+            write_junit(junit, "rig.replay", [(target, [], exc.result)])
         raise CliError(str(exc)) from exc
     print_replay(result, report=options.get("report", True))
     if result["run_record_error"]:
@@ -60,7 +63,7 @@ def estimator_choice(args: argparse.Namespace):
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
-    from rig.hil.checks import assertions, deadline_failures
+    from rig.hil.checks import checks, write_junit
     from rig.hil.job import check_options
     from rig.hil.zenoh import open_session
 
@@ -70,12 +73,13 @@ def cmd_replay(args: argparse.Namespace) -> int:
         result = replay_into(args.recording, args.target, args.out, estimator_choice(args), start=args.start,
                              duration=args.duration, lookahead=args.lookahead,
                              speed=args.speed if args.mode == "realtime" else None, session=session,
-                             board=args.board, survey=args.survey)
+                             board=args.board, survey=args.survey, junit=args.junit_xml)
     finally:
         session.close()
-    failed = assertions(result, args.assert_rmse, args.assert_budget)
-    if args.assert_deadlines:
-        failed += deadline_failures(result)
+    asserted = checks(result, args.assert_rmse, args.assert_budget, deadlines=args.assert_deadlines)
+    if args.junit_xml:
+        write_junit(args.junit_xml, "rig.replay", [(args.target, asserted, result)])
+    failed = [c.message for c in asserted if not c.passed]
     for reason in failed:
         print(f"rig replay: assertion failed: {reason}", file=sys.stderr)
     return EXIT_FAILED if failed else EXIT_OK
@@ -231,6 +235,9 @@ def register(sub) -> None:
                    help="exit 1 when the worst window exceeds FRACTION of the 10 ms budget")
     p.add_argument("--assert-deadlines", action="store_true",
                    help="real-time mode: exit 1 when any window is late or missed")
+    p.add_argument("--junit-xml", type=Path, metavar="FILE",
+                   help="write a JUnit XML report: one testcase for the board and one per assertion, a failure "
+                        "carrying the measured figure and its bar")
     p.set_defaults(func=cmd_replay)
     p = sub.add_parser("demo", help="the main job: the default recording into the native and QEMU targets",
                        description="Replay the default recording into the native program and the STM32F405 "

@@ -3,6 +3,7 @@ main job's checks (`rig demo`: the default recording into native and QEMU)."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 DEMO_TARGETS = ("native", "qemu")
@@ -20,29 +21,76 @@ DEMO_BUDGET_FIGURE = {"native": "window_p99", "qemu": "window_max"}
 DEMO_AGREEMENT_M = 0.002
 
 
+@dataclass
+class Check:
+    """One asserted bar: what was measured against it, and whether it held."""
+
+    name: str
+    passed: bool
+    message: str          # the measured figure and its bar
+
+
+def checks(result: dict, max_rmse: float | None, max_budget: float | None, figure: str = "window_max",
+           deadlines: bool = False) -> list[Check]:
+    """The bars asked for: accuracy (m), budget (a fraction of the 10 ms budget, on the
+    timing `figure`: the worst window unless said otherwise), real-time deadlines."""
+    out = []
+    if max_rmse is not None:
+        if "rmse_3d" not in result:
+            out.append(Check("rmse_3d", False, f"no rmse_3d to compare with {max_rmse} m ({result.get('score_error')})"))
+        else:
+            held = result["rmse_3d"] <= max_rmse
+            out.append(Check("rmse_3d", held, f"rmse_3d {result['rmse_3d']:.3f} m {'<=' if held else '>'} {max_rmse} m"))
+    if max_budget is not None:
+        timing = result["timing"]
+        fraction = timing[figure] / timing["budget"]
+        held = fraction <= max_budget
+        name = "worst window" if figure == "window_max" else figure.replace("_", " ")
+        out.append(Check(f"budget {figure}", held,
+                         f"{name} {fraction:.1%} of the budget {'<=' if held else '>'} {max_budget:.1%}"))
+    if deadlines:
+        rt = result.get("realtime")
+        if rt is None:
+            out.append(Check("deadlines", False, "--assert-deadlines needs --mode realtime"))
+        else:
+            missed = [f"{rt[key]} {key.replace('_', ' ')}" for key in ("late_windows", "missed_windows") if rt[key]]
+            out.append(Check("deadlines", not missed, ", ".join(missed) or "no late or missed window"))
+    return out
+
+
 def assertions(result: dict, max_rmse: float | None, max_budget: float | None,
                figure: str = "window_max") -> list[str]:
-    """What failed of an accuracy bar (m) and a budget bar (fraction of the 10 ms budget,
-    on the timing `figure`: the worst window unless said otherwise)."""
-    failed = []
-    if max_rmse is not None and "rmse_3d" not in result:
-        failed.append(f"no rmse_3d to compare with {max_rmse} m ({result.get('score_error')})")
-    elif max_rmse is not None and not result["rmse_3d"] <= max_rmse:
-        failed.append(f"rmse_3d {result['rmse_3d']:.3f} m > {max_rmse} m")
-    timing = result["timing"]
-    fraction = timing[figure] / timing["budget"]
-    if max_budget is not None and not fraction <= max_budget:
-        name = "worst window" if figure == "window_max" else figure.replace("_", " ")
-        failed.append(f"{name} {fraction:.1%} of the budget > {max_budget:.1%}")
-    return failed
+    """What failed of an accuracy bar (m) and a budget bar (see `checks`)."""
+    return [c.message for c in checks(result, max_rmse, max_budget, figure) if not c.passed]
 
 
-def deadline_failures(result: dict) -> list[str]:
-    """Late and missed windows of a real-time replay (any is a failure)."""
-    rt = result.get("realtime")
-    if rt is None:
-        return ["--assert-deadlines needs --mode realtime"]
-    return [f"{rt[key]} {key.replace('_', ' ')}" for key in ("late_windows", "missed_windows") if rt[key]]
+def write_junit(path: Path, suite: str, cases: list[tuple[str, list[Check], dict]]) -> None:
+    """A JUnit XML report CI systems read: one testcase per board (its replay ran and
+    ended) and per asserted bar on it, a failure carrying the measured figure and its bar.
+    `cases`: (board, its checks, its metrics)."""
+    import xml.etree.ElementTree as ElementTree
+
+    root = ElementTree.Element("testsuites")
+    tests = failures = 0
+    element = ElementTree.SubElement(root, "testsuite", name=suite)
+    for board, board_checks, metrics in cases:
+        ended = metrics.get("ended", "completed") if not metrics.get("error") else metrics.get("ended", "error")
+        replay = Check("replay", ended == "completed" and not metrics.get("error"),
+                       f"ended {ended}" + (f": {metrics['error']}" if metrics.get("error") else
+                                           f", {metrics.get('n_estimates', 0)} estimates"))
+        for check in [replay, *board_checks]:
+            tests += 1
+            case = ElementTree.SubElement(element, "testcase", classname=f"{suite}.{board}", name=check.name,
+                                          time=f"{metrics.get('wall_seconds', 0.0):.3f}" if check is replay else "0")
+            if not check.passed:
+                failures += 1
+                ElementTree.SubElement(case, "failure", message=check.message).text = check.message
+            else:
+                ElementTree.SubElement(case, "system-out").text = check.message
+    element.set("tests", str(tests))
+    element.set("failures", str(failures))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    ElementTree.ElementTree(root).write(path, encoding="utf-8", xml_declaration=True)
 
 
 def demo(recording: Path, out: Path, replay_into) -> tuple[dict[str, dict], float, list[str]]:

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import time
 from pathlib import Path
@@ -86,3 +87,19 @@ def test_json_is_written_whole_or_not_at_all(tmp_path: Path, monkeypatch) -> Non
     monkeypatch.setattr(os, "replace", real_replace)
     assert json.loads(path.read_text()) == {"rmse_3d": 0.2}    # what was there stays
     assert [p.name for p in tmp_path.iterdir()] == ["metrics.json"]   # no temporary left behind
+
+
+def test_junit_xml_has_a_testcase_per_board_and_assertion_and_failures_carry_the_figure(tmp_path: Path) -> None:
+    import xml.etree.ElementTree as ElementTree
+
+    junit = tmp_path / "junit.xml"
+    proc = run_rig("replay", "recordings/default.mcap", "--target", "native", "--duration", "12", "--out",
+                   str(tmp_path / "run"), "--assert-rmse", "0.0001", "--assert-budget", "0.9", "--junit-xml", str(junit))
+    assert proc.returncode == 1
+    suite = ElementTree.parse(junit).getroot().find("testsuite")
+    assert (suite.get("tests"), suite.get("failures")) == ("3", "1")
+    cases = {case.get("name"): case for case in suite.iter("testcase")}
+    assert set(cases) == {"replay", "rmse_3d", "budget window_max"}
+    failure = cases["rmse_3d"].find("failure")
+    assert failure is not None and re.fullmatch(r"rmse_3d 0\.\d{3} m > 0\.0001 m", failure.get("message"))
+    assert cases["replay"].find("failure") is None and cases["budget window_max"].find("failure") is None

@@ -1,0 +1,42 @@
+"""The `board` fixture as a user's hardware-in-the-loop test uses it (rig.hil.pytest_plugin,
+registered through the pytest11 entry point): parametrized over --rig-target, replaying
+as `rig replay` does and returning metrics.json's content."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from rigtest import ROOT
+
+USER_TEST = '''
+def test_default_recording_on_every_board(board):
+    metrics = board.replay(duration=12.0)
+    assert metrics["ended"] == "completed" and metrics["n_estimates"] >= 1199
+    assert metrics["rmse_3d"] < 0.4 and metrics["target"] == board.target
+
+
+def test_a_replay_in_real_time(board):
+    metrics = board.replay(start=12.0, duration=2.0, mode="realtime", speed=4.0, no_nn=True)
+    assert metrics["mode"] == "realtime" and metrics["realtime"]["speed"] == 4.0 and not metrics["bias_net"]
+'''
+
+
+def test_a_users_test_file_with_the_board_fixture_passes_on_the_native_target(tmp_path: Path) -> None:
+    (tmp_path / "test_hil.py").write_text(USER_TEST)
+    proc = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "--rig-target", "native",
+                           "--junitxml", str(tmp_path / "junit.xml"), str(tmp_path / "test_hil.py")],
+                          cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "2 passed" in proc.stdout
+    assert 'test_default_recording_on_every_board[native]' in (tmp_path / "junit.xml").read_text()
+
+
+def test_the_board_fixture_refuses_an_option_rig_replay_does_not_take(board) -> None:
+    with pytest.raises(TypeError, match="not \\['speeed'\\]"):
+        board.replay(speeed=2.0)
+    metrics = board.replay(duration=3.0)
+    assert json.loads((board.out / "replay1" / "metrics.json").read_text()) == json.loads(json.dumps(metrics))
