@@ -15,9 +15,11 @@ import faulthandler
 import logging
 import signal
 import sys
+import tempfile
+from pathlib import Path
 
 from rig.cli import bias, data, diagnosis, estimator, hil, sim
-from rig.cli.common import EXIT_BAD_INPUT, CliError, stop_on_signals
+from rig.cli.common import CRASH_LOG, EXIT_BAD_INPUT, EXIT_BOARD, EXIT_INTERNAL, CliError, stop_on_signals
 from rig.data import paths
 
 GROUPS = (data, sim, estimator, bias, hil, diagnosis)
@@ -46,12 +48,42 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
+    from rig.hil.links.base import LinkError
+
     try:
         return args.func(args)
-    except (CliError, *USER_ERRORS) as exc:
+    except CliError as exc:
+        print(f"rig {args.command}: error: {exc}", file=sys.stderr)
+        return exc.status
+    except LinkError as exc:
+        print(f"rig {args.command}: error: {exc}", file=sys.stderr)
+        return EXIT_BOARD
+    except USER_ERRORS as exc:
         print(f"rig {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt as exc:
         signum = getattr(exc, "signum", signal.SIGINT)
         print(f"rig {args.command}: interrupted ({signal.Signals(signum).name})", file=sys.stderr)
         return 128 + signum             # the shell's convention: 130 for SIGINT, 143 for SIGTERM
+    except Exception as exc:           # a bug of the rig's: the traceback to a file, one line here
+        where = crash_log(args, exc)
+        print(f"rig {args.command}: internal error: {type(exc).__name__}: {exc} (traceback in {where})",
+              file=sys.stderr)
+        return EXIT_INTERNAL
+
+
+def crash_log(args: argparse.Namespace, exc: Exception) -> Path:
+    """The traceback of an internal error, in the command's output directory if it has
+    one (else the working directory), beside what the command wrote."""
+    import traceback
+
+    directory = getattr(args, "out", None)
+    directory = Path(directory) if isinstance(directory, Path) and directory.suffix == "" else Path.cwd()
+    path = directory / CRASH_LOG
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+        path.write_text("".join(traceback.format_exception(exc)))
+    except OSError:
+        path = Path(tempfile.gettempdir()) / CRASH_LOG
+        path.write_text("".join(traceback.format_exception(exc)))
+    return path

@@ -7,10 +7,10 @@ import sys
 from pathlib import Path
 
 from rig.bias.config import FEATURES_FROM, SELECT_BY, TrainConfig
-from rig.estimator.bias_net import FORMS
 from rig.cli.common import EXIT_OK, CliError, progress
 from rig.data import paths
 from rig.data.paths import SHIPPED_BIAS_NET as DEFAULT_NETWORK
+from rig.estimator.bias_net import FORMS
 
 
 def cmd_train(args: argparse.Namespace) -> int:

@@ -10,11 +10,23 @@ from pathlib import Path
 
 from rig.data import paths
 
-EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT = 0, 1, 2
+# Exit statuses: an assertion failed (1), bad input or usage (2), a board or link failed
+# (3), the rig itself failed (4: the traceback goes to a log file); 128 + the signal
+# when interrupted (130 SIGINT, 143 SIGTERM, 129 SIGHUP).
+EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_BOARD, EXIT_INTERNAL = 0, 1, 2, 3, 4
+CRASH_LOG = "rig-error.log"
 
 
 class CliError(Exception):
     """An error to report to the user in one line, without a traceback."""
+
+    status = EXIT_BAD_INPUT
+
+
+class BoardError(CliError):
+    """A board or its link failed (what was recorded is kept; the message says where)."""
+
+    status = EXIT_BOARD
 
 
 class Interrupted(KeyboardInterrupt):

@@ -7,7 +7,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from rig.cli.common import EXIT_FAILED, EXIT_OK, CliError, add_estimator_options, print_accuracy, progress, write_json
+from rig.cli.common import (EXIT_FAILED, EXIT_OK, BoardError, CliError, add_estimator_options, print_accuracy,
+                            progress, write_json)
 from rig.data import paths
 
 
@@ -23,7 +24,7 @@ def replay_into(recording: Path, target: str, out: Path, estimator, junit: Path 
     except JobFailed as exc:
         if junit is not None:
             write_junit(junit, "rig.replay", [(target, [], exc.result)])
-        raise CliError(str(exc)) from exc
+        raise BoardError(str(exc)) from exc
     print_replay(result, report=options.get("report", True))
     if result["run_record_error"]:
         raise CliError(result["run_record_error"])
@@ -138,7 +139,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         try:
             current.append(bench.measure(target, rec, start, duration, binaries.get(target)))
         except LinkError as exc:
-            raise CliError(str(exc)) from exc
+            raise BoardError(str(exc)) from exc
     document = bench.baseline_document(current, str(args.recording), start, duration)
     if baseline is None:
         write_json(args.baseline, document)

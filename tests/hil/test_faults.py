@@ -103,3 +103,28 @@ def test_junit_xml_has_a_testcase_per_board_and_assertion_and_failures_carry_the
     failure = cases["rmse_3d"].find("failure")
     assert failure is not None and re.fullmatch(r"rmse_3d 0\.\d{3} m > 0\.0001 m", failure.get("message"))
     assert cases["replay"].find("failure") is None and cases["budget window_max"].find("failure") is None
+
+
+def test_exit_statuses_tell_a_board_that_failed_from_bad_input_and_from_a_bug(tmp_path: Path, monkeypatch,
+                                                                              capfd) -> None:
+    lost = run_rig("replay", "recordings/default.mcap", "--target", "serial:/dev/nonexistent-board", "--out",
+                   str(tmp_path / "run"), "--duration", "2")
+    assert lost.returncode == 3 and "cannot open /dev/nonexistent-board" in lost.stderr
+    assert json.loads((tmp_path / "run" / "metrics.json").read_text())["ended"] == "board_lost"
+
+    import rig.cli
+    import rig.cli.estimator
+
+    def bug(args):
+        return 1 / 0
+    monkeypatch.setattr(rig.cli.estimator, "cmd_size", bug)
+    monkeypatch.chdir(tmp_path)
+    handlers = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGHUP)}
+    try:
+        assert rig.cli.main(["size"]) == 4
+    finally:
+        for s, handler in handlers.items():            # the rig's own handlers stay with the rig
+            signal.signal(s, handler)
+    said = capfd.readouterr().err
+    assert "internal error: ZeroDivisionError" in said and "rig-error.log" in said and "Traceback" not in said
+    assert "ZeroDivisionError" in (tmp_path / "rig-error.log").read_text()

@@ -102,7 +102,7 @@ def test_a_board_lost_mid_run_keeps_the_record_and_says_so(tmp_path: Path) -> No
                         endpoint, "--out", str(out), "--mode", "realtime")
         time.sleep(14.0)                                      # well into the scored segment
         bridge.kill()                                         # the board and its bridge vanish
-        assert exit_status(replay, 60) == 2                   # a clear error, not a crash
+        assert exit_status(replay, 60) == 3                   # a board that failed: a clear error, not a crash
         stderr = replay.stderr.read()
         assert "went away" in stderr or "stopped answering" in stderr
     finally:
