@@ -50,6 +50,11 @@ def simulate_exact(survey: Path, trajectory: str = "circle-sine", effects: list[
 
 def crafted_log(n: int = 50) -> bytes:
     """A small valid log: n samples of each stream, one event out of time order."""
+    return encode(TYPES, crafted_events(n))
+
+
+def crafted_events(n: int = 50) -> list[tuple[str, int, tuple]]:
+    """The events of `crafted_log`, in recording order."""
     events = []
     for k in range(n):
         t = 1_000_000 + 1000 * k
@@ -60,7 +65,7 @@ def crafted_log(n: int = 50) -> bytes:
             events.append(("estTDOA", t + 9, (k % 8, (k + 1) % 8, 0.25)))
     if len(events) > 11:  # recording order is not time order
         events[10], events[11] = events[11], events[10]
-    return encode(TYPES, events)
+    return events
 
 
 def fail_with_stacks(proc: subprocess.Popen, timeout: float) -> None:

@@ -280,6 +280,15 @@ def write_recording(rec: Recording, path: Path, progress: Callable[[Iterable], I
     """Write `rec` to `path` atomically: a partial file never replaces a good one."""
     path = Path(path)
     tmp = path.with_name(path.name + ".partial")
+    try:
+        _write_messages(rec, tmp, progress)
+    except BaseException:            # a failed or interrupted write leaves nothing behind
+        tmp.unlink(missing_ok=True)
+        raise
+    os.replace(tmp, path)
+
+
+def _write_messages(rec: Recording, tmp: Path, progress) -> None:
     with McapJsonWriter(tmp) as out:
         out.metadata(METADATA_NAME, rec.metadata)
         anchors_cid = out.channel(TOPIC_ANCHORS, "uwb_rig.AnchorSet")
@@ -294,7 +303,6 @@ def write_recording(rec: Recording, path: Path, progress: Callable[[Iterable], I
         rows = _merged(*streams)
         for t, cid, text in (progress(rows) if progress else rows):
             out.write(cid, t, text)
-    os.replace(tmp, path)
 
 
 # ----------------------------------------------------------------------------- reading

@@ -174,6 +174,7 @@ def decode(data: bytes, *, salvage: bool = False, source: str = "<bytes>") -> De
 
     rows: dict[int, list[tuple]] = {tid: [] for tid in types}
     stamps: dict[int, list[int]] = {tid: [] for tid in types}
+    order: list[tuple[int, int]] = []           # (type id, stamp) in recording order
     payloads = {tid: t.payload for tid, t in types.items()}
     pos = cur.pos
     while pos < end:
@@ -190,6 +191,7 @@ def decode(data: bytes, *, salvage: bool = False, source: str = "<bytes>") -> De
             break
         rows[type_id].append(payload.unpack_from(data, pos + EVENT_HEADER.size))
         stamps[type_id].append(stamp)
+        order.append((type_id, stamp))
         pos += EVENT_HEADER.size + payload.size
     else:
         problem = ""
@@ -199,12 +201,38 @@ def decode(data: bytes, *, salvage: bool = False, source: str = "<bytes>") -> De
             raise LogFormatError(message)
         dropped.append(message)
 
+    keep = _plausible_stamps(order) if not crc_ok else None
+    if keep is not None and not keep.all():
+        dropped.append(f"{source}: {int((~keep).sum())} events whose timestamps leave the log's time range or "
+                       f"run backwards (damaged stamps) dropped")
     events = {}
     for tid, etype in types.items():
         values = np.array(rows[tid], dtype=np.float64).reshape(len(rows[tid]), len(etype.variables))
-        events[etype.name] = EventSeries(etype, np.array(stamps[tid], dtype=np.uint64), values)
+        times = np.array(stamps[tid], dtype=np.uint64)
+        if keep is not None:
+            mine = keep[[k for k, (type_id, _) in enumerate(order) if type_id == tid]]
+            values, times = values[mine], times[mine]
+        events[etype.name] = EventSeries(etype, times, values)
     return DecodedLog(version=version, types={t.name: t for t in types.values()}, events=events,
                       crc_ok=crc_ok, dropped=dropped)
+
+
+# A stamp further than this from the median of its neighbours in recording order is
+# damaged: a log is recorded in time order but for a few events a few milliseconds apart.
+STAMP_SLACK_US = 1_000_000
+STAMP_NEIGHBOURS = 25                # on each side
+
+
+def _plausible_stamps(order: list[tuple[int, int]]) -> np.ndarray:
+    """Which events of a salvaged log (no CRC to vouch for them) have a plausible stamp:
+    within STAMP_SLACK_US of the median of their neighbours in recording order."""
+    stamps = np.array([s for _, s in order], dtype=np.float64)
+    if len(stamps) < 3:
+        return np.ones(len(stamps), bool)
+    half = min(STAMP_NEIGHBOURS, (len(stamps) - 1) // 2)
+    padded = np.pad(stamps, half, mode="edge")
+    windows = np.lib.stride_tricks.sliding_window_view(padded, 2 * half + 1)
+    return np.abs(stamps - np.median(windows, axis=1)) <= STAMP_SLACK_US
 
 
 def read_log(path: Path, *, salvage: bool = False) -> DecodedLog:

@@ -8,12 +8,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 from mcap.reader import make_reader
-from rigtest import crafted_log, run_rig
+from rigtest import TYPES, crafted_events, crafted_log, run_rig
 
 from rig.data import paths
 from rig.data.importer import GRAVITY, import_log, infer_uwb_mode, load_any
 from rig.data.recording import read_recording, write_recording
-from rig.data.usdlog import read_log
+from rig.data.usdlog import encode, read_log
 
 
 def test_unit_conversions_and_time_order(tmp_path: Path, survey_0425: Path) -> None:
@@ -222,3 +222,25 @@ def test_a_survey_that_is_not_the_logs_is_refused(tmp_path: Path, survey_0425: P
     assert proc.returncode == 2
     assert "use anchor(s) 5" in proc.stderr and "which this survey lacks" in proc.stderr
     assert not (tmp_path / "out.mcap").exists()
+
+
+def test_salvage_drops_events_whose_timestamps_were_damaged_and_leaves_no_partial_file(tmp_path: Path,
+                                                                                    survey_0425: Path) -> None:
+    """One flipped byte in an event's timestamp (the CRC then fails): --salvage imports
+    every other event, drops and counts the damaged one instead of importing a stamp
+    hours away, and leaves nothing half-written behind."""
+    events = crafted_events(200)
+    damaged = len(events) // 2
+    offset = len(encode(TYPES, events[:damaged])) - 4 + 2 + 5      # past the CRC's place, the event id; a high byte
+    data = bytearray(encode(TYPES, events))
+    data[offset] ^= 0x40
+    log = tmp_path / "log"
+    log.write_bytes(bytes(data))
+    out = tmp_path / "out.mcap"
+    proc = run_rig("import", str(log), "--survey", str(survey_0425), "-o", str(out), "--salvage")
+    assert proc.returncode == 0, proc.stderr
+    assert "1 events whose timestamps leave the log's time range or run backwards" in proc.stderr
+    rec = read_recording(out)
+    assert len(rec.accel) + len(rec.gyro) + len(rec.truth) + len(rec.tdoa) == len(events) - 1
+    assert rec.time_span()[1] - rec.time_span()[0] < 1.0
+    assert not list(tmp_path.glob("*.partial"))
