@@ -19,7 +19,7 @@ import tempfile
 from pathlib import Path
 
 from rig.cli import bias, data, diagnosis, estimator, hil, sim
-from rig.cli.common import CRASH_LOG, EXIT_BAD_INPUT, EXIT_BOARD, EXIT_INTERNAL, CliError, stop_on_signals
+from rig.cli.common import CRASH_LOG, EXIT_BAD_INPUT, EXIT_BOARD, EXIT_INTERNAL, CliError
 from rig.data import paths
 
 GROUPS = (data, sim, estimator, bias, hil, diagnosis)
@@ -44,6 +44,8 @@ def main(argv: list[str] | None = None) -> int:
 
     # a rig that seems stuck says where: `kill -USR1 PID` prints every thread's stack
     faulthandler.register(signal.SIGUSR1, all_threads=True)
+    from rig.hil.interrupt import stop_on_signals
+
     stop_on_signals()
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,

@@ -4,7 +4,6 @@ output, printing a score, and the options several commands take."""
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
 from pathlib import Path
 
@@ -27,25 +26,6 @@ class BoardError(CliError):
     """A board or its link failed (what was recorded is kept; the message says where)."""
 
     status = EXIT_BOARD
-
-
-class Interrupted(KeyboardInterrupt):
-    """The rig was asked to stop by a signal: SIGTERM and SIGHUP end it as SIGINT does,
-    every record finished on the way out (its name is the exception's argument)."""
-
-    def __init__(self, signum: int = signal.SIGINT):
-        super().__init__(signal.Signals(signum).name)
-        self.signum = signum
-
-
-def stop_on_signals() -> None:
-    """SIGTERM (`timeout`, `docker stop`, a CI runner) and SIGHUP (a closed terminal) stop
-    the rig as Ctrl-C does."""
-    def stop(signum, frame):
-        raise Interrupted(signum)
-
-    for signum in (signal.SIGTERM, signal.SIGHUP):
-        signal.signal(signum, stop)
 
 
 def progress(total: int | None = None, desc: str = ""):

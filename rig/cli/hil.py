@@ -7,8 +7,16 @@ import argparse
 import sys
 from pathlib import Path
 
-from rig.cli.common import (EXIT_FAILED, EXIT_OK, BoardError, CliError, add_estimator_options, print_accuracy,
-                            progress, write_json)
+from rig.cli.common import (
+    EXIT_FAILED,
+    EXIT_OK,
+    BoardError,
+    CliError,
+    add_estimator_options,
+    print_accuracy,
+    progress,
+    write_json,
+)
 from rig.data import paths
 
 

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from rig.data.recording import PoseSeries, Recording, TdoaSeries, Vec3Series
 from rig.data.errors import SurveyError
+from rig.data.recording import PoseSeries, Recording, TdoaSeries, Vec3Series
 from rig.data.survey import parse_survey
 from rig.data.usdlog import DecodedLog, LogFormatError, read_log
 

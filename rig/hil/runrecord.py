@@ -40,6 +40,7 @@ from rig.data.recording import (
     vector_schema,
 )
 from rig.hil import foxglove, protocol
+from rig.hil.interrupt import critical
 
 log = logging.getLogger(__name__)
 
@@ -199,7 +200,8 @@ class RunRecorder:
 
     def _guard(self, action) -> bool:
         try:
-            action()
+            with critical():            # a signal waits: half a message would corrupt the chunk
+                action()
             return True
         except OSError as exc:
             self._fail(exc)

@@ -119,7 +119,7 @@ def test_exit_statuses_tell_a_board_that_failed_from_bad_input_and_from_a_bug(tm
         return 1 / 0
     monkeypatch.setattr(rig.cli.estimator, "cmd_size", bug)
     monkeypatch.chdir(tmp_path)
-    handlers = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGHUP)}
+    handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
     try:
         assert rig.cli.main(["size"]) == 4
     finally:
@@ -128,3 +128,21 @@ def test_exit_statuses_tell_a_board_that_failed_from_bad_input_and_from_a_bug(tm
     said = capfd.readouterr().err
     assert "internal error: ZeroDivisionError" in said and "rig-error.log" in said and "Traceback" not in said
     assert "ZeroDivisionError" in (tmp_path / "rig-error.log").read_text()
+
+
+def test_a_signal_inside_a_critical_section_waits_for_its_end() -> None:
+    from rig.hil.interrupt import Interrupted, critical, stop_on_signals
+
+    handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
+    stop_on_signals()
+    done = []
+    try:
+        with pytest.raises(Interrupted) as stopped:
+            with critical():
+                os.kill(os.getpid(), signal.SIGTERM)
+                time.sleep(0.05)                           # the handler has run: the section goes on
+                done.append("the whole write")
+        assert done == ["the whole write"] and stopped.value.signum == signal.SIGTERM
+    finally:
+        for s, handler in handlers.items():
+            signal.signal(s, handler)
