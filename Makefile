@@ -24,12 +24,12 @@ test-fast: setup
 default-recording: setup
 	$(RIG) simulate --config recordings/default.sim.json -o recordings/default.mcap
 
-# The pose-dependent bias the default recording carries (its `learned_bias`): a bias
-# network trained only on flights the shipped one (rig/bias/models/bias_net.json) did not
-# train on, so that the shipped network's correction on the default is a transfer to
-# unseen data, not the removal of its own output (docs/notebook/diagnosis.md).
+# The pose-dependent bias the default recording carries (its `learned_bias`): a pairwise
+# network trained only on flights the pairwise network shipped before the link form
+# (recordings/pair_bias_net.json, `rig train --form pair`) did not train on
+# (docs/notebook/diagnosis.md).
 room-bias-net: setup
-	$(RIG) train --apart-from rig/bias/models/bias_net.json --out recordings/room_bias_net.json
+	$(RIG) train --form pair --apart-from recordings/pair_bias_net.json --out recordings/room_bias_net.json
 
 clean:
 	rm -rf out build estimator_c/build

@@ -155,33 +155,36 @@ def test_fresh_training_reproduces_the_shipped_model(tmp_path: Path, data_dir: P
     kept = shipped["training"]
     assert kept["selected_by"] == "validation_rmse_3d" and len(kept["restarts"]) == 3
     assert kept["validation_rmse_3d"] == min(r["validation_rmse_3d"] for r in kept["restarts"])
+    assert kept["config"]["form"] == "link" and shipped["split"]["test"] == []       # rig train --all-flights
     # The kept restart alone (the others only lost the selection): a third of the training time.
-    config = TrainConfig(seed=kept["config"]["seed"], first_restart=kept["restart"], restarts=1,
-                         form=kept["config"].get("form", "pair"))
-    prov = run_training(flights, tmp_path / "bias_net.json", config=config)
+    config = TrainConfig(seed=kept["config"]["seed"], first_restart=kept["restart"], restarts=1, form="link")
+    prov = run_training(flights, tmp_path / "bias_net.json", config=config, all_flights=True)
     assert prov["split"] == shipped["split"]
     assert prov["training"]["validation_mse"] == pytest.approx(kept["validation_mse"], abs=0.01)
     assert prov["validation"]["after"]["std"] == pytest.approx(shipped["validation"]["after"]["std"], abs=RETRAINED_STD)
     assert prov["validation"]["after"]["std"] < prov["validation"]["before"]["std"] - 0.02
-    assert prov["test"]["after_int8"]["std"] == pytest.approx(prov["test"]["after"]["std"], abs=0.001)
+    assert prov["validation"]["after_int8"]["std"] == pytest.approx(prov["validation"]["after"]["std"], abs=0.002)
 
 
 ROOM_NETWORK = ROOT / "recordings" / "room_bias_net.json"
+# The pairwise network shipped before the link form: the default recording's bias was
+# trained on the flights it did not train on (kept, with its provenance, for that record).
+PAIR_NETWORK = ROOT / "recordings" / "pair_bias_net.json"
 
 
 def test_the_default_recordings_bias_is_learned_on_flights_the_shipped_network_did_not_train_on(
         tmp_path: Path, data_dir: Path) -> None:
     """The default recording's `learned_bias` comes from its own network, trained on
-    flights apart from the shipped network's training flights: the shipped network's
-    correction on the default is then a transfer to unseen data. A fresh training of
-    its kept restart reproduces it (to the float arithmetic of another CPU)."""
+    flights apart from the training flights of the pairwise network shipped before
+    (recordings/pair_bias_net.json). A fresh training of its kept restart reproduces it
+    (to the float arithmetic of another CPU)."""
     config = json.loads((ROOM_NETWORK.parent / "default.sim.json").read_text())
     learned = [e["params"] for e in config["effects"] if e["effect"] == "learned_bias"]
     assert learned == [{"gain": 1.0, "network": "recordings/room_bias_net.json"}]
     room = json.loads(provenance_path(ROOM_NETWORK).read_text())
-    shipped = json.loads(provenance_path(DEFAULT_NETWORK).read_text())
-    assert trained_on(DEFAULT_NETWORK) == set(shipped["split"]["train"])
-    assert set(room["flights"]) == set(shipped["flights"]) - trained_on(DEFAULT_NETWORK)   # --apart-from
+    pair = json.loads(provenance_path(PAIR_NETWORK).read_text())
+    assert trained_on(PAIR_NETWORK) == set(pair["split"]["train"])
+    assert set(room["flights"]) == set(pair["flights"]) - trained_on(PAIR_NETWORK)   # --apart-from
     kept = room["training"]
     config = TrainConfig(seed=kept["config"]["seed"], first_restart=kept["restart"], restarts=1,
                          form=kept["config"].get("form", "pair"))       # a model written before forms: pair
@@ -192,8 +195,9 @@ def test_the_default_recordings_bias_is_learned_on_flights_the_shipped_network_d
 
 
 def test_the_shipped_network_removes_part_of_the_default_recordings_bias() -> None:
-    """What the shipped network learned on its flights transfers to the bias learned on
-    others (0.26 -> 0.20 m; on the 0426 flights held out from its training 0.24 -> 0.18 m, docs/notebook/bias.md)."""
+    """The shipped correction removes part of the bias the room network put in the
+    default recording (0.26 -> 0.17 m). It trained on the room network's flights too, so
+    this is no transfer figure: those are docs/notebook/bias-validation.md's."""
     rec = read_recording(ROOM_NETWORK.parent / "default.mcap")
     without, corrected = (evaluate(rec, use_nn=use_nn)["rmse_3d"] for use_nn in (False, True))
     assert corrected < without - 0.03, (without, corrected)
