@@ -12,6 +12,8 @@ from rig.bias.dataset import estimated_poses, flight_samples, truth_latency
 from rig.data.importer import load_any
 from rig.estimator import metrics
 
+pytestmark = pytest.mark.slow        # left out of `make test-fast`
+
 FLIGHT = "0426-traj1"
 
 

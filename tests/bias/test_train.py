@@ -19,6 +19,8 @@ from rig.estimator import native
 from rig.estimator.bias_net import DEFAULT_NETWORK, link_features
 from rig.estimator.evaluate import evaluate
 
+pytestmark = pytest.mark.slow        # left out of `make test-fast`
+
 
 def synthetic_samples(n_flights: int, per_flight: int, seed: int) -> Samples:
     """Features of random tag positions in a real-sized room; the bias lives on links, as

@@ -61,6 +61,7 @@ def _import_and_compare(flight: Path, tmp: Path) -> str | None:
     return None
 
 
+@pytest.mark.slow
 def test_every_shared_flight_imports_without_losing_an_event(tmp_path: Path, data_dir: Path) -> None:
     flights = paths.flights()
     assert len(flights) >= 35
@@ -69,6 +70,7 @@ def test_every_shared_flight_imports_without_losing_an_event(tmp_path: Path, dat
     assert problems == []
 
 
+@pytest.mark.slow
 def test_cli_import_writes_an_mcap_with_the_contract_topics(tmp_path: Path, data_dir: Path) -> None:
     flight = data_dir / "flights" / "0425-traj1"
     out = tmp_path / "x.mcap"
@@ -86,6 +88,8 @@ def test_cli_import_writes_an_mcap_with_the_contract_topics(tmp_path: Path, data
                                                             log_counts["estGyroscope"]])
 
 
+@pytest.mark.slow
+@pytest.mark.slow
 @pytest.mark.parametrize("damage", ["truncate", "corrupt"])
 def test_cli_import_of_a_damaged_log_fails_cleanly(tmp_path: Path, data_dir: Path, damage: str) -> None:
     data = bytearray((data_dir / "flights" / "0425-traj2").read_bytes())
@@ -103,6 +107,7 @@ def test_cli_import_of_a_damaged_log_fails_cleanly(tmp_path: Path, data_dir: Pat
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_cli_salvage_imports_the_valid_prefix_with_a_warning(tmp_path: Path, data_dir: Path) -> None:
     source = data_dir / "flights" / "0425-traj2"
     data = source.read_bytes()
@@ -168,6 +173,7 @@ def _shifted_survey(source: Path, target: Path, dx: float) -> None:
     target.write_text("\n".join(lines) + "\n")
 
 
+@pytest.mark.slow
 def test_a_flight_log_finds_its_survey_beside_it_or_by_option(tmp_path: Path, data_dir: Path) -> None:
     """A copy of the data tree (flights/ and surveys/) with altered files uses its own
     survey; a log renamed away from its day needs --survey, and says so."""

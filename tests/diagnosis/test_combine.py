@@ -14,6 +14,8 @@ from rig.data.recording import read_recording
 from rig.diagnosis.combine import combine, read_models, replace_fitted
 from rig.diagnosis.robust import delay_centre
 
+pytestmark = pytest.mark.slow        # left out of `make test-fast`
+
 
 def _model(offset: float, delays: dict[int, float], nlos: bool = False, drift: float | None = None) -> list[dict]:
     effects = [{"effect": "time_offset", "params": {"seconds": offset}}]

@@ -14,6 +14,8 @@ from rigtest import RIG
 
 from rig.data.paths import default_recording
 
+pytestmark = pytest.mark.slow        # left out of `make test-fast`
+
 
 def test_cli_writes_the_report_contract(tmp_path: Path, survey) -> None:
     recording = tmp_path / "sim.mcap"

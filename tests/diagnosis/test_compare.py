@@ -15,6 +15,8 @@ from rig.diagnosis.compare import TdoaSamples, by_size, change, changes, flight_
 from rig.diagnosis.identifiability import assess
 from rig.diagnosis.report import change_text
 
+pytestmark = pytest.mark.slow        # left out of `make test-fast`
+
 
 def _finding(effect: str, params: dict, evidence: float = 50.0, std_err: dict | None = None, **extra) -> dict:
     return {"effect": effect, "params": params, "evidence": evidence, "std_err": std_err or {}, **extra}

@@ -14,6 +14,8 @@ from rig.diagnosis.floor_error import floor_multipath
 from rig.diagnosis.report import describe
 from rig.sim.effects import TdoaBatch, make_effect
 
+pytestmark = pytest.mark.slow        # left out of `make test-fast`
+
 BAR = 12.0          # what the diagnosis asks of the two parameters of a step
 SAMPLES = 40000
 

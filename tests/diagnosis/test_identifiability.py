@@ -8,6 +8,8 @@ import pytest
 
 from rig.diagnosis.identifiability import assess
 
+pytestmark = pytest.mark.slow        # left out of `make test-fast`
+
 BAR = 10.0          # half a chi-square an effect must remove to be named
 
 

@@ -13,6 +13,8 @@ from rig.data.recording import Vec3Series
 from rig.diagnosis import imu_spectrum
 from rig.sim.effects import ImuBatch, lowpass, make_effect
 
+pytestmark = pytest.mark.slow        # left out of `make test-fast`
+
 RATE = 1000.0
 T = np.arange(0.0, 40.0, 1.0 / RATE)
 

@@ -7,12 +7,15 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 from diagnosis_cases import sim_config
 
 from rig.diagnosis.channels import Problem
 from rig.diagnosis.mismatch import ANGLE_BIN_DEG, locate
 from rig.sim import effects as fx
 from rig.sim.simulate import simulate
+
+pytestmark = pytest.mark.slow        # left out of `make test-fast`
 
 LOCATED_M = 0.08       # a robust mean within this of the injected size (TDOA noise 0.15 m, 3 % outliers)
 

@@ -46,6 +46,8 @@ from rig.diagnosis.report import write as write_report
 from rig.diagnosis.robust import irls
 from rig.sim.simulate import Predictor, SimConfig, inject, simulate
 
+pytestmark = pytest.mark.slow        # left out of `make test-fast`
+
 
 @pytest.mark.parametrize("name", [pytest.param(n, marks=mark(n, NOT_ON_REAL)) for n in CASES])
 def test_a_concealed_effect_in_a_real_flight_is_found_against_its_control(name, real, real_diagnosis) -> None:

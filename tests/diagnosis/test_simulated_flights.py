@@ -48,6 +48,8 @@ from rig.diagnosis.terms import Term, estimate_terms, free_offset_terms
 from rig.sim import effects as fx
 from rig.sim.simulate import Predictor, SimConfig, inject, simulate
 
+pytestmark = pytest.mark.slow        # left out of `make test-fast`
+
 
 @pytest.mark.parametrize("name", [pytest.param(n, marks=mark(n, NOT_ON_SIM)) for n in CASES])
 def test_a_concealed_effect_in_a_simulated_flight_is_named_located_and_measured(name, survey, sim_diagnosis) -> None:

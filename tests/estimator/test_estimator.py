@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 from rigtest import ROOT, run_rig, simulate_exact
 
 from rig.data.importer import import_log
@@ -56,6 +57,7 @@ def test_outlier_bursts_do_not_break_tracking(survey_0425: Path) -> None:
     assert result["tdoa_rejected"] + result["tdoa_downweighted"] > 100
 
 
+@pytest.mark.slow
 def test_rig_evaluate_tells_measurements_refused_at_input_from_those_the_update_rejects(tmp_path: Path) -> None:
     rec = read_recording(ROOT / "recordings" / "default.mcap")
     rec.tdoa.distance_diff[::50] = np.nan
@@ -105,6 +107,7 @@ def test_every_bad_input_is_counted_by_reason_and_never_reaches_the_state(survey
     assert np.max(np.linalg.norm(out["pos"] - truth, axis=1)) < 0.3
 
 
+@pytest.mark.slow
 def test_covariance_stays_symmetric_positive_definite_over_a_real_flight(data_dir: Path) -> None:
     rec = import_log(data_dir / "flights" / "0426-traj7", data_dir / "surveys" / "anchor_0426.txt")
     est, events, _ = _start(rec, native.params_with(use_bias_net=0))
@@ -136,6 +139,7 @@ def test_sixty_seconds_of_flight_take_well_under_a_second(survey_0425: Path) -> 
     assert result["estimator_seconds"] < 0.5
 
 
+@pytest.mark.slow
 def test_estimator_under_sanitizers() -> None:
     if os.environ.get("UWB_RIG_UNDER_SANITIZERS"):
         return  # this is the inner run
@@ -151,6 +155,7 @@ def test_estimator_under_sanitizers() -> None:
     assert "passed" in proc.stdout and "ERROR: AddressSanitizer" not in proc.stderr
 
 
+@pytest.mark.slow
 def test_no_shared_flight_diverges_in_any_configuration_and_robust_averages_under_30_cm(data_dir: Path) -> None:
     from concurrent.futures import ProcessPoolExecutor
 

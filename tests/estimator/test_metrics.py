@@ -70,6 +70,7 @@ def test_no_flight_is_a_clear_error() -> None:
         score(truth.t, truth.position, truth)
 
 
+@pytest.mark.slow
 def test_cli_metrics_and_plot(tmp_path: Path) -> None:
     from rig.data.recording import read_recording
 
@@ -85,6 +86,7 @@ def test_cli_metrics_and_plot(tmp_path: Path) -> None:
     assert (tmp_path / "m.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+@pytest.mark.slow
 def test_cli_demo_runs_the_main_job(tmp_path: Path) -> None:
     proc = run_rig("demo", "--out", str(tmp_path), check=True)
     native = json.loads((tmp_path / "native" / "metrics.json").read_text())

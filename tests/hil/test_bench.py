@@ -8,9 +8,12 @@ import json
 import subprocess
 from pathlib import Path
 
+import pytest
 from rigtest import run_rig
 
 from rig.estimator import native
+
+pytestmark = pytest.mark.slow        # left out of `make test-fast`
 
 
 def _slow_firmware() -> Path:

@@ -12,6 +12,8 @@ from pathlib import Path
 import pytest
 from rigtest import ROOT
 
+pytestmark = pytest.mark.slow        # left out of `make test-fast`
+
 USER_TEST = '''
 def test_default_recording_on_every_board(board):
     metrics = board.replay(duration=12.0)

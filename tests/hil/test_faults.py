@@ -32,6 +32,7 @@ def board_processes() -> set[int]:
     return found
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("signum, status", [(signal.SIGTERM, 143), (signal.SIGHUP, 129)])
 def test_a_signal_mid_replay_finishes_the_record_says_how_it_ended_and_leaves_no_board(
         tmp_path: Path, signum: int, status: int) -> None:
@@ -55,6 +56,7 @@ def test_a_signal_mid_replay_finishes_the_record_says_how_it_ended_and_leaves_no
     assert board_processes() <= before, "the native program outlived the rig"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("option, rule", [
     (["--target", "nonsense"], "unknown target 'nonsense'"),
     (["--board", "*"], "board name '*'"),
@@ -89,6 +91,7 @@ def test_json_is_written_whole_or_not_at_all(tmp_path: Path, monkeypatch) -> Non
     assert [p.name for p in tmp_path.iterdir()] == ["metrics.json"]   # no temporary left behind
 
 
+@pytest.mark.slow
 def test_junit_xml_has_a_testcase_per_board_and_assertion_and_failures_carry_the_figure(tmp_path: Path) -> None:
     import xml.etree.ElementTree as ElementTree
 
@@ -105,6 +108,7 @@ def test_junit_xml_has_a_testcase_per_board_and_assertion_and_failures_carry_the
     assert cases["replay"].find("failure") is None and cases["budget window_max"].find("failure") is None
 
 
+@pytest.mark.slow
 def test_exit_statuses_tell_a_board_that_failed_from_bad_input_and_from_a_bug(tmp_path: Path, monkeypatch,
                                                                               capfd) -> None:
     lost = run_rig("replay", "recordings/default.mcap", "--target", "serial:/dev/nonexistent-board", "--out",

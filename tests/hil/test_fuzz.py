@@ -9,11 +9,14 @@ import subprocess
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from rig.data.recording import Recording
 from rig.estimator import native
 from rig.estimator.evaluate import build_events, start_time, truth_pose_at
 from rig.hil import protocol, replay
+
+pytestmark = pytest.mark.slow        # left out of `make test-fast`
 
 FUZZ_SECONDS = 20
 

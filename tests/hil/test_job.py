@@ -13,8 +13,13 @@ from mcap.reader import make_reader
 from rig.data import paths
 from rig.hil.checks import assertions
 from rig.hil.job import EstimatorChoice, JobFailed, replay_job
-from rig.hil.runrecord import (TOPIC_ESTIMATE, TOPIC_FOXGLOVE_ANCHORS, TOPIC_FOXGLOVE_ESTIMATE,
-                                TOPIC_FOXGLOVE_TRUTH, TOPIC_POSITION_ERROR)
+from rig.hil.runrecord import (
+    TOPIC_ESTIMATE,
+    TOPIC_FOXGLOVE_ANCHORS,
+    TOPIC_FOXGLOVE_ESTIMATE,
+    TOPIC_FOXGLOVE_TRUTH,
+    TOPIC_POSITION_ERROR,
+)
 
 
 def test_a_short_native_replay_writes_its_metrics_record_and_report(tmp_path: Path) -> None:
@@ -31,6 +36,7 @@ def test_a_short_native_replay_writes_its_metrics_record_and_report(tmp_path: Pa
     assert (tmp_path / "report.html").stat().st_size > 10_000
 
 
+@pytest.mark.slow
 def test_the_run_record_opens_in_foxglove_as_a_3d_scene(tmp_path: Path) -> None:
     """Beside the project's topics: the estimate and the ground truth as foxglove.PoseInFrame,
     the anchors as a foxglove.SceneUpdate, the notes as foxglove.Log, and the position

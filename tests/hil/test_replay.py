@@ -20,6 +20,8 @@ from rig.estimator.evaluate import build_events, load_model, make_estimator, sta
 from rig.hil import protocol, replay, targets
 from rig.hil.links import CrtpLink, LinkError, open_url
 
+pytestmark = pytest.mark.slow        # left out of `make test-fast`
+
 
 @pytest.fixture(scope="module")
 def real_rec(data_dir: Path):

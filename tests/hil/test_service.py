@@ -13,9 +13,12 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
 from rigtest import RIG, exit_status, finished_mcap, run_rig, start
 
 from rig.hil.runrecord import read_run
+
+pytestmark = pytest.mark.slow        # left out of `make test-fast`
 
 
 def _free_endpoint() -> str:

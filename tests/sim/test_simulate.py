@@ -39,6 +39,7 @@ def _strapdown(rec: Recording) -> np.ndarray:
     return out
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("trajectory", ["circle", "circle-sine", "smooth-random"])
 def test_integrating_noiseless_imu_reproduces_the_trajectory(survey_0425: Path, trajectory: str) -> None:
     rec = simulate_exact(survey_0425, trajectory, duration=15.0)
@@ -315,12 +316,14 @@ def test_same_seed_same_bytes_other_seed_other_data(tmp_path: Path, survey_0425:
     assert not np.array_equal(other.accel.xyz, read_recording(tmp_path / "a.mcap").accel.xyz)
 
 
+@pytest.mark.slow
 def test_shipped_default_recording_regenerates_byte_identically(tmp_path: Path) -> None:
     out = tmp_path / "default.mcap"
     run_rig("simulate", "--config", "recordings/default.sim.json", "-o", str(out), check=True)
     assert out.read_bytes() == (ROOT / "recordings" / "default.mcap").read_bytes()
 
 
+@pytest.mark.slow
 def test_simulating_a_recordings_own_trajectory(tmp_path: Path, data_dir: Path) -> None:
     from rig.data.importer import import_log
 
