@@ -124,6 +124,7 @@ def test_cli_salvage_imports_the_valid_prefix_with_a_warning(tmp_path: Path, dat
     assert rec.metadata["crc"].startswith("bad")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("damage", ["truncate", "corrupt"])
 def test_a_cut_or_damaged_recording_is_read_up_to_the_damage_with_a_warning(tmp_path: Path, data_dir: Path,
                                                                            damage: str) -> None:
