@@ -263,6 +263,12 @@ def write_doc(rows: list[dict], doc: Path) -> None:
                 cells.append(f"{hit[0]['std_before']:.3f} → {hit[0]['std_after']:.3f} m" if hit else "")
             lines.append(f"| {k} | " + " | ".join(cells) + " |")
     region = [r for r in rows if r["split"] == "region"]
+    planned = {("anchors", form, k) for form in ("link", "pair") for k in range(8)}
+    missing = sorted(planned - {("anchors", r["form"], r["anchor"]) for r in anchors})
+    if missing:
+        lines += ["", "Not run: " + ", ".join(f"anchor {k} ({form})" for _, form, k in missing) + "."]
+    if not region:
+        lines += ["", "## Leave-region-out", "", "Not run yet (the protocol's last split)."]
     if region:
         lines += ["", "## Leave-region-out: TDOA error spread where the tag flew outside the training band", "",
                   "| form | seed | before → after |", "|---|---|---|"]
