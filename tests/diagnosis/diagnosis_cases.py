@@ -43,7 +43,9 @@ def sim_config(survey: Path, effects: list[dict], flight: dict | None = None) ->
 
 
 def findings(result) -> dict[tuple, dict]:
-    return keyed(result.to_json()["findings"])
+    """Every fit a diagnosis reports: its findings and the fits beyond their physical
+    bound it leaves not explained (a concealed effect moves either)."""
+    return keyed(compare.every_fit(result.to_json()))
 
 
 def unnamed(result) -> dict[tuple, dict]:

@@ -459,7 +459,7 @@ def test_corrupt_ranges_and_a_ground_truth_glitch_are_left_out_not_chased(survey
     assert [result["channels"][name]["unusable_left_out"] for name in ("tdoa", "accel", "gyro")] == [10, 5, 0]
     assert result["unknown_anchors"] == [42]
     assert result["channels"]["gyro"]["gross_errors_left_out"] >= 3         # a block mean of each axis
-    assert set(keyed(result["findings"])) == set(sim_control), "the same flight, untouched, names these"
+    assert set(keyed(compare.every_fit(result))) == set(sim_control), "the same flight, untouched, names these"
 
 
 def test_a_scale_regressed_on_the_recording_reports_its_value_and_error_in_the_scales_unit() -> None:
