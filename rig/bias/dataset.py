@@ -78,7 +78,7 @@ def known_pairs(rec: Recording) -> np.ndarray:
     return World.surveyed(rec.anchors).known_pairs(d.id_a, d.id_b) & (d.id_a != d.id_b)
 
 
-def _airborne_tdoa(rec: Recording) -> np.ndarray:
+def airborne_tdoa(rec: Recording) -> np.ndarray:
     start, end = metrics.flight_window(rec.truth, FLIGHT_RULE)
     t = rec.tdoa.t
     return (t >= start) & (t <= end) & known_pairs(rec) & np.isfinite(rec.tdoa.distance_diff)
@@ -102,7 +102,7 @@ def _consistency(err: np.ndarray, pair: np.ndarray) -> float:
 
 def truth_latency(rec: Recording, grid: np.ndarray = LATENCY_GRID_S) -> float:
     """Seconds by which the ground truth lags the drone's clock (best on `grid`)."""
-    sel = _airborne_tdoa(rec)
+    sel = airborne_tdoa(rec)
     if sel.sum() < 100:
         return 0.0
     world = World.surveyed(rec.anchors)
@@ -152,7 +152,7 @@ def flight_samples(rec: Recording, name: str, latency: float | None = None,
     """Every in-flight TDOA measurement of `rec` with |error| <= MAX_ABS_ERROR_M."""
     if latency is None:
         latency = truth_latency(rec)
-    sel = _airborne_tdoa(rec)
+    sel = airborne_tdoa(rec)
     id_a, id_b, t = rec.tdoa.id_a[sel], rec.tdoa.id_b[sel], rec.tdoa.t[sel]
     feats, tag_pos, a_pos, b_pos = measurement_features(rec, sel, latency, features_from)
     label = rec.tdoa.distance_diff[sel] - true_tdoa(tag_pos, a_pos, b_pos)

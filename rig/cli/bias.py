@@ -1,4 +1,5 @@
-"""`rig train`: the TDOA bias network from the shared flights."""
+"""`rig train`: the TDOA bias network from the shared flights; `rig calibrate`: the
+physical link-bias model fitted to them."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ import sys
 from pathlib import Path
 
 from rig.bias.config import FEATURES_FROM, SELECT_BY, TrainConfig
-from rig.cli.common import EXIT_OK, CliError, progress
+from rig.cli.common import EXIT_OK, CliError, progress, write_json
 from rig.data import paths
 from rig.data.paths import SHIPPED_BIAS_NET as DEFAULT_NETWORK
 from rig.estimator.bias_net import FORMS
@@ -17,8 +18,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     from rig.bias.config import FEATURE_SETS
     from rig.bias.train import provenance_path, run_training, trained_on
 
-    flights = [f for f in paths.flights() if any(f.name.startswith(p) for p in args.flights)] \
-        if args.flights else paths.flights()
+    flights = _matching_flights(args.flights)
     if args.apart_from:
         try:
             apart = trained_on(args.apart_from)
@@ -26,8 +26,7 @@ def cmd_train(args: argparse.Namespace) -> int:
             raise CliError(str(exc)) from exc
         flights = [f for f in flights if f.name not in apart]
     if not flights:
-        raise CliError(f"no flight in {paths.data_dir() / 'flights'} matches {args.flights or 'all'}"
-                       + (f" apart from {args.apart_from}'s training flights" if args.apart_from else ""))
+        raise CliError(f"no flight matches {args.flights or 'all'} apart from {args.apart_from}'s training flights")
     if args.restarts < 1:
         raise CliError(f"--restarts must be at least 1, got {args.restarts}")
     try:
@@ -54,7 +53,57 @@ def cmd_train(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _matching_flights(prefixes: list[str] | None) -> list[Path]:
+    flights = [f for f in paths.flights() if any(f.name.startswith(p) for p in prefixes)] if prefixes \
+        else paths.flights()
+    if not flights:
+        raise CliError(f"no flight in {paths.data_dir() / 'flights'} matches {prefixes or 'all'}")
+    return flights
+
+
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    from rig.bias.calibrate import calibrate, load_flights
+    from rig.sim.effects import LINK_TERMS
+
+    if args.bootstrap < 0:
+        raise CliError(f"--bootstrap must be 0 or more, got {args.bootstrap}")
+    flights = _matching_flights(args.flights)
+    rows = load_flights(flights, progress=progress(desc="flights", total=len(flights)))
+    result = calibrate(rows, bootstrap=args.bootstrap, seed=args.seed,
+                       progress=progress(desc="resampling flights", total=args.bootstrap))
+    std = result["tdoa_error_std_m"]
+    print(f"{len(rows)} flights, {result['samples']} measurements: TDOA error std {std['before']:.3f} m, "
+          f"{std['after_delays']:.3f} m after each flight's delays, {std['after_link']:.3f} m after the link bias too")
+    for name in LINK_TERMS:
+        term = result["terms"][name]
+        flag = "" if term["within_bound"] else f"  BEYOND the physical bound of {result['bound_m']} m"
+        print(f"  {name:14s} {term['value_m']:+.3f} m ± {term['spread_m']:.3f}{flag}")
+    write_json(args.out, result)
+    print(f"wrote {args.out}")
+    return EXIT_OK
+
+
 def register(sub) -> None:
+    register_calibrate(sub)
+    register_train(sub)
+
+
+def register_calibrate(sub) -> None:
+    p = sub.add_parser("calibrate", help="fit the physical link-bias model to the shared flights",
+                       description="Fit the range bias every tag-anchor link shares (the anchor's antenna "
+                                   "pattern, the tag's and the airframe's, the received power; the simulator's "
+                                   "`link_bias` effect) to flights with ground truth, with each flight's anchor "
+                                   "delays alongside, robustly; the spread of each coefficient over flights "
+                                   "resampled with replacement. Writes the effects (link_bias and the mean "
+                                   "anchor delays) ready for a `rig simulate` config.")
+    p.add_argument("--flights", nargs="+", metavar="PREFIX", help="use flights whose names start with these")
+    p.add_argument("--bootstrap", type=int, default=20, help="resamplings of the flights for the spread")
+    p.add_argument("--seed", type=int, default=0, help="seeds the resampling")
+    p.add_argument("--out", type=Path, default=Path("link_bias.json"))
+    p.set_defaults(func=cmd_calibrate)
+
+
+def register_train(sub) -> None:
     p = sub.add_parser("train", help="train the TDOA bias network on the shared flights (torch, CPU)",
                        description="Build the dataset (14 features from the C feature code at the estimator's own "
                                    "pose, label = measured - true TDOA, |error| <= 1 m, in flight), split by "

@@ -1,6 +1,7 @@
 """The simulator's effect catalog, one module per stage: `world` (what is physically
-true), `tdoa`, `imu` and `timing`, on the building blocks of `base`. `make_effect`
-builds one from its catalog name and parameters, so a simulation (or a fitted model
+true), `tdoa` (with `link`, the bias every tag–anchor link shares), `imu` and
+`timing`, on the building blocks of `base`. `make_effect` builds one from its
+catalog name and parameters, so a simulation (or a fitted model
 from the diagnosis) is a plain JSON list of effects."""
 
 from __future__ import annotations
@@ -57,9 +58,9 @@ from rig.sim.effects.tdoa import (
     TagAntennaPattern,
     TdoaNoise,
     on_ground_weight,
-    pattern_basis,
     viewing_angles,
 )
+from rig.sim.effects.link import LINK_BOUND_M, LINK_TERMS, LinkBias, link_basis, pattern_basis, tdoa_basis
 from rig.sim.effects.timing import ClockDrift, TimeOffset
 from rig.sim.effects.world import AnchorPosition, LeverArm
 
@@ -67,17 +68,18 @@ __all__ = ["CORRUPTION", "FILTERED", "NOISE", "RECTIFIED", "SCALE", "SIGNAL", "T
            "Effect", "ImuBatch", "TdoaBatch", "World", "Region", "make_effect", "effects_from_json", "params_by_name",
            "anchor_sign", "ranges", "staged", "apply_imu", "sample_rate", "vibration_level", "lowpass",
            "lowpass_design", "LOWPASS_MAX_SHARE", "resonance_design", "resonance_gain", "resonant_noise",
-           "filter_noise_gain", "on_ground_weight", "pattern_basis", "viewing_angles",
+           "filter_noise_gain", "on_ground_weight", "pattern_basis", "viewing_angles", "link_basis", "tdoa_basis",
+           "LINK_TERMS", "LINK_BOUND_M",
            "ImuAccelBias", "ImuGyroBias", "ImuAccelScale", "ImuGyroScale", "ImuVibrationRectification", "ImuNoise",
            "ImuVibration", "ImuResonance", "ImuLowpass", "TdoaNoise", "Outliers", "TimeOffset", "ClockDrift",
            "AnchorPosition", "LeverArm", "AnchorDelay", "AntennaPattern", "TagAntennaPattern", "Nlos",
-           "MultipathFloor", "OnGroundDelay", "LearnedBias"]
+           "MultipathFloor", "OnGroundDelay", "LearnedBias", "LinkBias"]
 
 EFFECTS: dict[str, type[Effect]] = {
     cls.name: cls for cls in (ImuAccelBias, ImuGyroBias, ImuAccelScale, ImuGyroScale, ImuVibrationRectification,
                               ImuNoise, ImuVibration, ImuResonance, ImuLowpass, TdoaNoise, Outliers,
                               TimeOffset, ClockDrift, AnchorPosition, LeverArm, AnchorDelay, AntennaPattern,
-                              TagAntennaPattern, Nlos, MultipathFloor, OnGroundDelay, LearnedBias)
+                              TagAntennaPattern, LinkBias, Nlos, MultipathFloor, OnGroundDelay, LearnedBias)
 }
 
 

@@ -30,6 +30,7 @@ from rig.sim.effects.base import (
     _vec3,
     _Windowed,
 )
+from rig.sim.effects.link import direction_angles, pattern_basis
 
 
 class TdoaNoise(Effect):
@@ -99,21 +100,7 @@ class AnchorDelay(_Windowed, Effect):
 def viewing_angles(tdoa: TdoaBatch, world: World, anchor: int) -> tuple[np.ndarray, np.ndarray]:
     """Azimuth and elevation (rad) of the tag seen in `anchor`'s own frame."""
     rel = tdoa.tag_position - world.anchor_positions[anchor]
-    return _azimuth_elevation(world.anchor_rotations[anchor].inv().apply(rel))
-
-
-def _azimuth_elevation(local: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Azimuth and elevation (rad) of direction vectors given in some frame."""
-    return np.arctan2(local[:, 1], local[:, 0]), np.arcsin(np.clip(local[:, 2] / np.linalg.norm(local, axis=1),
-                                                                   -1.0, 1.0))
-
-
-def pattern_basis(azimuth: np.ndarray, elevation: np.ndarray) -> np.ndarray:
-    """The antenna-pattern bias terms: the second-order real spherical harmonics that do
-    not look like a displaced antenna (first order) or a delay (constant):
-    sin²(el) − 1/3, cos²(el)·cos(2 az), cos²(el)·sin(2 az)."""
-    c2 = np.cos(elevation) ** 2
-    return np.stack([np.sin(elevation) ** 2 - 1.0 / 3.0, c2 * np.cos(2 * azimuth), c2 * np.sin(2 * azimuth)], axis=1)
+    return direction_angles(world.anchor_rotations[anchor].inv().apply(rel))
 
 
 class AntennaPattern(_Windowed, Effect):
@@ -155,7 +142,7 @@ class TagAntennaPattern(Effect):
     def range_bias(self, position: np.ndarray, attitude: Rotation, world: World, ids: np.ndarray) -> np.ndarray:
         """Each range's bias from anchor ids[k], seen in the tag's body frame."""
         anchors, _ = world.anchor_poses(ids)
-        return pattern_basis(*_azimuth_elevation(attitude.inv().apply(anchors - position))) @ self.coeffs
+        return pattern_basis(*direction_angles(attitude.inv().apply(anchors - position))) @ self.coeffs
 
     def apply_tdoa(self, tdoa: TdoaBatch, world: World, rng: np.random.Generator | None) -> None:
         known = np.flatnonzero(world.known_pairs(tdoa.id_a, tdoa.id_b))
