@@ -2,11 +2,17 @@
 
 from __future__ import annotations
 
+import os
+import tempfile
 from pathlib import Path
 
 import pytest
 
 from rig.data import paths
+
+# The recordings' binary cache (rig.data.cache) in a directory of this session's own,
+# inherited by every `rig` the tests start: no test reads what another run left.
+os.environ["UWB_RIG_CACHE"] = tempfile.mkdtemp(prefix="uwb-rig-cache-")
 
 
 @pytest.fixture(scope="session")

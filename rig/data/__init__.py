@@ -1,6 +1,6 @@
 """rig.data — the flights as files: the Crazyflie uSD event-log decoder (`usdlog`), anchor
-surveys and their frames (`survey`), MCAP recordings in SI units (`recording`), the
-importer that turns a log and a survey into a recording (`importer`), where the shared
+surveys and their frames (`survey`), MCAP recordings in SI units (`recording`) and their binary
+cache (`cache`), the importer that turns a log and a survey into a recording (`importer`), where the shared
 data and the shipped files are (`paths`) and the exceptions that mean bad input
 (`errors`).
 

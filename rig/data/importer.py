@@ -95,12 +95,12 @@ def import_log(log_path: Path, survey_path: Path, *, salvage: bool = False, uwb_
 def load_any(path: Path, survey: Path | None = None) -> Recording:
     """An MCAP recording, or a flight log imported with `survey` (by default its day's,
     see `paths.survey_for`). An MCAP recording carries its own anchors."""
+    from rig.data.cache import read_cached
     from rig.data.paths import survey_for
-    from rig.data.recording import read_recording
 
     path = Path(path)
     if path.suffix == ".mcap":
         if survey is not None:
             raise LogFormatError(f"{path}: an MCAP recording carries its own anchors; --survey is for flight logs")
-        return read_recording(path)
+        return read_cached(path)
     return import_log(path, survey or survey_for(path))

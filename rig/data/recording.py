@@ -350,9 +350,15 @@ def read_topics(path: Path, topics: Iterable[str] | None = None) -> tuple[dict[s
     path = Path(path)
     if not path.is_file():
         raise RecordingError(f"recording {path} does not exist")
+    return _read_topics_checked(path, topics)[:2]
+
+
+def _read_topics_checked(path: Path, topics: Iterable[str] | None
+                         ) -> tuple[dict[str, list[dict]], dict[str, dict[str, str]], bool]:
+    """read_topics, and whether the file was read whole (not salvaged)."""
     wanted = set(topics) if topics is not None else None
     try:
-        return _read_whole(path, wanted)
+        return (*_read_whole(path, wanted), True)
     except Exception as exc:  # the mcap reader raises many types for damaged files
         messages, metadata = _read_prefix(path, wanted)
         count = sum(map(len, messages.values()))
@@ -360,7 +366,7 @@ def read_topics(path: Path, topics: Iterable[str] | None = None) -> tuple[dict[s
             raise RecordingError(f"cannot read {path} as MCAP: {exc} (and no message before the damage)") from exc
         log.warning("%s is unfinished or damaged: read the %d messages before its first damaged record (%s)",
                     path, count, exc)
-        return messages, metadata
+        return messages, metadata, False
 
 
 def _read_whole(path: Path, wanted: set[str] | None) -> tuple[dict[str, list[dict]], dict[str, dict[str, str]]]:
@@ -395,8 +401,13 @@ def _read_prefix(path: Path, wanted: set[str] | None) -> tuple[dict[str, list[di
 
 def read_recording(path: Path) -> Recording:
     """Read a recording written by `write_recording` (or a run record holding its topics)."""
+    return read_recording_checked(path)[0]
+
+
+def read_recording_checked(path: Path) -> tuple[Recording, bool]:
+    """read_recording, and whether the file was read whole (not salvaged)."""
     topics = (TOPIC_ACCEL, TOPIC_GYRO, TOPIC_TDOA, TOPIC_TRUTH, TOPIC_ANCHORS)
-    messages, metadata = read_topics(path, topics)
+    messages, metadata, whole = _read_topics_checked(path, topics)
     rec = Recording(
         accel=_vec3(messages.get(TOPIC_ACCEL, [])),
         gyro=_vec3(messages.get(TOPIC_GYRO, [])),
@@ -407,4 +418,4 @@ def read_recording(path: Path) -> Recording:
     )
     if not rec.anchors:
         raise RecordingError(f"{path} has no anchor set on {TOPIC_ANCHORS}")
-    return rec
+    return rec, whole

@@ -162,7 +162,7 @@ def replay_job(recording: Path, target: str, out: Path, estimator: EstimatorChoi
     if report:
         from rig.hil.report import write_report
 
-        write_report(out)
+        write_report(out, recorder.kept)
     return result
 
 

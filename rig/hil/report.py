@@ -140,10 +140,12 @@ def _cell(value) -> str:
     return html.escape(str(value))
 
 
-def write_report(directory: Path) -> Path:
-    """Write DIR/report.html from DIR/run.mcap and DIR/metrics.json; returns its path."""
+def write_report(directory: Path, messages: dict[str, list[dict]] | None = None) -> Path:
+    """Write DIR/report.html from DIR/run.mcap (or its `messages` by topic, as the replay
+    that wrote it still holds them) and DIR/metrics.json; returns its path."""
     directory = Path(directory)
-    messages = read_run(directory / RUN_FILE)
+    if messages is None:
+        messages = read_run(directory / RUN_FILE)
     metrics_path = directory / "metrics.json"
     metrics = json.loads(metrics_path.read_text()) if metrics_path.exists() else {}
     stats = innovation_stats(messages)

@@ -106,6 +106,7 @@ class RunRecorder:
     path: Path
     failed: str | None = None
     messages: int = 0
+    kept: dict = field(default_factory=dict)   # topic -> messages, of the topics the report reads (REPORTED)
     _out: McapJsonWriter | None = None
     _channels: dict = field(default_factory=dict)
     _truth: tuple | None = None          # times and positions of the ground truth, for the position error
@@ -188,6 +189,8 @@ class RunRecorder:
         return self._out is not None and self.failed is None
 
     def _write(self, topic: str, schema: str, t: float, obj, raw: bool = False) -> None:
+        if topic in REPORTED:
+            self.kept.setdefault(topic, []).append(json.loads(obj) if raw else obj)
         if not self._ready():
             return
         def write() -> None:
@@ -211,6 +214,11 @@ class RunRecorder:
         if self.failed is None:
             self.failed = f"run record {self.path}: {exc.strerror or exc} after {self.messages} messages"
             log.error("%s; the replay goes on, the record keeps what was written", self.failed)
+
+
+# What the run report reads: kept in memory as written, so the report of a replay does
+# not read its record back.
+REPORTED = (TOPIC_ESTIMATE, TOPIC_TRUTH, TOPIC_TIMING, TOPIC_TDOA, TOPIC_ANCHORS)
 
 
 def read_run(path: Path) -> dict[str, list[dict]]:

@@ -1,6 +1,6 @@
 """A replay job from Python, as `rig replay` runs it: the native program on a pty, the
 outputs in a directory (metrics.json, a run record the stock MCAP reader reads, the
-report), and a board that does not exist reported with what was kept."""
+report, built from memory as it would be from the record), and a board that does not exist reported with what was kept."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ from mcap.reader import make_reader
 from rig.data import paths
 from rig.hil.checks import assertions
 from rig.hil.job import EstimatorChoice, JobFailed, replay_job
+from rig.hil.report import write_report
 from rig.hil.runrecord import (
     TOPIC_ESTIMATE,
     TOPIC_FOXGLOVE_ANCHORS,
@@ -33,7 +34,10 @@ def test_a_short_native_replay_writes_its_metrics_record_and_report(tmp_path: Pa
         counts = reader.get_summary().statistics.channel_message_counts
         topics = {c.id: c.topic for c in reader.get_summary().channels.values()}
     assert {topics[k]: n for k, n in counts.items()}[TOPIC_ESTIMATE] == result["n_estimates"]
-    assert (tmp_path / "report.html").stat().st_size > 10_000
+    report = tmp_path / "report.html"
+    assert report.stat().st_size > 10_000
+    built_in_memory = report.read_bytes()              # from what the replay held: the same as from its record
+    assert write_report(tmp_path) == report and report.read_bytes() == built_in_memory
 
 
 @pytest.mark.slow
