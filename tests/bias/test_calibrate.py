@@ -9,11 +9,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from rigtest import run_rig
 
 from rig.bias.calibrate import calibrate, flight_rows
 from rig.sim.effects import LINK_BOUND_M, LINK_TERMS, effects_from_json
 from rig.sim.simulate import SimConfig, simulate
-from rigtest import run_rig
 
 COEFFS = [-0.45, 0.05, 0.2, -0.2, -0.4, 0.1]
 

@@ -8,11 +8,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from rigtest import simulate_exact
 
 from rig.data import cache
 from rig.data.cache import read_cached as read_recording
 from rig.data.recording import write_recording
-from rigtest import simulate_exact
 
 
 def assert_same(a, b) -> None:

@@ -8,11 +8,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from rigtest import FULL_PRECISION
 from scipy.spatial.transform import Rotation, Slerp
 
 from rig.sim.effects import LINK_TERMS, make_effect
 from rig.sim.simulate import SimConfig, simulate
-from rigtest import FULL_PRECISION
 
 COEFFS = np.array([-0.45, 0.05, 0.2, -0.2, -0.4, 0.1])
 
