@@ -8,7 +8,9 @@ against the C sizes at load time, so a drifted header fails loudly.
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
+import fcntl
 import logging
 import os
 import subprocess
@@ -77,9 +79,23 @@ def _sources() -> list[Path]:
     return [p for p in ESTIMATOR_DIR.rglob("*") if p.suffix in (".c", ".h") or p.name == "Makefile"]
 
 
+@contextlib.contextmanager
+def _build_lock():
+    """One build at a time across processes (parallel test workers, a farm's boards):
+    two makes in one tree would write the same objects and libraries at once."""
+    BUILD_DIR.mkdir(parents=True, exist_ok=True)
+    with open(BUILD_DIR / ".lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
+
+
 def make(*targets: str) -> None:
     """Run the estimator's Makefile for `targets`; a failure carries the compiler output."""
-    proc = subprocess.run(["make", "-s", "-C", str(ESTIMATOR_DIR), *targets], capture_output=True, text=True)
+    with _build_lock():
+        proc = subprocess.run(["make", "-s", "-C", str(ESTIMATOR_DIR), *targets], capture_output=True, text=True)
     if proc.returncode != 0:
         raise NativeBuildError(f"building {' '.join(targets)} failed:\n{proc.stdout}{proc.stderr}")
 
@@ -88,7 +104,7 @@ def built(artifact: Path, make_target: str) -> Path:
     """`artifact`, rebuilt with `make make_target` when missing or older than any source."""
     newest = max(p.stat().st_mtime for p in _sources())
     if not artifact.exists() or artifact.stat().st_mtime < newest:
-        make(make_target)
+        make(make_target)           # under the lock, make itself skips what another process just built
     if not artifact.exists():
         raise NativeBuildError(f"make {make_target} did not produce {artifact}")
     return artifact

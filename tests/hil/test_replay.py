@@ -207,6 +207,7 @@ def test_a_board_that_resets_mid_replay_fails_clearly_and_keeps_the_record(defau
     assert any(r["code"] == protocol.STATUS_BOOT for r in record[TOPIC_STATUS])
 
 
+@pytest.mark.serial
 def test_real_time_mode_gives_the_lock_step_estimates_and_counts_a_lost_window(default_rec) -> None:
     """Real time at 2x on the native program: every window answered in order with the
     same estimates as lock-step, latencies measured; a window lost on the link (the
@@ -235,6 +236,7 @@ def test_real_time_mode_gives_the_lock_step_estimates_and_counts_a_lost_window(d
     np.testing.assert_array_equal(positions(rt)[:len(same)], np.array([e[1] for e in same], np.float32))
 
 
+@pytest.mark.serial
 def test_real_time_mode_exposes_the_slow_qemu_link_that_lock_step_hides(tmp_path: Path) -> None:
     """QEMU's emulated UART takes about 75 us a byte: lock-step hides it (every window
     still meets the board's budget), real time at 3x the recording's clock shows the
