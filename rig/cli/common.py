@@ -61,9 +61,16 @@ def add_estimator_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("recording", type=Path, nargs="?", default=paths.default_recording(),
                    help="MCAP recording or shared flight log (default: the shipped default recording)")
     survey_option(p)
+    strict_option(p)
     p.add_argument("--no-nn", action="store_true", help="no bias-network correction")
     p.add_argument("--no-robust", action="store_true", help="plain EKF update instead of M-estimation")
     p.add_argument("--model", type=Path, help="bias network JSON (default: the shipped model)")
+
+
+def strict_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--strict", action="store_true",
+                   help="a damaged or unfinished recording is an error (exit 2); by default the messages before "
+                        "the damage are used, with a warning")
 
 
 def survey_option(p: argparse.ArgumentParser) -> None:

@@ -8,15 +8,15 @@ import json
 import sys
 from pathlib import Path
 
-from rig.cli.common import EXIT_OK, CliError, progress, survey_option
+from rig.cli.common import EXIT_OK, CliError, progress, strict_option, survey_option
 
 CHANGES_PRINTED = 12           # `rig diagnose --control`: the largest changes printed (all in report.md)
 
 
-def flight_to_diagnose(path: Path, survey: Path | None):
+def flight_to_diagnose(path: Path, survey: Path | None, strict: bool = False):
     from rig.data.importer import load_any
 
-    rec = load_any(path, survey)
+    rec = load_any(path, survey, strict=strict)
     if len(rec.truth) < 10:
         raise CliError(f"{path}: no ground truth to simulate the flight from")
     return rec
@@ -27,8 +27,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     from rig.diagnosis.diagnose import diagnose
     from rig.diagnosis.report import CONTROL_DIR, REPORT_JSON, REPORT_MD, write
 
-    rec = flight_to_diagnose(args.recording, args.survey)      # both read before either is diagnosed
-    control_rec = flight_to_diagnose(args.control, args.survey) if args.control is not None else None
+    rec = flight_to_diagnose(args.recording, args.survey, args.strict)      # both read before either is diagnosed
+    control_rec = flight_to_diagnose(args.control, args.survey, args.strict) if args.control is not None else None
     if control_rec is None:
         result = diagnose(rec, progress=progress(desc="diagnose channels"))
         report = write(result, args.out, str(args.recording))
@@ -113,6 +113,7 @@ def register(sub) -> None:
                                    "effect list). See docs/guide/diagnosis.md.")
     p.add_argument("recording", type=Path, help="recording (MCAP, or a flight log of the shared data)")
     survey_option(p)
+    strict_option(p)
     p.add_argument("--out", type=Path, required=True, help="output directory")
     p.add_argument("--control", type=Path, metavar="RECORDING",
                    help="a control recording of the same flight (as it was before a change, or before effects "

@@ -28,7 +28,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     from rig.data.importer import load_any
     from rig.estimator.evaluate import evaluate
 
-    rec = load_any(args.recording, args.survey)
+    rec = load_any(args.recording, args.survey, strict=args.strict)
     result = evaluate(rec, robust=not args.no_robust, use_nn=not args.no_nn, model_path=args.model)
     result["recording"] = str(args.recording)
     config = ("robust" if not args.no_robust else "plain") + (" + bias network" if result["config"]["bias_net"] else "")

@@ -82,7 +82,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         result = replay_into(args.recording, args.target, args.out, estimator_choice(args), start=args.start,
                              duration=args.duration, lookahead=args.lookahead,
                              speed=args.speed if args.mode == "realtime" else None, session=session,
-                             board=args.board, survey=args.survey, junit=args.junit_xml)
+                             board=args.board, survey=args.survey, junit=args.junit_xml, strict=args.strict)
     finally:
         session.close()
     asserted = checks(result, args.assert_rmse, args.assert_budget, deadlines=args.assert_deadlines)

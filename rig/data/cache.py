@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from rig.data.errors import RecordingError
 from rig.data.recording import PoseSeries, Recording, TdoaSeries, Vec3Series, read_recording_checked
 from rig.data.survey import Anchor
 
@@ -47,14 +48,17 @@ def _entry(path: Path) -> Path | None:
     return root / "recordings" / (hashlib.sha256(key.encode()).hexdigest()[:32] + ".npz")
 
 
-def read_cached(path: Path) -> Recording:
+def read_cached(path: Path, strict: bool = False) -> Recording:
     """The recording at `path`: from the cache if it holds this very file, else read
-    from it (and cached when it was read whole)."""
+    from it (and cached when it was read whole). `strict`: a damaged or unfinished
+    file is an error, not the part of it before the damage."""
     rec = load(path)
     if rec is None:
         rec, whole = read_recording_checked(path)
         if whole:
             store(path, rec)
+        elif strict:
+            raise RecordingError(f"{path} is damaged or unfinished (--strict: not used in part)")
     return rec
 
 

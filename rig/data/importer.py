@@ -92,9 +92,10 @@ def import_log(log_path: Path, survey_path: Path, *, salvage: bool = False, uwb_
     )
 
 
-def load_any(path: Path, survey: Path | None = None) -> Recording:
+def load_any(path: Path, survey: Path | None = None, strict: bool = False) -> Recording:
     """An MCAP recording, or a flight log imported with `survey` (by default its day's,
-    see `paths.survey_for`). An MCAP recording carries its own anchors."""
+    see `paths.survey_for`). An MCAP recording carries its own anchors. `strict`: a
+    damaged recording is an error (a damaged log always is, without `--salvage`)."""
     from rig.data.cache import read_cached
     from rig.data.paths import survey_for
 
@@ -102,5 +103,5 @@ def load_any(path: Path, survey: Path | None = None) -> Recording:
     if path.suffix == ".mcap":
         if survey is not None:
             raise LogFormatError(f"{path}: an MCAP recording carries its own anchors; --survey is for flight logs")
-        return read_cached(path)
+        return read_cached(path, strict)
     return import_log(path, survey or survey_for(path))

@@ -98,7 +98,7 @@ def board_link(target: str, session, board: str):
 def replay_job(recording: Path, target: str, out: Path, estimator: EstimatorChoice = EstimatorChoice(), *,
                start: float | None = None, duration: float | None = None, lookahead: int = 0,
                speed: float | None = None, report: bool = True, session=None, board: str = "local",
-               survey: Path | None = None, progress=None) -> dict:
+               survey: Path | None = None, progress=None, strict: bool = False) -> dict:
     """Replay `recording` into `target` (through zenoh `session`, or a private one) and
     write OUT/run.mcap, OUT/metrics.json and, with `report`, OUT/report.html. Returns
     what metrics.json holds; raises JobFailed (after writing both files) when the board
@@ -112,7 +112,7 @@ def replay_job(recording: Path, target: str, out: Path, estimator: EstimatorChoi
     from rig.hil.zenoh import open_session
 
     check_options(target, board, start, duration, lookahead, speed)
-    rec = load_any(recording, survey)
+    rec = load_any(recording, survey, strict=strict)
     first, last = start_time(rec) if start is None else start, float(rec.time_span()[1])
     if first >= last:
         raise InputError(f"--start {first:g} s is past the end of {recording} ({last:g} s on its clock)")

@@ -126,7 +126,7 @@ def test_cli_salvage_imports_the_valid_prefix_with_a_warning(tmp_path: Path, dat
 
 @pytest.mark.slow
 @pytest.mark.parametrize("damage", ["truncate", "corrupt"])
-def test_a_cut_or_damaged_recording_is_read_up_to_the_damage_with_a_warning(tmp_path: Path, data_dir: Path,
+def test_a_cut_or_damaged_recording_is_read_up_to_the_damage_with_a_warning_or_refused_when_strict(tmp_path: Path, data_dir: Path,
                                                                            damage: str) -> None:
     whole = tmp_path / "whole.mcap"
     write_recording(load_any(data_dir / "flights" / "0425-traj2"), whole)
@@ -140,6 +140,12 @@ def test_a_cut_or_damaged_recording_is_read_up_to_the_damage_with_a_warning(tmp_
     proc = run_rig("evaluate", str(damaged))
     assert proc.returncode == 0, proc.stderr
     assert "unfinished or damaged" in proc.stderr and "Traceback" not in proc.stderr
+    out = tmp_path / "out"
+    for command in (["evaluate"], ["replay", "--target", "native", "--out", str(out)], ["diagnose", "--out", str(out)]):
+        strict = run_rig(*command, str(damaged), "--strict")          # --strict: an error, nothing scored
+        assert strict.returncode == 2, (command, strict.stderr)
+        assert "damaged or unfinished (--strict" in strict.stderr and "Traceback" not in strict.stderr
+    assert not out.exists()
     original, salvaged = read_recording(whole), read_recording(damaged)
     n = len(salvaged.accel)
     assert 0 < n < len(original.accel) and salvaged.anchors == original.anchors
