@@ -11,10 +11,11 @@ setup:
 demo: setup
 	$(RIG) demo --out out/demo
 
-# The whole suite: two workers (a test file stays on one), then the tests that measure
-# time as it passes, alone, so that the other worker's load does not make them late.
+# The whole suite: two workers (a test file stays on one; BLAS single-threaded in each,
+# or four spinning threads fight over two cores), then the tests that measure time as it
+# passes, alone, so that the other worker's load does not make them late.
 test: setup
-	$(PYTEST) -q -n 2 --dist loadfile -m "not serial" --durations=15
+	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 $(PYTEST) -q -n 2 --dist loadfile -m "not serial" --durations=15
 	$(PYTEST) -q -m serial
 
 # What to run while working (under 3 minutes): the C unit tests, then every test not

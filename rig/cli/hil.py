@@ -23,7 +23,7 @@ from rig.data import paths
 def replay_into(recording: Path, target: str, out: Path, estimator, junit: Path | None = None, **options) -> dict:
     """One replay job (rig.hil.job) with its summary printed; a board that failed is a
     one-line error that names what was kept (and, with `junit`, a failed testcase)."""
-    from rig.hil.checks import write_junit
+    from rig.hil.checks import replay_cases, write_junit
     from rig.hil.job import JobFailed, replay_job
 
     try:
@@ -31,7 +31,7 @@ def replay_into(recording: Path, target: str, out: Path, estimator, junit: Path 
                             **options)
     except JobFailed as exc:
         if junit is not None:
-            write_junit(junit, "rig.replay", [(target, [], exc.result)])
+            write_junit(junit, "rig.replay", [replay_cases(target, [], exc.result)])
         raise BoardError(str(exc)) from exc
     print_replay(result, report=options.get("report", True))
     if result["run_record_error"]:
@@ -72,7 +72,7 @@ def estimator_choice(args: argparse.Namespace):
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
-    from rig.hil.checks import checks, write_junit
+    from rig.hil.checks import checks, replay_cases, write_junit
     from rig.hil.job import check_options
     from rig.hil.zenoh import open_session
 
@@ -87,7 +87,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         session.close()
     asserted = checks(result, args.assert_rmse, args.assert_budget, deadlines=args.assert_deadlines)
     if args.junit_xml:
-        write_junit(args.junit_xml, "rig.replay", [(args.target, asserted, result)])
+        write_junit(args.junit_xml, "rig.replay", [replay_cases(args.target, asserted, result)])
     failed = [c.message for c in asserted if not c.passed]
     for reason in failed:
         print(f"rig replay: assertion failed: {reason}", file=sys.stderr)
@@ -118,6 +118,7 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 def cmd_farm(args: argparse.Namespace) -> int:
     """Many boards at once (rig.hil.farm); exit 1 when any board failed."""
+    from rig.hil.checks import replay_cases, write_junit
     from rig.hil.farm import FARM_FILE, farm_jobs, run_farm
 
     try:
@@ -130,6 +131,9 @@ def cmd_farm(args: argparse.Namespace) -> int:
         state = r.get("error") or f"RMSE {r['rmse_3d']:.3f} m, {r['n_estimates']} estimates"
         print(f"board{k} ({r['target']}, {r['recording']}): {state}")
     print(f"wrote {args.out / FARM_FILE}")
+    if args.junit_xml:
+        write_junit(args.junit_xml, "rig.farm", [replay_cases(f"board{k}", [], r) for k, r in enumerate(results)])
+        print(f"wrote {args.junit_xml}")
     return EXIT_FAILED if any(r.get("error") for r in results) else EXIT_OK
 
 
@@ -147,6 +151,10 @@ def cmd_bench(args: argparse.Namespace) -> int:
         try:
             current.append(bench.measure(target, rec, start, duration, binaries.get(target)))
         except LinkError as exc:
+            if args.junit_xml and baseline is not None:
+                from rig.hil.checks import Check, write_junit
+
+                write_junit(args.junit_xml, "rig.bench", [(target, [Check("replay", False, str(exc))], 0.0)])
             raise BoardError(str(exc)) from exc
     document = bench.baseline_document(current, str(args.recording), start, duration)
     if baseline is None:
@@ -167,10 +175,27 @@ def cmd_bench(args: argparse.Namespace) -> int:
     regressed = [r for r in rows if r["regressed"]]
     write_json(args.json, {**document, "baseline": str(args.baseline), "comparison": rows,
                            "regressions": len(regressed)})
+    if args.junit_xml:
+        from rig.hil.checks import write_junit
+
+        write_junit(args.junit_xml, "rig.bench", bench_cases(rows))
     for r in regressed:
         print(f"rig bench: {r['target']} {r['figure']} regressed by {r['ratio'] - 1:.1%} "
               f"(threshold {r['threshold']:.0%})", file=sys.stderr)
     return EXIT_FAILED if regressed else EXIT_OK
+
+
+def bench_cases(rows: list[dict]) -> list:
+    """One testcase per figure of each target: the current figure against the baseline's
+    and its threshold (figures the bench does not compare pass, saying so)."""
+    from rig.hil.checks import Check
+
+    groups: dict[str, list] = {}
+    for r in rows:
+        bar = f"baseline {r['baseline']:.0f}, threshold +{r['threshold']:.0%}" if r["compared"] else "not compared"
+        groups.setdefault(r["target"], []).append(Check(
+            r["figure"], not r["regressed"], f"{r['current']:.0f} {r['unit']} (ratio {r['ratio']:.3f}; {bar})"))
+    return [(target, group, 0.0) for target, group in groups.items()]
 
 
 def cmd_router(args: argparse.Namespace) -> int:
@@ -279,6 +304,8 @@ def register(sub) -> None:
     p.add_argument("--json", type=Path, default=Path("out/bench.json"), help="figures and comparison")
     p.add_argument("--program", type=Path, help="native program to measure (default: build it)")
     p.add_argument("--firmware", type=Path, help="firmware ELF to measure (default: build it)")
+    p.add_argument("--junit-xml", type=Path, metavar="FILE",
+                   help="write a JUnit XML report: one testcase per figure of each target, a regression failing with its figure, the baseline's and the threshold")
     p.set_defaults(func=cmd_bench)
     p = sub.add_parser("report", help="write DIR/report.html from a replay's run.mcap and metrics.json",
                        description="The trajectory against ground truth, the error over time, per-anchor "
@@ -297,6 +324,8 @@ def register(sub) -> None:
     p.add_argument("--duration", type=float, help="seconds of each recording to replay")
     p.add_argument("--listen", default="tcp/127.0.0.1:7447", help="the router's endpoint (default %(default)s)")
     p.add_argument("--no-nn", action="store_true", help="without the bias network")
+    p.add_argument("--junit-xml", type=Path, metavar="FILE",
+                   help="write a JUnit XML report: one testcase per board (its replay ran to its end), a failure carrying its error")
     p.set_defaults(func=cmd_farm)
     p = sub.add_parser("router", help="a zenoh router (a Python session in router mode) for boards and rigs",
                        description="Run a zenoh router on explicit endpoints (no multicast scouting) until "

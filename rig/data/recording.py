@@ -347,15 +347,15 @@ def read_topics(path: Path, topics: Iterable[str] | None = None) -> tuple[dict[s
     An unfinished or damaged file (a writer killed before it closed it, a copy cut
     short) yields the records before its first damaged one, with a warning; one with
     none is an error."""
-    path = Path(path)
-    if not path.is_file():
-        raise RecordingError(f"recording {path} does not exist")
     return _read_topics_checked(path, topics)[:2]
 
 
 def _read_topics_checked(path: Path, topics: Iterable[str] | None
                          ) -> tuple[dict[str, list[dict]], dict[str, dict[str, str]], bool]:
     """read_topics, and whether the file was read whole (not salvaged)."""
+    path = Path(path)
+    if not path.is_file():
+        raise RecordingError(f"recording {path} does not exist")
     wanted = set(topics) if topics is not None else None
     try:
         return (*_read_whole(path, wanted), True)

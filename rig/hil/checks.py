@@ -64,24 +64,33 @@ def assertions(result: dict, max_rmse: float | None, max_budget: float | None,
     return [c.message for c in checks(result, max_rmse, max_budget, figure) if not c.passed]
 
 
-def write_junit(path: Path, suite: str, cases: list[tuple[str, list[Check], dict]]) -> None:
-    """A JUnit XML report CI systems read: one testcase per board (its replay ran and
-    ended) and per asserted bar on it, a failure carrying the measured figure and its bar.
-    `cases`: (board, its checks, its metrics)."""
+def replay_check(metrics: dict) -> Check:
+    """Whether a replay ran to its end: the first testcase of every board."""
+    ended = metrics.get("ended", "error" if metrics.get("error") else "completed")
+    passed = ended == "completed" and not metrics.get("error")
+    detail = f": {metrics['error']}" if metrics.get("error") else f", {metrics.get('n_estimates', 0)} estimates"
+    return Check("replay", passed, f"ended {ended}{detail}")
+
+
+def replay_cases(board: str, board_checks: list[Check], metrics: dict) -> tuple[str, list[Check], float]:
+    """A board's testcases: its replay, then each asserted bar on it."""
+    return board, [replay_check(metrics), *board_checks], float(metrics.get("wall_seconds", 0.0))
+
+
+def write_junit(path: Path, suite: str, groups: list[tuple[str, list[Check], float]]) -> None:
+    """A JUnit XML report CI systems read: per group (a board, a bench target), one
+    testcase per check, a failure carrying the measured figure and its bar. `groups`:
+    (name, its checks, seconds it took, given to its first testcase)."""
     import xml.etree.ElementTree as ElementTree
 
     root = ElementTree.Element("testsuites")
-    tests = failures = 0
     element = ElementTree.SubElement(root, "testsuite", name=suite)
-    for board, board_checks, metrics in cases:
-        ended = metrics.get("ended", "completed") if not metrics.get("error") else metrics.get("ended", "error")
-        replay = Check("replay", ended == "completed" and not metrics.get("error"),
-                       f"ended {ended}" + (f": {metrics['error']}" if metrics.get("error") else
-                                           f", {metrics.get('n_estimates', 0)} estimates"))
-        for check in [replay, *board_checks]:
+    tests = failures = 0
+    for name, group_checks, seconds in groups:
+        for k, check in enumerate(group_checks):
             tests += 1
-            case = ElementTree.SubElement(element, "testcase", classname=f"{suite}.{board}", name=check.name,
-                                          time=f"{metrics.get('wall_seconds', 0.0):.3f}" if check is replay else "0")
+            case = ElementTree.SubElement(element, "testcase", classname=f"{suite}.{name}", name=check.name,
+                                          time=f"{seconds if k == 0 else 0.0:.3f}")
             if not check.passed:
                 failures += 1
                 ElementTree.SubElement(case, "failure", message=check.message).text = check.message

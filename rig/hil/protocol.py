@@ -6,6 +6,7 @@ type byte and little-endian fields, at most 30 bytes (one CRTP app-channel packe
 
 from __future__ import annotations
 
+import binascii
 import math
 import struct
 from dataclasses import dataclass, field
@@ -37,27 +38,15 @@ class ProtocolError(Exception):
 
 
 def crc16(data: bytes) -> int:
-    crc = 0xFFFF
-    for byte in data:
-        crc ^= byte << 8
-        for _ in range(8):
-            crc = ((crc << 1) ^ 0x1021) & 0xFFFF if crc & 0x8000 else (crc << 1) & 0xFFFF
-    return crc
+    """CRC-16/CCITT-FALSE (polynomial 0x1021, initial 0xFFFF), as the board computes it;
+    binascii's CRC-CCITT is the same code in C."""
+    return binascii.crc_hqx(data, 0xFFFF)
 
 
 def cobs_encode(data: bytes) -> bytes:
-    out = bytearray([0])
-    code_at, code = 0, 1
-    for byte in data:
-        if byte == 0:
-            out[code_at] = code
-            code_at, code = len(out), 1
-            out.append(0)
-        else:
-            out.append(byte)
-            code += 1
-    out[code_at] = code
-    return bytes(out)
+    """COBS for frames under 254 bytes (every frame here): each zero ends a block whose
+    code byte is its length + 1."""
+    return b"".join(bytes([len(block) + 1]) + block for block in data.split(b"\x00"))
 
 
 def cobs_decode(data: bytes) -> bytes:
@@ -81,42 +70,51 @@ def frame(payload: bytes) -> bytes:
     return cobs_encode(payload + struct.pack("<H", crc16(payload))) + b"\x00"
 
 
+def frames(payloads: list[bytes]) -> bytes:
+    """Several payloads framed back to back: what one write to the link carries."""
+    return b"".join(map(frame, payloads))
+
+
 @dataclass
 class Parser:
-    """Byte stream to verified payloads; corrupt frames are counted and skipped."""
+    """Byte stream to verified payloads; corrupt frames are counted and skipped. A frame
+    longer than `max_frame` is dropped whole (its bytes counted) and counted bad at its
+    delimiter. The stream is cut at its zero bytes (in C), not walked byte by byte."""
 
     max_frame: int = MAX_PAYLOAD + 4
     frames_ok: int = 0
     frames_bad: int = 0
     bytes_dropped: int = 0
-    _buf: bytearray = field(default_factory=bytearray)
+    _buf: bytes = b""
     _overflow: bool = False
 
     def feed(self, data: bytes) -> list[bytes]:
+        *ended, rest = bytes(data).split(b"\x00")
         payloads = []
-        for byte in data:
-            if byte == 0:
-                if self._overflow:
-                    self._overflow = False
-                    self.frames_bad += 1
-                elif self._buf:
-                    payload = self._finish()
-                    if payload is not None:
-                        payloads.append(payload)
-                self._buf.clear()
-            elif self._overflow:
-                self.bytes_dropped += 1
-            elif len(self._buf) >= self.max_frame:
-                self._overflow = True
-                self.bytes_dropped += len(self._buf) + 1
-                self._buf.clear()
-            else:
-                self._buf.append(byte)
+        for part in ended:
+            if self._take(part):
+                self.frames_bad += 1             # an overlong frame ends here
+            elif self._buf:
+                payload = self._finish(self._buf)
+                if payload is not None:
+                    payloads.append(payload)
+            self._buf, self._overflow = b"", False
+        self._take(rest)
         return payloads
 
-    def _finish(self) -> bytes | None:
+    def _take(self, part: bytes) -> bool:
+        """Add bytes of the current frame; True while it is overlong (its bytes dropped)."""
+        if not self._overflow:
+            self._buf += part
+            if len(self._buf) <= self.max_frame:
+                return False
+            self._overflow, part, self._buf = True, self._buf, b""
+        self.bytes_dropped += len(part)
+        return True
+
+    def _finish(self, encoded: bytes) -> bytes | None:
         try:
-            raw = cobs_decode(bytes(self._buf))
+            raw = cobs_decode(encoded)
         except ProtocolError:
             self.frames_bad += 1
             return None

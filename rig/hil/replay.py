@@ -68,12 +68,25 @@ def windows(events: np.ndarray) -> list[Window]:
     return out
 
 
-def window_messages(w: Window, imu: protocol.ImuStream) -> list[bytes]:
-    """A window on the wire: its IMU samples (delta-coded), its TDOAs and the STEP."""
-    msgs = []
-    if w.imu:
-        msgs += imu.encode(protocol.imu_counts([a for _, a, _ in w.imu], [g for _, _, g in w.imu]))
-    return msgs + protocol.tdoa_messages(w.tdoa, w.t_us)
+def imu_counts(ws: list[Window]) -> list[np.ndarray]:
+    """Each window's IMU samples as the int16 counts on the wire (n x 6), quantised in
+    one pass over the whole replay."""
+    sizes = [len(w.imu) for w in ws]
+    if not sum(sizes):
+        return [np.zeros((0, protocol.IMU_AXES), np.int16) for _ in ws]
+    counts = protocol.imu_counts([a for w in ws for _, a, _ in w.imu], [g for w in ws for _, _, g in w.imu])
+    return np.split(counts, np.cumsum(sizes)[:-1])
+
+
+def encode_windows(ws: list[Window], imu: protocol.ImuStream | None = None,
+                   counts: list[np.ndarray] | None = None) -> list[list[bytes]]:
+    """The windows on the wire, in order: each one's IMU samples (delta-coded on one
+    stream), its TDOAs and the STEP. Encoded before the replay starts: the stream's
+    state depends only on the windows before, so the bytes are those of encoding each
+    window as it goes out."""
+    imu = imu or protocol.ImuStream()
+    counts = imu_counts(ws) if counts is None else counts
+    return [(imu.encode(c) if len(c) else []) + protocol.tdoa_messages(w.tdoa, w.t_us) for w, c in zip(ws, counts)]
 
 
 _EVENT_KINDS = {"accel": native.EV_ACCEL, "gyro": native.EV_GYRO, "tdoa": native.EV_TDOA, "step": native.EV_STEP}
@@ -83,9 +96,9 @@ def wire_events(ws: list[Window]) -> np.ndarray:
     """The events a board makes of `ws` on the wire (quantised IMU stamped at the window
     start, packed TDOA), decoded by the Python twin of the board service, so the
     in-process library can be compared with any board to float32 precision."""
-    board, imu, rows = protocol.BoardView(), protocol.ImuStream(), []
-    for w in ws:
-        for payload in window_messages(w, imu):
+    board, rows = protocol.BoardView(), []
+    for window in encode_windows(ws):
+        for payload in window:
             rows += [(t, _EVENT_KINDS[kind], a, b, 0, np.asarray(v, np.float32))
                      for t, kind, a, b, v in board.events(payload)]
     return np.array(rows, dtype=native.EVENT_DTYPE)
@@ -218,27 +231,44 @@ def run(link: BoardLink, rec: Recording, params: native.EstimatorParams, model: 
         if recorder is not None:
             recorder.start(rec, t0, t_end if t_end is not None else t0 + len(ws) * BUDGET_SECONDS,
                            {"target": link.name, "start": t0, "windows": len(ws), "unit": hello.unit})
+        wire = Wire(ws)
         if speed is None:
-            _lock_step(link, ws, session, lookahead, progress)
+            _lock_step(link, wire, session, lookahead, progress)
         else:
             session.realtime = RealTime(speed)
-            _real_time(link, ws, session, progress)
+            _real_time(link, wire, session, progress)
     except (LinkError, KeyboardInterrupt) as exc:
         exc.session = session
         raise
     return session
 
 
-def _lock_step(link: BoardLink, ws: list[Window], session: Session, lookahead: int, progress) -> None:
-    imu, sent, limit = protocol.ImuStream(), 0, budget(session.unit, session.timer_hz)
+class Wire:
+    """The windows of a replay, encoded once before it starts, and what sending window
+    k means: its payloads on the link and its inputs in the run record."""
+
+    def __init__(self, ws: list[Window]) -> None:
+        self.windows, self.counts = ws, imu_counts(ws)
+        self.payloads = encode_windows(ws, counts=self.counts)
+
+    def __len__(self) -> int:
+        return len(self.windows)
+
+    def send(self, link: BoardLink, k: int, session: Session) -> None:
+        link.send(self.payloads[k])
+        if session.recorder is not None:
+            w = self.windows[k]
+            session.recorder.inputs(session.t0, self.windows[k - 1].t_us if k else 0, w.imu, self.counts[k], w.tdoa)
+
+
+def _lock_step(link: BoardLink, wire: Wire, session: Session, lookahead: int, progress) -> None:
+    sent, limit, ws = 0, budget(session.unit, session.timer_hz), wire.windows
     for k in progress(range(len(ws))) if progress else range(len(ws)):
         # Keep `lookahead` windows in flight: the board still answers them strictly in
         # order (results are those of strict lock-step), but its slow receive overlaps
-        # with the host's encoding and the previous answer.
+        # with the previous answer.
         while sent < len(ws) and sent <= k + lookahead:
-            link.send(window_messages(ws[sent], imu))
-            if session.recorder is not None:
-                session.recorder.inputs(session.t0, ws[sent - 1].t_us if sent else 0, ws[sent].imu, ws[sent].tdoa)
+            wire.send(link, sent, session)
             sent += 1
         session.windows_sent = sent
         est = _expect(link, protocol.Estimate, f"window at {ws[k].t_us} us", session=session)
@@ -251,21 +281,22 @@ def _lock_step(link: BoardLink, ws: list[Window], session: Session, lookahead: i
             session.recorder.answer(session.t0, est, att, session.counters, timing, session.unit, limit)
 
 
-def _real_time(link: BoardLink, ws: list[Window], session: Session, progress) -> None:
+def _real_time(link: BoardLink, wire: Wire, session: Session, progress) -> None:
     """Send window k at start + k * period whatever the board does; take answers as
     they come; after the last window wait for the stragglers."""
-    rt, imu, collector = session.realtime, protocol.ImuStream(), _AnswerCollector(link, session)
+    rt, collector, ws = session.realtime, _AnswerCollector(link, session), wire.windows
     begin = time.monotonic()
     for k in progress(range(len(ws))) if progress else range(len(ws)):
         due = begin + k * rt.period
         while (now := time.monotonic()) < due:
             collector.take(link.next_message(due - now))
         rt.send_lag_max = max(rt.send_lag_max, now - due)
-        link.send(window_messages(ws[k], imu))
+        link.send(wire.payloads[k])
         rt.sent_at[ws[k].t_us] = time.monotonic()
         session.windows_sent = k + 1
         if session.recorder is not None:
-            session.recorder.inputs(session.t0, ws[k - 1].t_us if k else 0, ws[k].imu, ws[k].tdoa)
+            w = ws[k]
+            session.recorder.inputs(session.t0, ws[k - 1].t_us if k else 0, w.imu, wire.counts[k], w.tdoa)
     last = time.monotonic()
     while len(rt.latency) < len(rt.sent_at) and time.monotonic() - last < REPLY_TIMEOUT_S:
         msg = link.next_message(0.1)

@@ -19,6 +19,7 @@ complete chunks of an unfinished file).
 
 from __future__ import annotations
 
+import functools
 import json
 import logging
 from dataclasses import dataclass, field
@@ -99,6 +100,16 @@ def _xyz_dict(v) -> dict:
     return {"x": float(v[0]), "y": float(v[1]), "z": float(v[2])}
 
 
+def _one_section(method):
+    """The messages a method writes, in one section a signal does not interrupt: half a
+    message would corrupt the chunk (one section per window, not per message)."""
+    @functools.wraps(method)
+    def in_section(self, *args, **kwargs):
+        with critical():
+            return method(self, *args, **kwargs)
+    return in_section
+
+
 @dataclass
 class RunRecorder:
     """Writes one replay's run record as it happens."""
@@ -117,6 +128,7 @@ class RunRecorder:
         except OSError as exc:
             self._fail(exc)
 
+    @_one_section
     def start(self, rec: Recording, t0: float, t_end: float | None, info: dict) -> None:
         """Metadata, anchors and the ground truth of the replayed span."""
         if not self._ready():
@@ -135,10 +147,12 @@ class RunRecorder:
                 "orientation": {"x": float(q[0]), "y": float(q[1]), "z": float(q[2]), "w": float(q[3])}})
             self._write(TOPIC_FOXGLOVE_TRUTH, "foxglove.PoseInFrame", t, foxglove.pose_in_frame(t, truth.position[k], q))
 
-    def inputs(self, t0: float, t_prev_us: int, imu: list, tdoa: list) -> None:
-        """One window's inputs (the Window fields: dt since the previous STEP)."""
+    @_one_section
+    def inputs(self, t0: float, t_prev_us: int, imu: list, counts: np.ndarray, tdoa: list) -> None:
+        """One window's inputs (the Window fields: dt since the previous STEP), the IMU as
+        the board reads its `counts`."""
         if imu:
-            acc, gyro = protocol.imu_values(protocol.imu_counts([a for _, a, _ in imu], [g for _, _, g in imu]))
+            acc, gyro = protocol.imu_values(counts)
             for (dt, _, _), a, g in zip(imu, acc, gyro):
                 t = t0 + (t_prev_us + dt) * 1e-6
                 self._write(TOPIC_IMU, "uwb_rig.RunImu", t, {"t": t, "accel": _xyz_dict(a), "gyro": _xyz_dict(g)})
@@ -147,6 +161,7 @@ class RunRecorder:
             self._write(TOPIC_TDOA, "uwb_rig.Tdoa", t, {"t": t, "id_a": a, "id_b": b,
                                                          "distance_diff": float(v) if np.isfinite(v) else None})
 
+    @_one_section
     def answer(self, t0: float, est: protocol.Estimate, att: protocol.Attitude, counters: protocol.Counters,
                timing: protocol.Timing, unit: str, budget: float, latency_s: float | None = None) -> None:
         t = t0 + est.t_us * 1e-6
@@ -163,6 +178,7 @@ class RunRecorder:
             **({} if latency_s is None else {"latency_ms": latency_s * 1e3})})
         self._write(TOPIC_COUNTERS, "uwb_rig.Counters", t, {"t": t, **counters.__dict__})
 
+    @_one_section
     def status(self, t: float, source: str, code: int, message: str) -> None:
         self._write(TOPIC_STATUS, "uwb_rig.Status", t, {"t": t, "source": source, "code": code, "message": message})
         self._write(TOPIC_FOXGLOVE_LOG, "foxglove.Log", t,
@@ -189,17 +205,18 @@ class RunRecorder:
         return self._out is not None and self.failed is None
 
     def _write(self, topic: str, schema: str, t: float, obj, raw: bool = False) -> None:
+        """One message (inside a caller's `_one_section`)."""
         if topic in REPORTED:
             self.kept.setdefault(topic, []).append(json.loads(obj) if raw else obj)
         if not self._ready():
             return
-        def write() -> None:
+        try:
             if topic not in self._channels:
                 self._channels[topic] = self._out.channel(topic, schema, RUN_SCHEMAS.get(schema))
-            text = obj if raw else json.dumps(obj)
-            self._out.write(self._channels[topic], t, text)
-        if self._guard(write):
+            self._out.write(self._channels[topic], t, obj if raw else json.dumps(obj))
             self.messages += 1
+        except OSError as exc:
+            self._fail(exc)
 
     def _guard(self, action) -> bool:
         try:

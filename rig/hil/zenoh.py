@@ -3,12 +3,13 @@
 Key expressions, for a board named NAME (docs/guide/service.md):
 
     rig/board/NAME/alive        liveliness token, held while the bridge owns the board
-    rig/board/NAME/rx           every payload the board sent, raw (one sample each)
-    rig/board/NAME/estimate     decoded messages as JSON: estimate, attitude, counters,
+    rig/board/NAME/rx           the payloads the board sent, raw: a batch per sample as
+                                on tx (application/octet-stream)
+    rig/board/NAME/estimate     decoded messages (application/json): estimate, attitude, counters,
     rig/board/NAME/timing       timing, status, hello, ack (the last key segment is the
     rig/board/NAME/...          message kind)
     rig/board/NAME/tx           payloads for the board: a batch per sample, each payload
-                                preceded by its length byte
+                                preceded by its length byte (application/octet-stream)
 
 Sessions are configured with explicit endpoints and no multicast scouting; publishers
 of board data use CongestionControl.BLOCK (the default drops under load, even on
@@ -81,13 +82,20 @@ def unpack_batch(data: bytes) -> list[bytes]:
 
 
 def message_json(msg) -> bytes:
-    return json.dumps(dataclasses.asdict(msg)).encode()
+    """A decoded message as JSON (its fields are numbers and tuples of numbers)."""
+    return json.dumps(vars(msg)).encode()
+
+
+RAW_ENCODING = zenoh.Encoding.APPLICATION_OCTET_STREAM
+JSON_ENCODING = zenoh.Encoding.APPLICATION_JSON
 
 
 def declare_board_publishers(session: zenoh.Session, board: str) -> dict:
-    """The publishers of what a board says (raw and per kind); BLOCK: never dropped."""
+    """The publishers of what a board says (raw and per kind), each with its encoding;
+    BLOCK: never dropped."""
     block = zenoh.CongestionControl.BLOCK
-    return {leaf: session.declare_publisher(key(board, leaf), congestion_control=block)
+    return {leaf: session.declare_publisher(key(board, leaf), congestion_control=block,
+                                            encoding=RAW_ENCODING if leaf == "rx" else JSON_ENCODING)
             for leaf in ["rx", *KINDS.values()]}
 
 
@@ -201,9 +209,11 @@ class TapLink(BoardLink):
 
 
 def publish(publishers: dict, payloads: list[bytes], board: str) -> None:
-    """Every payload raw, and decoded under its kind."""
+    """The payloads raw (one batch), and each decoded under its kind."""
+    if not payloads:
+        return
+    publishers["rx"].put(pack_batch(payloads))
     for payload in payloads:
-        publishers["rx"].put(payload)
         try:
             msg = protocol.decode(payload)
         except protocol.ProtocolError as exc:
@@ -229,10 +239,10 @@ class ZenohLink(BoardLink):
     def open(self, timeout: float = 30.0) -> "ZenohLink":
         alive = key(self.name, "alive")
         self._entities = [
-            self.session.declare_subscriber(key(self.name, "rx"), lambda s: self._inbox.put(s.payload.to_bytes())),
+            self.session.declare_subscriber(key(self.name, "rx"), self._on_rx),
             self.session.liveliness().declare_subscriber(alive, self._on_liveliness),
         ]
-        self._tx = self.session.declare_publisher(key(self.name, "tx"),
+        self._tx = self.session.declare_publisher(key(self.name, "tx"), encoding=RAW_ENCODING,
                                                   congestion_control=zenoh.CongestionControl.BLOCK)
         deadline = time.monotonic() + timeout
         while not list(self.session.liveliness().get(alive, timeout=1.0)):
@@ -240,6 +250,15 @@ class ZenohLink(BoardLink):
                 self.close()
                 raise LinkError(f"zenoh board {self.name!r}: no bridge announced {alive} within {timeout:.0f} s")
         return self
+
+    def _on_rx(self, sample: zenoh.Sample) -> None:
+        try:
+            payloads = unpack_batch(sample.payload.to_bytes())
+        except protocol.ProtocolError as exc:
+            log.warning("zenoh board %s: %s", self.name, exc)
+            return
+        for payload in payloads:
+            self._inbox.put(payload)
 
     def _on_liveliness(self, sample: zenoh.Sample) -> None:
         if sample.kind == zenoh.SampleKind.DELETE:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import subprocess
+import xml.etree.ElementTree as ElementTree
 from pathlib import Path
 
 import pytest
@@ -33,10 +34,16 @@ def test_bench_passes_unchanged_firmware_and_catches_an_injected_slowdown(tmp_pa
     rows = json.loads((tmp_path / "same.json").read_text())["comparison"]
     assert len(rows) == 6 and all(r["compared"] and not r["regressed"] for r in rows)
 
+    junit = tmp_path / "junit.xml"
     slow = run_rig("bench", "--targets", "qemu", "--baseline", str(baseline), "--firmware", str(_slow_firmware()),
-                   "--json", str(tmp_path / "slow.json"))
+                   "--json", str(tmp_path / "slow.json"), "--junit-xml", str(junit))
     assert slow.returncode == 1
     assert "regressed" in slow.stderr
     report = json.loads((tmp_path / "slow.json").read_text())
     regressed = {r["figure"] for r in report["comparison"] if r["regressed"]}
     assert {"predict_p50", "tdoa_update_mean", "window_max"} <= regressed
+    cases = {c.get("name"): c for c in ElementTree.parse(junit).getroot().iter("testcase")}  # one per figure
+    assert set(cases) == {r["figure"] for r in report["comparison"]}
+    failed = {name for name, c in cases.items() if c.find("failure") is not None}
+    assert failed == regressed
+    assert "threshold +5%" in cases["window_max"].find("failure").get("message")

@@ -30,7 +30,7 @@ def seed_sessions(rec: Recording, n: int = 4) -> list[bytes]:
     sessions = []
     for k in range(n):
         imu = protocol.ImuStream(key_every=3 + k)
-        msgs = setup + [m for w in ws[k:k + 5] for m in replay.window_messages(w, imu)]
+        msgs = setup + [m for window in replay.encode_windows(ws[k:k + 5], imu) for m in window]
         sessions.append(b"".join(protocol.frame(m) for m in msgs))
     return sessions
 

@@ -1,4 +1,5 @@
-"""Wire protocol: the Python twin round-trips and resynchronises (property tests); the C
+"""Wire protocol: the Python twin round-trips and resynchronises (property tests), its
+C-backed CRC, COBS and stream parser agree with byte-by-byte references; the C
 parser, inside the native program under sanitizers, drops corrupt frames and keeps going."""
 
 from __future__ import annotations
@@ -13,6 +14,82 @@ from rig.estimator import native
 from rig.hil import protocol
 
 payloads = st.binary(min_size=1, max_size=protocol.MAX_PAYLOAD)
+
+
+def reference_crc16(data: bytes) -> int:
+    """CRC-16/CCITT-FALSE bit by bit, as the board's C computes it."""
+    crc = 0xFFFF
+    for byte in data:
+        crc ^= byte << 8
+        for _ in range(8):
+            crc = ((crc << 1) ^ 0x1021) & 0xFFFF if crc & 0x8000 else (crc << 1) & 0xFFFF
+    return crc
+
+
+def reference_cobs(data: bytes) -> bytes:
+    out, code_at, code = bytearray([0]), 0, 1
+    for byte in data:
+        if byte == 0:
+            out[code_at], code_at, code = code, len(out), 1
+            out.append(0)
+        else:
+            out.append(byte)
+            code += 1
+    out[code_at] = code
+    return bytes(out)
+
+
+class ReferenceParser(protocol.Parser):
+    """The stream walked byte by byte, the plainest statement of the counting rules."""
+
+    def feed(self, data: bytes) -> list[bytes]:
+        payloads, buf = [], bytearray(self._buf)
+        for byte in data:
+            if byte == 0:
+                if self._overflow:
+                    self._overflow = False
+                    self.frames_bad += 1
+                elif buf:
+                    payload = self._finish(bytes(buf))
+                    if payload is not None:
+                        payloads.append(payload)
+                buf.clear()
+            elif self._overflow:
+                self.bytes_dropped += 1
+            elif len(buf) >= self.max_frame:
+                self._overflow = True
+                self.bytes_dropped += len(buf) + 1
+                buf.clear()
+            else:
+                buf.append(byte)
+        self._buf = bytes(buf)
+        return payloads
+
+
+@given(st.binary(max_size=40))
+def test_crc_and_cobs_are_the_boards(data: bytes) -> None:
+    assert protocol.crc16(data) == reference_crc16(data)
+    assert protocol.cobs_encode(data) == reference_cobs(data)
+
+
+@settings(max_examples=300)
+@given(st.lists(st.one_of(payloads.map(protocol.frame), st.binary(max_size=80),
+                          st.just(b"\x00")), max_size=12),
+       st.lists(st.integers(1, 50), min_size=1, max_size=6))
+def test_the_parser_counts_as_the_byte_by_byte_reference_in_any_cut_of_the_stream(
+        pieces: list[bytes], cuts: list[int]) -> None:
+    """Frames, garbage and overlong runs, fed in arbitrary chunks: the same payloads and
+    the same counters as walking the stream byte by byte."""
+    stream, fast, reference = b"".join(pieces), protocol.Parser(), ReferenceParser()
+    out_fast, out_reference, i, k = [], [], 0, 0
+    while i < len(stream):
+        chunk = stream[i:i + cuts[k % len(cuts)]]
+        out_fast += fast.feed(chunk)
+        out_reference += reference.feed(chunk)
+        i, k = i + len(chunk), k + 1
+    assert out_fast == out_reference
+    counters = ("frames_ok", "frames_bad", "bytes_dropped", "_overflow", "_buf")
+    assert [getattr(fast, c) for c in counters] == [getattr(reference, c) for c in counters]
 
 
 @given(payloads)
@@ -114,3 +191,17 @@ def test_every_message_fits_one_crtp_packet() -> None:
             *protocol.ImuStream().encode(np.arange(60).reshape(10, 6)), protocol.tdoa(1, 2, 3, 0.5),
             *protocol.tdoa_messages([(1, 2, 3, 0.5)] * 12, 7), *protocol.net_chunks(bytes(3296))]
     assert max(len(m) for m in msgs) <= protocol.MAX_PAYLOAD
+
+
+def test_windows_encoded_before_the_replay_are_the_bytes_of_encoding_each_as_it_goes(default_rec) -> None:
+    from rig.estimator.evaluate import build_events, start_time
+    from rig.hil import replay
+
+    t0 = start_time(default_rec)
+    ws = replay.windows(build_events(default_rec, t0, t0 + 3.0))
+    stream, one_by_one = protocol.ImuStream(), []
+    for w in ws:
+        counts = protocol.imu_counts([a for _, a, _ in w.imu], [g for _, _, g in w.imu]) if w.imu else []
+        one_by_one.append((stream.encode(counts) if len(counts) else []) + protocol.tdoa_messages(w.tdoa, w.t_us))
+    assert replay.encode_windows(ws) == one_by_one
+    assert sum(len(w.imu) for w in ws) > 2000 and sum(map(len, one_by_one)) > 3 * len(ws)

@@ -11,6 +11,7 @@ import socket
 import subprocess
 import sys
 import time
+import xml.etree.ElementTree as ElementTree
 from pathlib import Path
 
 import pytest
@@ -83,8 +84,11 @@ def test_held_out_flight_into_qemu_is_recorded_and_published_to_another_process(
 def test_four_boards_in_parallel_through_one_router(tmp_path: Path) -> None:
     out = tmp_path / "farm"
     proc = run_rig("farm", "recordings/default.mcap", *["--target", "native"] * 4, "--duration", "12",
-                   "--listen", _free_endpoint(), "--out", str(out))
+                   "--listen", _free_endpoint(), "--out", str(out), "--junit-xml", str(out / "junit.xml"))
     assert proc.returncode == 0, proc.stdout + proc.stderr
+    suite = ElementTree.parse(out / "junit.xml").getroot().find("testsuite")
+    assert (suite.get("tests"), suite.get("failures")) == ("4", "0")
+    assert sorted(c.get("classname") for c in suite.iter("testcase")) == [f"rig.farm.board{k}" for k in range(4)]
     jobs = json.loads((out / "farm.json").read_text())["jobs"]
     assert len(jobs) == 4 and all(j["error"] is None and 1199 <= j["n_estimates"] <= 1200 for j in jobs)
     for k in range(4):
