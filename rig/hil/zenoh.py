@@ -11,15 +11,15 @@ Key expressions, for a board named NAME (docs/guide/service.md):
     rig/board/NAME/tx           payloads for the board: a batch per sample, each payload
                                 preceded by its length byte (application/octet-stream)
 
-Sessions are configured with explicit endpoints and no multicast scouting; publishers
-of board data use CongestionControl.BLOCK (the default drops under load, even on
+Sessions are configured with explicit endpoints and no multicast scouting, and stamp
+every sample; each kind's latest message is answered to a query on its key (a late
+joiner's `get`); publishers of board data use CongestionControl.BLOCK (the default drops under load, even on
 loopback); every session is closed on every exit path (an open session with a
 callback subscriber hangs the interpreter at exit).
 """
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import logging
 import queue
@@ -46,10 +46,12 @@ def key(board: str, leaf: str) -> str:
 
 
 def config(mode: str = "peer", listen: list[str] = (), connect: list[str] = ()) -> zenoh.Config:
-    """A session configuration with explicit endpoints only (no multicast scouting)."""
+    """A session configuration with explicit endpoints only (no multicast scouting), which
+    stamps every sample it publishes (the hybrid logical clock of zenoh's timestamps)."""
     conf = zenoh.Config()
     conf.insert_json5("mode", json.dumps(mode))
     conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("timestamping/enabled", "true")
     conf.insert_json5("listen/endpoints", json.dumps(list(listen)))
     conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
     return conf
@@ -90,13 +92,50 @@ RAW_ENCODING = zenoh.Encoding.APPLICATION_OCTET_STREAM
 JSON_ENCODING = zenoh.Encoding.APPLICATION_JSON
 
 
-def declare_board_publishers(session: zenoh.Session, board: str) -> dict:
-    """The publishers of what a board says (raw and per kind), each with its encoding;
-    BLOCK: never dropped."""
-    block = zenoh.CongestionControl.BLOCK
-    return {leaf: session.declare_publisher(key(board, leaf), congestion_control=block,
-                                            encoding=RAW_ENCODING if leaf == "rx" else JSON_ENCODING)
-            for leaf in ["rx", *KINDS.values()]}
+class BoardPublishers:
+    """What a board says on zenoh: its payloads raw (a batch per read) and each decoded
+    under its kind, with declared encodings, BLOCK congestion control (never dropped)
+    and the session's timestamps; the latest message of each kind is kept and answered
+    to a query on its key, so a late joiner gets every board's state
+    (`session.get("rig/board/*/estimate")`)."""
+
+    def __init__(self, session: zenoh.Session, board: str) -> None:
+        self.board, self.latest, self._lock = board, {}, threading.Lock()
+        block = zenoh.CongestionControl.BLOCK
+        self._publishers = {leaf: session.declare_publisher(key(board, leaf), congestion_control=block,
+                                                            encoding=RAW_ENCODING if leaf == "rx" else JSON_ENCODING)
+                            for leaf in ["rx", *KINDS.values()]}
+        self._queryables = [session.declare_queryable(key(board, leaf), self._answer) for leaf in KINDS.values()]
+
+    def publish(self, payloads: list[bytes]) -> None:
+        """The payloads raw (one batch), and each decoded under its kind."""
+        if not payloads:
+            return
+        self._publishers["rx"].put(pack_batch(payloads))
+        for payload in payloads:
+            try:
+                msg = protocol.decode(payload)
+            except protocol.ProtocolError as exc:
+                log.warning("bridge %s: %s", self.board, exc)
+                continue
+            self.put(KINDS[type(msg)], message_json(msg))
+
+    def put(self, kind: str, data: bytes) -> None:
+        with self._lock:
+            self.latest[kind] = data
+        self._publishers[kind].put(data)
+
+    def _answer(self, query: zenoh.Query) -> None:
+        kind = str(query.key_expr).rsplit("/", 1)[-1]
+        with self._lock:
+            data = self.latest.get(kind)
+        if data is not None:
+            query.reply(key(self.board, kind), data, encoding=JSON_ENCODING)
+
+    def undeclare(self) -> None:
+        for entity in [*self._publishers.values(), *self._queryables]:
+            entity.undeclare()
+        self._publishers, self._queryables = {}, []
 
 
 def wait_interruptibly(stop: threading.Event, timeout: float | None = None) -> None:
@@ -119,10 +158,10 @@ class Bridge:
     _stop: threading.Event = field(default_factory=threading.Event)
     _thread: threading.Thread | None = None
     _entities: list = field(default_factory=list)
-    _publishers: dict = field(default_factory=dict)
+    _publishers: BoardPublishers | None = None
 
     def start(self) -> "Bridge":
-        self._publishers = declare_board_publishers(self.session, self.name)
+        self._publishers = BoardPublishers(self.session, self.name)
         self._entities = [self.session.declare_subscriber(key(self.name, "tx"), self._on_tx),
                           self.session.liveliness().declare_token(key(self.name, "alive"))]
         self._thread = threading.Thread(target=self._pump, name=f"bridge {self.name}", daemon=True)
@@ -143,7 +182,7 @@ class Bridge:
             except LinkError as exc:
                 self._fail(str(exc))
                 return
-            publish(self._publishers, payloads, self.name)
+            self._publishers.publish(payloads)
             self.published += len(payloads)
 
     def _fail(self, reason: str) -> None:
@@ -152,7 +191,7 @@ class Bridge:
             self.error = reason
             log.error("bridge %s: %s", self.name, reason)
             status = protocol.Status(code=-1, frames_ok=0, frames_bad=0, bytes_dropped=0)
-            self._publishers["status"].put(json.dumps({**dataclasses.asdict(status), "error": reason}).encode())
+            self._publishers.put("status", json.dumps({**vars(status), "error": reason}).encode())
             self._stop.set()
 
     def wait(self) -> None:
@@ -163,9 +202,11 @@ class Bridge:
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=5)
-        for entity in self._entities + list(self._publishers.values()):
+        for entity in self._entities:
             entity.undeclare()
-        self._entities, self._publishers = [], {}
+        if self._publishers is not None:
+            self._publishers.undeclare()
+        self._entities, self._publishers = [], None
         self.link.close()
 
 
@@ -182,12 +223,12 @@ class TapLink(BoardLink):
     process: object | None = None
     bytes_sent: int = 0
     pending: deque = field(default_factory=deque)
-    _publishers: dict = field(default_factory=dict)
+    _publishers: BoardPublishers | None = None
     _token: object | None = None
 
     def __post_init__(self) -> None:
         self.name = self.name or f"{self.link.name} (zenoh {self.board})"
-        self._publishers = declare_board_publishers(self.session, self.board)
+        self._publishers = BoardPublishers(self.session, self.board)
         self._token = self.session.liveliness().declare_token(key(self.board, "alive"))
 
     def send(self, payloads: list[bytes]) -> None:
@@ -196,30 +237,18 @@ class TapLink(BoardLink):
 
     def receive_payloads(self, timeout: float) -> list[bytes]:
         payloads = self.link.receive_payloads(timeout)
-        publish(self._publishers, payloads, self.board)
+        self._publishers.publish(payloads)
         return payloads
 
     def _close_channel(self) -> None:
         try:
             self.link.close()
         finally:
-            for entity in [*self._publishers.values(), self._token]:
-                entity.undeclare()
-            self._publishers, self._token = {}, None
-
-
-def publish(publishers: dict, payloads: list[bytes], board: str) -> None:
-    """The payloads raw (one batch), and each decoded under its kind."""
-    if not payloads:
-        return
-    publishers["rx"].put(pack_batch(payloads))
-    for payload in payloads:
-        try:
-            msg = protocol.decode(payload)
-        except protocol.ProtocolError as exc:
-            log.warning("bridge %s: %s", board, exc)
-            continue
-        publishers[KINDS[type(msg)]].put(message_json(msg))
+            if self._publishers is not None:
+                self._publishers.undeclare()
+            if self._token is not None:
+                self._token.undeclare()
+            self._publishers, self._token = None, None
 
 
 @dataclass

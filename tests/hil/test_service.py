@@ -147,3 +147,42 @@ def test_a_full_disk_is_reported_and_the_replay_still_scores(tmp_path: Path) -> 
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["n_estimates"] >= 1199 and "No space left" in metrics["run_record_error"]
     assert metrics["ended"] == "completed"
+
+
+def test_board_samples_are_stamped_declare_their_encoding_and_a_late_joiner_gets_the_latest(tmp_path: Path) -> None:
+    """A native replay published on zenoh (the in-process bridge): every estimate sample
+    carries a timestamp and application/json; a session that joins mid-run and asks
+    for every board's estimate gets this board's latest one at once."""
+    import threading
+
+    from rig.data import paths
+    from rig.hil.job import EstimatorChoice, replay_job
+    from rig.hil.zenoh import key, open_session
+
+    endpoint = _free_endpoint()
+    rig_session, watcher = open_session("peer", [endpoint], []), open_session(None, [], [endpoint])
+    seen = []
+    subscriber = watcher.declare_subscriber(key("b0", "estimate"), seen.append)
+    job = threading.Thread(target=replay_job, args=(paths.default_recording(), "native", tmp_path / "run",
+                                                    EstimatorChoice()),
+                           kwargs={"duration": 20.0, "session": rig_session, "board": "b0", "report": False})
+    try:
+        job.start()
+        deadline = time.monotonic() + 60
+        while len(seen) < 200 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        late = open_session(None, [], [endpoint])
+        try:
+            replies = [r.ok for r in late.get("rig/board/*/estimate", timeout=5.0) if r.ok is not None]
+        finally:
+            late.close()
+        job.join(timeout=120)
+    finally:
+        subscriber.undeclare()
+        watcher.close()
+        rig_session.close()
+    assert len(seen) >= 200 and all(s.timestamp is not None for s in seen)
+    assert {str(s.encoding) for s in seen} == {"application/json"}
+    assert [str(r.key_expr) for r in replies] == ["rig/board/b0/estimate"]
+    latest = json.loads(replies[0].payload.to_bytes())
+    assert latest["t_us"] >= json.loads(seen[199].payload.to_bytes())["t_us"]     # the state when it asked, or later
