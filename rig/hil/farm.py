@@ -28,9 +28,18 @@ def run_farm(jobs: list[tuple[Path, str]], out: Path, listen: str, estimator: Es
              duration: float | None = None, on_replayed: Callable[[dict], None] | None = None) -> list[dict]:
     """Replay every job at once, each into its own bridge process; one board's failure
     does not take the others down (its result is {"error": ...}). `on_replayed` sees each
-    job's metrics as it ends. Writes the reports and OUT/farm.json; returns the results."""
-    from rig.hil.report import write_report
+    job's metrics as it ends. Each recording is loaded once, whatever number of boards
+    replay it. Writes the reports (in parallel processes) and OUT/farm.json; returns the
+    results."""
+    from rig.data.importer import load_any
     from rig.hil.zenoh import open_session
+
+    loaded = {}
+    for recording in dict.fromkeys(r for r, _ in jobs):
+        try:
+            loaded[recording] = load_any(recording)
+        except Exception as exc:  # the jobs on it fail alone, saying why
+            loaded[recording] = exc
 
     session = open_session("router", [listen], [])
     bridges = [subprocess.Popen([sys.executable, "-m", "bridge", "--target", target, "--name", f"board{k}",
@@ -40,8 +49,10 @@ def run_farm(jobs: list[tuple[Path, str]], out: Path, listen: str, estimator: Es
     def job(k: int) -> dict:
         recording, target = jobs[k]
         try:
+            if isinstance(loaded[recording], Exception):
+                raise loaded[recording]
             result = replay_job(recording, f"zenoh:board{k}", out / f"board{k}", estimator, duration=duration,
-                                report=False, session=session, board=f"board{k}")
+                                report=False, session=session, board=f"board{k}", loaded=loaded[recording])
             if on_replayed is not None:
                 on_replayed(result)
             if result["run_record_error"]:
@@ -60,8 +71,21 @@ def run_farm(jobs: list[tuple[Path, str]], out: Path, listen: str, estimator: Es
         for proc in bridges:
             proc.wait(timeout=10)
         session.close()
-    for k in range(len(results)):
-        if (out / f"board{k}" / "run.mcap").exists():
-            write_report(out / f"board{k}")
+    write_reports([out / f"board{k}" for k in range(len(results)) if (out / f"board{k}" / "run.mcap").exists()])
     write_json(out / FARM_FILE, {"jobs": results})
     return results
+
+
+def write_reports(directories: list[Path], workers: int = 2) -> None:
+    """Each directory's report.html, in parallel processes (matplotlib draws one figure
+    at a time per process)."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    from rig.hil.report import write_report
+
+    if len(directories) < 2:
+        for directory in directories:
+            write_report(directory)
+        return
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        list(pool.map(write_report, directories))

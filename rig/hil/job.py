@@ -16,8 +16,12 @@ import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from rig.hil.links import LinkError
+
+if TYPE_CHECKING:
+    from rig.data.recording import Recording
 
 log = logging.getLogger(__name__)
 
@@ -98,12 +102,14 @@ def board_link(target: str, session, board: str):
 def replay_job(recording: Path, target: str, out: Path, estimator: EstimatorChoice = EstimatorChoice(), *,
                start: float | None = None, duration: float | None = None, lookahead: int = 0,
                speed: float | None = None, report: bool = True, session=None, board: str = "local",
-               survey: Path | None = None, progress=None, strict: bool = False) -> dict:
+               survey: Path | None = None, progress=None, strict: bool = False,
+               loaded: Recording | None = None) -> dict:
     """Replay `recording` into `target` (through zenoh `session`, or a private one) and
     write OUT/run.mcap, OUT/metrics.json and, with `report`, OUT/report.html. Returns
     what metrics.json holds; raises JobFailed (after writing both files) when the board
     or its link failed. Interrupted (a signal) it finishes both files, marked
-    `ended: interrupted`, and raises the interruption on."""
+    `ended: interrupted`, and raises the interruption on. `loaded`: the recording
+    already read (a farm replays one recording into many boards)."""
     from rig.data.errors import InputError
     from rig.data.importer import load_any
     from rig.estimator.evaluate import estimator_config, start_time
@@ -112,7 +118,7 @@ def replay_job(recording: Path, target: str, out: Path, estimator: EstimatorChoi
     from rig.hil.zenoh import open_session
 
     check_options(target, board, start, duration, lookahead, speed)
-    rec = load_any(recording, survey, strict=strict)
+    rec = load_any(recording, survey, strict=strict) if loaded is None else loaded
     first, last = start_time(rec) if start is None else start, float(rec.time_span()[1])
     if first >= last:
         raise InputError(f"--start {first:g} s is past the end of {recording} ({last:g} s on its clock)")
