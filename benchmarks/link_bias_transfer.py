@@ -67,8 +67,8 @@ def main() -> None:
     print("|---|---|---|---|---|---|")
     for r in results:
         s = r["tdoa_std_m"]
-        print(f"| {r['split']} | {np.round(r['coeffs_m'], 3).tolist()} | {s['before']:.3f} | {s['delays']:.3f} | {s['link']:.3f} | "
-              f"{s['link_and_delays']:.3f} |")
+        print(f"| {r['split']} | {np.round(r['coeffs_m'], 3).tolist()} | {s['before']:.3f} | {s['delays']:.3f} | "
+              f"{s['link']:.3f} | {s['link_and_delays']:.3f} |")
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(results, indent=1) + "\n")
     print(f"wrote {args.json}")

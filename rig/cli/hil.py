@@ -305,7 +305,8 @@ def register(sub) -> None:
     p.add_argument("--program", type=Path, help="native program to measure (default: build it)")
     p.add_argument("--firmware", type=Path, help="firmware ELF to measure (default: build it)")
     p.add_argument("--junit-xml", type=Path, metavar="FILE",
-                   help="write a JUnit XML report: one testcase per figure of each target, a regression failing with its figure, the baseline's and the threshold")
+                   help="write a JUnit XML report: one testcase per figure of each target, a regression "
+                        "failing with its figure, the baseline's and the threshold")
     p.set_defaults(func=cmd_bench)
     p = sub.add_parser("report", help="write DIR/report.html from a replay's run.mcap and metrics.json",
                        description="The trajectory against ground truth, the error over time, per-anchor "
@@ -325,7 +326,8 @@ def register(sub) -> None:
     p.add_argument("--listen", default="tcp/127.0.0.1:7447", help="the router's endpoint (default %(default)s)")
     p.add_argument("--no-nn", action="store_true", help="without the bias network")
     p.add_argument("--junit-xml", type=Path, metavar="FILE",
-                   help="write a JUnit XML report: one testcase per board (its replay ran to its end), a failure carrying its error")
+                   help="write a JUnit XML report: one testcase per board (its replay ran to its end), a "
+                        "failure carrying its error")
     p.set_defaults(func=cmd_farm)
     p = sub.add_parser("router", help="a zenoh router (a Python session in router mode) for boards and rigs",
                        description="Run a zenoh router on explicit endpoints (no multicast scouting) until "
