@@ -115,3 +115,33 @@ def finished_mcap(path: Path) -> bool:
 
     with open(path, "rb") as f:
         return make_reader(f).get_summary() is not None
+
+
+def board_processes(parent: int | None = None) -> set[int]:
+    """The native estimator programs running on this machine (started by `parent`, if
+    given: other tests may run boards at the same time)."""
+    found = set()
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                if b"estimator_native" not in (entry / "cmdline").read_bytes():
+                    continue
+                ppid = int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            except (OSError, ValueError, IndexError):
+                continue                          # it ended while we looked
+            if parent is None or ppid == parent:
+                found.add(int(entry.name))
+    return found
+
+
+def alive(pids: set[int]) -> set[int]:
+    """Those of `pids` still running (not zombies)."""
+    out = set()
+    for pid in pids:
+        try:
+            state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+        except (OSError, IndexError):
+            continue
+        if state != "Z":
+            out.add(pid)
+    return out

@@ -227,11 +227,10 @@ def run(link: BoardLink, rec: Recording, params: native.EstimatorParams, model: 
         configure(link, rec, params, model, hello)
         pos, quat = truth_pose_at(rec, t0)
         _acked(link, [protocol.reset(0, pos, quat)], "reset")
-        ws = windows(build_events(rec, t0, t_end))
-        if recorder is not None:
-            recorder.start(rec, t0, t_end if t_end is not None else t0 + len(ws) * BUDGET_SECONDS,
-                           {"target": link.name, "start": t0, "windows": len(ws), "unit": hello.unit})
-        wire = Wire(ws)
+        wire = Wire(windows(build_events(rec, t0, t_end)))
+        if recorder is not None:            # the record starts when the first window is ready to go
+            recorder.start(rec, t0, t_end if t_end is not None else t0 + len(wire) * BUDGET_SECONDS,
+                           {"target": link.name, "start": t0, "windows": len(wire), "unit": hello.unit})
         if speed is None:
             _lock_step(link, wire, session, lookahead, progress)
         else:

@@ -13,30 +13,16 @@ import time
 from pathlib import Path
 
 import pytest
-from rigtest import RIG, exit_status, finished_mcap, run_rig, start
+from rigtest import RIG, alive, board_processes, exit_status, finished_mcap, run_rig, start
 
 from rig.hil.job import write_json
 from rig.hil.runrecord import read_run
-
-
-def board_processes() -> set[int]:
-    """The native estimator programs running on this machine."""
-    found = set()
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                if b"estimator_native" in (entry / "cmdline").read_bytes():
-                    found.add(int(entry.name))
-            except OSError:
-                pass                              # it ended while we looked
-    return found
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("signum, status", [(signal.SIGTERM, 143), (signal.SIGHUP, 129)])
 def test_a_signal_mid_replay_finishes_the_record_says_how_it_ended_and_leaves_no_board(
         tmp_path: Path, signum: int, status: int) -> None:
-    before = board_processes()
     out = tmp_path / "run"
     replay = start(*RIG, "replay", "recordings/default.mcap", "--target", "native", "--mode", "realtime",
                    "--out", str(out))
@@ -44,6 +30,8 @@ def test_a_signal_mid_replay_finishes_the_record_says_how_it_ended_and_leaves_no
     while time.monotonic() < deadline and (not record.exists() or record.stat().st_size < 30_000):
         time.sleep(0.2)                                    # anchors and ground truth are on disk
     time.sleep(3.0)                                        # windows are flowing
+    boards = board_processes(parent=replay.pid)
+    assert len(boards) == 1
     replay.send_signal(signum)
     assert exit_status(replay, 60) == status
     assert signal.Signals(signum).name in replay.stderr.read()
@@ -53,7 +41,7 @@ def test_a_signal_mid_replay_finishes_the_record_says_how_it_ended_and_leaves_no
     assert 0 < metrics["n_estimates"] == len(read_run(out / "run.mcap")["/run/estimate"])
     assert read_run(out / "run.mcap")["/run/status"][-1]["message"].startswith("interrupted")
     time.sleep(0.5)
-    assert board_processes() <= before, "the native program outlived the rig"
+    assert not alive(boards), "the native program outlived the rig"
 
 
 @pytest.mark.slow
