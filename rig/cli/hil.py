@@ -28,23 +28,31 @@ def replay_into(recording: Path, target: str, out: Path, estimator, junit: Path 
 
     try:
         result = replay_job(recording, target, out, estimator, progress=progress(desc=f"replay {target}"),
-                            **options)
+                            on_scored=print_score, **options)
     except JobFailed as exc:
         if junit is not None:
             write_junit(junit, "rig.replay", [replay_cases(target, [], exc.result)])
         raise BoardError(str(exc)) from exc
-    print_replay(result, report=options.get("report", True))
+    print_written(result, report=options.get("report", True))
     if result["run_record_error"]:
         raise CliError(result["run_record_error"])
     return result
 
 
 def print_replay(result: dict, report: bool = True) -> None:
-    """What a replay measured, in a few lines."""
+    """What a replay measured, in a few lines, and what it wrote."""
+    print_score(result)
+    print_written(result, report)
+
+
+def print_score(result: dict) -> None:
+    """What a replay measured, in a few lines (before its files are written)."""
     import math
 
-    out = Path(result["run_record"]).parent
-    timing = result["timing"]
+    timing = result.get("timing")
+    if not timing:
+        print(f"{result['recording']} -> {result['target']}: no estimate")
+        return
     print(f"{result['recording']} -> {result['target']}: {result['n_estimates']} estimates in "
           f"{result['wall_seconds']:.1f} s ({result['speed']:.2f}x real time, "
           f"{result['bytes_sent'] / max(1, result['n_estimates']):.0f} B a window)")
@@ -58,6 +66,10 @@ def print_replay(result: dict, report: bool = True) -> None:
         print(f"real time x{rt['speed']:g}: latency p50 {lat['p50']:.1f} ms, p99 {lat['p99']:.1f} ms, max "
               f"{lat['max']:.1f} ms; late windows {rt['late_windows']} (deadline {rt['deadline_ms']:.1f} ms), "
               f"missed windows {rt['missed_windows']}")
+
+
+def print_written(result: dict, report: bool = True) -> None:
+    out = Path(result["run_record"]).parent
     if report:
         print(f"wrote {out / 'metrics.json'}, {out / 'run.mcap'} and {out / 'report.html'}")
     else:

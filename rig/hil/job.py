@@ -16,7 +16,7 @@ import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Callable
 
 from rig.hil.links import LinkError
 
@@ -103,13 +103,14 @@ def replay_job(recording: Path, target: str, out: Path, estimator: EstimatorChoi
                start: float | None = None, duration: float | None = None, lookahead: int = 0,
                speed: float | None = None, report: bool = True, session=None, board: str = "local",
                survey: Path | None = None, progress=None, strict: bool = False,
-               loaded: Recording | None = None) -> dict:
+               loaded: Recording | None = None, on_scored: Callable[[dict], None] | None = None) -> dict:
     """Replay `recording` into `target` (through zenoh `session`, or a private one) and
     write OUT/run.mcap, OUT/metrics.json and, with `report`, OUT/report.html. Returns
     what metrics.json holds; raises JobFailed (after writing both files) when the board
     or its link failed. Interrupted (a signal) it finishes both files, marked
     `ended: interrupted`, and raises the interruption on. `loaded`: the recording
-    already read (a farm replays one recording into many boards)."""
+    already read (a farm replays one recording into many boards). `on_scored` sees the
+    result before any file of it is written (a full disk must not hide the score)."""
     from rig.data.errors import InputError
     from rig.data.importer import load_any
     from rig.estimator.evaluate import estimator_config, start_time
@@ -159,6 +160,8 @@ def replay_job(recording: Path, target: str, out: Path, estimator: EstimatorChoi
     result.update({"wall_seconds": wall, "speed": result["n_estimates"] * replay.BUDGET_SECONDS / wall,
                    "run_record": str(out / RUN_FILE), "run_record_error": recorder.failed, "error": error,
                    "ended": ended})
+    if on_scored is not None:
+        on_scored(result)
     write_json(out / METRICS_FILE, result)
     if stop is not None:
         raise stop

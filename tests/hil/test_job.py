@@ -74,3 +74,19 @@ def test_a_board_that_cannot_be_reached_fails_the_job_and_keeps_its_outputs(tmp_
     assert metrics["n_estimates"] == 0 and "cannot open" in metrics["error"] == failure.value.result["error"]
     assert metrics["ended"] == "board_lost"
     assert (tmp_path / "run.mcap").is_file()
+
+
+def test_the_score_is_known_before_any_file_is_written(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A disk that fills up as metrics.json is written: the score was handed out first
+    (`rig replay` prints it), and the failure names the file."""
+    import rig.hil.job
+
+    def full_disk(path: Path, data: dict) -> None:
+        raise OSError(28, f"cannot write {path}: No space left on device")
+
+    scored = []
+    monkeypatch.setattr(rig.hil.job, "write_json", full_disk)
+    with pytest.raises(OSError, match="metrics.json: No space left"):
+        replay_job(paths.default_recording(), "native", tmp_path, EstimatorChoice(), start=12.0, duration=2.0,
+                   report=False, on_scored=scored.append)
+    assert len(scored) == 1 and scored[0]["n_estimates"] >= 199 and scored[0]["rmse_3d"] > 0
