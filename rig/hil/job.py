@@ -68,6 +68,20 @@ def write_json(path: Path, data: dict) -> None:
     log.info("wrote %s", path)
 
 
+def writable_directory(out: Path) -> None:
+    """Create `out` and check that files can be written in it, before any board starts
+    (InputError naming it otherwise)."""
+    from rig.data.errors import InputError
+
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        fd, probe = tempfile.mkstemp(prefix=".probe.", dir=out)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        raise InputError(f"cannot write to the output directory {out}: {exc.strerror or exc}") from exc
+
+
 def check_options(target: str, board: str = "local", start: float | None = None, duration: float | None = None,
                   lookahead: int = 0, speed: float | None = None) -> None:
     """Refuse option values a replay cannot use, before anything starts or is written
@@ -124,7 +138,7 @@ def replay_job(recording: Path, target: str, out: Path, estimator: EstimatorChoi
     if first >= last:
         raise InputError(f"--start {first:g} s is past the end of {recording} ({last:g} s on its clock)")
     params, model = estimator_config(estimator.robust, estimator.use_nn, estimator.model_path)
-    out.mkdir(parents=True, exist_ok=True)
+    writable_directory(out)
     recorder = RunRecorder(out / RUN_FILE)
     info = {"recording": str(recording), "target": target, "bias_net": model is not None,
             "robust": estimator.robust, "lookahead": lookahead, "mode": "lockstep" if speed is None else "realtime"}

@@ -138,3 +138,24 @@ def test_a_signal_inside_a_critical_section_waits_for_its_end() -> None:
     finally:
         for s, handler in handlers.items():
             signal.signal(s, handler)
+
+
+def test_an_output_directory_that_cannot_be_written_is_refused_before_a_board_starts(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from rig.data import paths
+    from rig.data.errors import InputError
+    from rig.hil import job
+
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    started = []
+    monkeypatch.setattr(job, "board_link", lambda *args: started.append(args))
+    with pytest.raises(InputError, match=f"cannot write to the output directory {blocker / 'run'}"):
+        job.replay_job(paths.default_recording(), "native", blocker / "run", job.EstimatorChoice())
+
+    def read_only(*args, **kwargs):
+        raise OSError(30, "Read-only file system")
+    monkeypatch.setattr(job.tempfile, "mkstemp", read_only)
+    with pytest.raises(InputError, match="Read-only file system"):
+        job.replay_job(paths.default_recording(), "native", tmp_path / "run", job.EstimatorChoice())
+    assert not started
