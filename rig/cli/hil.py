@@ -54,8 +54,9 @@ def print_score(result: dict) -> None:
         print(f"{result['recording']} -> {result['target']}: no estimate")
         return
     print(f"{result['recording']} -> {result['target']}: {result['n_estimates']} estimates in "
-          f"{result['wall_seconds']:.1f} s ({result['speed']:.2f}x real time, "
-          f"{result['bytes_sent'] / max(1, result['n_estimates']):.0f} B a window)")
+          f"{result['loop_seconds']:.2f} s ({result['speed']:.2f}x real time, "
+          f"{result['bytes_sent'] / max(1, result['n_estimates']):.0f} B a window; {result['wall_seconds']:.1f} s "
+          f"with start-up and the run record)")
     print_accuracy(result)
     print(f"timing ({timing['unit']}): window p50 {timing['window_p50']:.0f}, p99 {timing['window_p99']:.0f}, "
           f"max {timing['window_max']:.0f} = {timing['window_max_fraction_of_budget']:.1%} of the "

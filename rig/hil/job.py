@@ -171,7 +171,9 @@ def replay_job(recording: Path, target: str, out: Path, estimator: EstimatorChoi
     result = score_run(run, rec)
     info.setdefault("bytes_sent", 0)       # the link never opened
     result.update(info)
-    result.update({"wall_seconds": wall, "speed": result["n_estimates"] * replay.BUDGET_SECONDS / wall,
+    loop = run.loop_seconds if run is not None and run.loop_seconds else wall
+    result.update({"wall_seconds": wall, "loop_seconds": loop,
+                   "speed": result["n_estimates"] * replay.BUDGET_SECONDS / loop,
                    "run_record": str(out / RUN_FILE), "run_record_error": recorder.failed, "error": error,
                    "ended": ended})
     if on_scored is not None:

@@ -116,6 +116,7 @@ class Session:
     counters: protocol.Counters | None = None
     statuses: list = field(default_factory=list)
     windows_sent: int = 0
+    loop_seconds: float | None = None               # the windows' exchange, from the first sent to the last answer
     recorder: object | None = None                  # a runrecord.RunRecorder, if recording
     realtime: RealTime | None = None                # real-time mode only
 
@@ -231,11 +232,15 @@ def run(link: BoardLink, rec: Recording, params: native.EstimatorParams, model: 
         if recorder is not None:            # the record starts when the first window is ready to go
             recorder.start(rec, t0, t_end if t_end is not None else t0 + len(wire) * BUDGET_SECONDS,
                            {"target": link.name, "start": t0, "windows": len(wire), "unit": hello.unit})
-        if speed is None:
-            _lock_step(link, wire, session, lookahead, progress)
-        else:
-            session.realtime = RealTime(speed)
-            _real_time(link, wire, session, progress)
+        began = time.perf_counter()
+        try:
+            if speed is None:
+                _lock_step(link, wire, session, lookahead, progress)
+            else:
+                session.realtime = RealTime(speed)
+                _real_time(link, wire, session, progress)
+        finally:
+            session.loop_seconds = time.perf_counter() - began
     except (LinkError, KeyboardInterrupt) as exc:
         exc.session = session
         raise

@@ -100,6 +100,9 @@ def _xyz_dict(v) -> dict:
     return {"x": float(v[0]), "y": float(v[1]), "z": float(v[2])}
 
 
+MAX_PENDING = 20_000           # windows held at most (200 s of flight), then written as they come
+
+
 def _one_section(method):
     """The messages a method writes, in one section a signal does not interrupt: half a
     message would corrupt the chunk (one section per window, not per message)."""
@@ -118,6 +121,8 @@ class RunRecorder:
     failed: str | None = None
     messages: int = 0
     kept: dict = field(default_factory=dict)   # topic -> messages, of the topics the report reads (REPORTED)
+    deferred: bool = True                      # windows' inputs and answers held until flush()
+    _pending: list = field(default_factory=list)
     _out: McapJsonWriter | None = None
     _channels: dict = field(default_factory=dict)
     _truth: tuple | None = None          # times and positions of the ground truth, for the position error
@@ -147,10 +152,35 @@ class RunRecorder:
                 "orientation": {"x": float(q[0]), "y": float(q[1]), "z": float(q[2]), "w": float(q[3])}})
             self._write(TOPIC_FOXGLOVE_TRUTH, "foxglove.PoseInFrame", t, foxglove.pose_in_frame(t, truth.position[k], q))
 
-    @_one_section
     def inputs(self, t0: float, t_prev_us: int, imu: list, counts: np.ndarray, tdoa: list) -> None:
         """One window's inputs (the Window fields: dt since the previous STEP), the IMU as
         the board reads its `counts`."""
+        self._hold(self._write_inputs, (t0, t_prev_us, imu, counts, tdoa))
+
+    def answer(self, t0: float, est: protocol.Estimate, att: protocol.Attitude, counters: protocol.Counters,
+               timing: protocol.Timing, unit: str, budget: float, latency_s: float | None = None) -> None:
+        """One window's answer."""
+        self._hold(self._write_answer, (t0, est, att, counters, timing, unit, budget, latency_s))
+
+    def _hold(self, write, args: tuple) -> None:
+        """While `deferred`, a window's messages wait for flush(): the replay loop then
+        costs a list append, and the record is written in bulk once the loop is done
+        (or when a status note, or the end, comes first)."""
+        if self.deferred and len(self._pending) < MAX_PENDING:
+            self._pending.append((write, args))
+        else:
+            self.flush()
+            with critical():
+                write(*args)
+
+    @_one_section
+    def flush(self) -> None:
+        """Write every held message, in the order they came."""
+        pending, self._pending = self._pending, []
+        for write, args in pending:
+            write(*args)
+
+    def _write_inputs(self, t0: float, t_prev_us: int, imu: list, counts: np.ndarray, tdoa: list) -> None:
         if imu:
             acc, gyro = protocol.imu_values(counts)
             for (dt, _, _), a, g in zip(imu, acc, gyro):
@@ -161,9 +191,8 @@ class RunRecorder:
             self._write(TOPIC_TDOA, "uwb_rig.Tdoa", t, {"t": t, "id_a": a, "id_b": b,
                                                          "distance_diff": float(v) if np.isfinite(v) else None})
 
-    @_one_section
-    def answer(self, t0: float, est: protocol.Estimate, att: protocol.Attitude, counters: protocol.Counters,
-               timing: protocol.Timing, unit: str, budget: float, latency_s: float | None = None) -> None:
+    def _write_answer(self, t0: float, est: protocol.Estimate, att: protocol.Attitude, counters: protocol.Counters,
+                      timing: protocol.Timing, unit: str, budget: float, latency_s: float | None = None) -> None:
         t = t0 + est.t_us * 1e-6
         q = att.quat
         self._write(TOPIC_ESTIMATE, "uwb_rig.Estimate", t, {
@@ -180,6 +209,7 @@ class RunRecorder:
 
     @_one_section
     def status(self, t: float, source: str, code: int, message: str) -> None:
+        self.flush()                  # what came before it goes before it
         self._write(TOPIC_STATUS, "uwb_rig.Status", t, {"t": t, "source": source, "code": code, "message": message})
         self._write(TOPIC_FOXGLOVE_LOG, "foxglove.Log", t,
                     foxglove.log(t, "error" if code < 0 else "warning", source, f"{message} (code {code})"))
@@ -196,6 +226,7 @@ class RunRecorder:
             **{k: foxglove.finite(v) for k, v in zip("xyz", error)}})
 
     def close(self) -> None:
+        self.flush()
         if self._out is not None:
             self._guard(self._out.close)
             self._out = None

@@ -95,8 +95,10 @@ JSON_ENCODING = zenoh.Encoding.APPLICATION_JSON
 class BoardPublishers:
     """What a board says on zenoh: its payloads raw (a batch per read) and each decoded
     under its kind, with declared encodings, BLOCK congestion control (never dropped)
-    and the session's timestamps; the latest message of each kind is kept and answered
-    to a query on its key, so a late joiner gets every board's state
+    and the session's timestamps. A key nobody subscribes to costs nothing: each
+    publisher's matching listener says whether anyone listens, and only then is a
+    message turned into JSON and put. The latest message of each kind is kept and
+    answered to a query on its key, so a late joiner gets every board's state
     (`session.get("rig/board/*/estimate")`)."""
 
     def __init__(self, session: zenoh.Session, board: str) -> None:
@@ -105,37 +107,52 @@ class BoardPublishers:
         self._publishers = {leaf: session.declare_publisher(key(board, leaf), congestion_control=block,
                                                             encoding=RAW_ENCODING if leaf == "rx" else JSON_ENCODING)
                             for leaf in ["rx", *KINDS.values()]}
+        self.listened = {leaf: publisher.matching_status.matching for leaf, publisher in self._publishers.items()}
+        self._listeners = [publisher.declare_matching_listener(self._on_matching(leaf))
+                           for leaf, publisher in self._publishers.items()]
         self._queryables = [session.declare_queryable(key(board, leaf), self._answer) for leaf in KINDS.values()]
+
+    def _on_matching(self, leaf: str):
+        def on_matching(status: zenoh.MatchingStatus) -> None:
+            self.listened[leaf] = status.matching
+        return on_matching
 
     def publish(self, payloads: list[bytes]) -> None:
         """The payloads raw (one batch), and each decoded under its kind."""
         if not payloads:
             return
-        self._publishers["rx"].put(pack_batch(payloads))
+        if self.listened["rx"]:
+            self._publishers["rx"].put(pack_batch(payloads))
         for payload in payloads:
             try:
                 msg = protocol.decode(payload)
             except protocol.ProtocolError as exc:
                 log.warning("bridge %s: %s", self.board, exc)
                 continue
-            self.put(KINDS[type(msg)], message_json(msg))
+            self.put(KINDS[type(msg)], msg)
 
-    def put(self, kind: str, data: bytes) -> None:
+    def put(self, kind: str, msg) -> None:
+        """`msg`: a decoded message, or its JSON already made."""
         with self._lock:
-            self.latest[kind] = data
-        self._publishers[kind].put(data)
+            self.latest[kind] = msg
+        if self.listened[kind]:
+            self._publishers[kind].put(_as_json(msg))
 
     def _answer(self, query: zenoh.Query) -> None:
         kind = str(query.key_expr).rsplit("/", 1)[-1]
         with self._lock:
-            data = self.latest.get(kind)
-        if data is not None:
-            query.reply(key(self.board, kind), data, encoding=JSON_ENCODING)
+            msg = self.latest.get(kind)
+        if msg is not None:
+            query.reply(key(self.board, kind), _as_json(msg), encoding=JSON_ENCODING)
 
     def undeclare(self) -> None:
-        for entity in [*self._publishers.values(), *self._queryables]:
+        for entity in [*self._listeners, *self._publishers.values(), *self._queryables]:
             entity.undeclare()
-        self._publishers, self._queryables = {}, []
+        self._listeners, self._publishers, self._queryables = [], {}, []
+
+
+def _as_json(msg) -> bytes:
+    return msg if isinstance(msg, bytes) else message_json(msg)
 
 
 def wait_interruptibly(stop: threading.Event, timeout: float | None = None) -> None:

@@ -28,6 +28,8 @@ def test_a_short_native_replay_writes_its_metrics_record_and_report(tmp_path: Pa
     assert json.loads((tmp_path / "metrics.json").read_text()) == json.loads(json.dumps(result))
     assert result["n_estimates"] >= 799 and result["error"] is None and result["bias_net"]
     assert result["ended"] == "completed"
+    assert 0 < result["loop_seconds"] < result["wall_seconds"]            # the exchange, within the whole job
+    assert result["speed"] == pytest.approx(result["n_estimates"] * 0.01 / result["loop_seconds"])
     assert assertions(result, 0.4, 0.2, "window_p99") == []
     with open(tmp_path / "run.mcap", "rb") as stream:       # finished: the stock reader's summary is there
         reader = make_reader(stream)
