@@ -266,10 +266,10 @@ def register(sub) -> None:
                    help="zenoh endpoint (a router, e.g. tcp/127.0.0.1:7447) where boards and subscribers meet")
     p.add_argument("--zenoh-listen", action="append", default=[], metavar="ENDPOINT",
                    help="zenoh endpoint to listen on (subscribers connect here)")
-    p.add_argument("--lookahead", type=int, default=0, metavar="N",
-                   help="windows sent ahead of the awaited estimate (default 0: strict lock-step). Estimates "
-                        "are identical; the link's idle time shrinks, but receive interrupts then land inside "
-                        "measured calls (a few instructions each)")
+    p.add_argument("--lookahead", type=int, metavar="N",
+                   help="windows kept in flight ahead of the one awaited, with the same answers (default: "
+                        "2 on the native program, else 0: strict lock-step). The link's idle time shrinks, but "
+                        "a board's receive interrupts then land inside measured calls")
     p.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep",
                    help="lockstep (default): send a window, wait for its estimate, so results do not depend on "
                         "link or host speed. realtime: send each window when the recording's clock says it is "

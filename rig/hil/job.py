@@ -68,6 +68,16 @@ def write_json(path: Path, data: dict) -> None:
     log.info("wrote %s", path)
 
 
+# Windows kept in flight ahead of the one awaited (same answers: the board takes them in
+# order). The native program's pty buffers a few; a board's receive ring is 1 kB, and
+# on QEMU a window's instruction count would take in the next window's arriving bytes.
+NATIVE_LOOKAHEAD = 2
+
+
+def default_lookahead(target: str) -> int:
+    return NATIVE_LOOKAHEAD if target == "native" else 0
+
+
 def writable_directory(out: Path) -> None:
     """Create `out` and check that files can be written in it, before any board starts
     (InputError naming it otherwise)."""
@@ -83,7 +93,7 @@ def writable_directory(out: Path) -> None:
 
 
 def check_options(target: str, board: str = "local", start: float | None = None, duration: float | None = None,
-                  lookahead: int = 0, speed: float | None = None) -> None:
+                  lookahead: int | None = None, speed: float | None = None) -> None:
     """Refuse option values a replay cannot use, before anything starts or is written
     (ValueError, saying the rule)."""
     if not TARGET.fullmatch(target):
@@ -96,7 +106,7 @@ def check_options(target: str, board: str = "local", start: float | None = None,
         raise ValueError(f"--start must be a finite time, not {start}")
     if duration is not None and not duration > 0:
         raise ValueError(f"--duration must be a positive number of seconds, not {duration}")
-    if lookahead < 0:
+    if lookahead is not None and lookahead < 0:
         raise ValueError(f"--lookahead must be 0 (strict lock-step) or more windows, not {lookahead}")
     if speed is not None and not speed > 0:
         raise ValueError(f"--speed must be a positive number, not {speed}")
@@ -114,7 +124,7 @@ def board_link(target: str, session, board: str):
 
 
 def replay_job(recording: Path, target: str, out: Path, estimator: EstimatorChoice = EstimatorChoice(), *,
-               start: float | None = None, duration: float | None = None, lookahead: int = 0,
+               start: float | None = None, duration: float | None = None, lookahead: int | None = None,
                speed: float | None = None, report: bool = True, session=None, board: str = "local",
                survey: Path | None = None, progress=None, strict: bool = False,
                loaded: Recording | None = None, on_scored: Callable[[dict], None] | None = None) -> dict:
@@ -133,6 +143,7 @@ def replay_job(recording: Path, target: str, out: Path, estimator: EstimatorChoi
     from rig.hil.zenoh import open_session
 
     check_options(target, board, start, duration, lookahead, speed)
+    lookahead = default_lookahead(target) if lookahead is None else lookahead
     rec = load_any(recording, survey, strict=strict) if loaded is None else loaded
     first, last = start_time(rec) if start is None else start, float(rec.time_span()[1])
     if first >= last:

@@ -406,7 +406,7 @@ class Status:
     bytes_dropped: int
 
 
-_DECODERS = {
+_DECODERS = {kind: (struct.Struct(fmt), build) for kind, (fmt, build) in {
     HELLO_REPLY: ("<BBBBIHB", lambda v: HelloReply(v[0], v[1], UNITS.get(v[2], "?"), v[3], v[4], v[5], v[6])),
     ACK: ("<Bb", lambda v: Ack(*v)),
     ESTIMATE: ("<I3f3f", lambda v: Estimate(v[0], v[1:4], v[4:7])),
@@ -414,14 +414,14 @@ _DECODERS = {
     COUNTERS: ("<IIIIHHHH", lambda v: Counters(*v)),
     TIMING: ("<IIIIIB", lambda v: Timing(*v)),
     STATUS: ("<BIII", lambda v: Status(*v)),
-}
+}.items()}
 
 
 def decode(payload: bytes):
     """A board message as its dataclass."""
     if not payload or payload[0] not in _DECODERS:
         raise ProtocolError(f"unknown message type {payload[:1].hex() or '(empty)'}")
-    fmt, build = _DECODERS[payload[0]]
-    if len(payload) - 1 != struct.calcsize(fmt):
+    layout, build = _DECODERS[payload[0]]
+    if len(payload) - 1 != layout.size:
         raise ProtocolError(f"message 0x{payload[0]:02x} of {len(payload)} bytes")
-    return build(struct.unpack(fmt, payload[1:]))
+    return build(layout.unpack_from(payload, 1))

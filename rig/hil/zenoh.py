@@ -36,9 +36,10 @@ from rig.hil.links import BoardLink, LinkError
 log = logging.getLogger(__name__)
 
 PREFIX = "rig/board"
-KINDS = {protocol.HelloReply: "hello", protocol.Ack: "ack", protocol.Estimate: "estimate",
-         protocol.Attitude: "attitude", protocol.Counters: "counters", protocol.Timing: "timing",
-         protocol.Status: "status"}
+# Each board message's key leaf, by its type byte on the wire.
+KINDS = {protocol.HELLO_REPLY: "hello", protocol.ACK: "ack", protocol.ESTIMATE: "estimate",
+         protocol.ATTITUDE: "attitude", protocol.COUNTERS: "counters", protocol.TIMING: "timing",
+         protocol.STATUS: "status"}
 
 
 def key(board: str, leaf: str) -> str:
@@ -124,35 +125,44 @@ class BoardPublishers:
         if self.listened["rx"]:
             self._publishers["rx"].put(pack_batch(payloads))
         for payload in payloads:
-            try:
-                msg = protocol.decode(payload)
-            except protocol.ProtocolError as exc:
-                log.warning("bridge %s: %s", self.board, exc)
+            kind = KINDS.get(payload[0])
+            if kind is None:
+                log.warning("bridge %s: unknown message type 0x%02x", self.board, payload[0])
                 continue
-            self.put(KINDS[type(msg)], msg)
+            with self._lock:
+                self.latest[kind] = (payload, None)   # decoded only when asked for
+            if self.listened[kind]:
+                self._put_decoded(kind, payload)
 
-    def put(self, kind: str, msg) -> None:
-        """`msg`: a decoded message, or its JSON already made."""
+    def put_json(self, kind: str, data: bytes) -> None:
+        """A message the bridge itself says, as JSON."""
         with self._lock:
-            self.latest[kind] = msg
-        if self.listened[kind]:
-            self._publishers[kind].put(_as_json(msg))
+            self.latest[kind] = (None, data)
+        self._publishers[kind].put(data)
+
+    def _put_decoded(self, kind: str, payload: bytes) -> None:
+        try:
+            self._publishers[kind].put(message_json(protocol.decode(payload)))
+        except protocol.ProtocolError as exc:
+            log.warning("bridge %s: %s", self.board, exc)
 
     def _answer(self, query: zenoh.Query) -> None:
         kind = str(query.key_expr).rsplit("/", 1)[-1]
         with self._lock:
-            msg = self.latest.get(kind)
-        if msg is not None:
-            query.reply(key(self.board, kind), _as_json(msg), encoding=JSON_ENCODING)
+            latest = self.latest.get(kind)
+        if latest is None:
+            return
+        payload, data = latest
+        try:
+            data = data if payload is None else message_json(protocol.decode(payload))
+        except protocol.ProtocolError:
+            return
+        query.reply(key(self.board, kind), data, encoding=JSON_ENCODING)
 
     def undeclare(self) -> None:
         for entity in [*self._listeners, *self._publishers.values(), *self._queryables]:
             entity.undeclare()
         self._listeners, self._publishers, self._queryables = [], {}, []
-
-
-def _as_json(msg) -> bytes:
-    return msg if isinstance(msg, bytes) else message_json(msg)
 
 
 def wait_interruptibly(stop: threading.Event, timeout: float | None = None) -> None:
@@ -208,7 +218,7 @@ class Bridge:
             self.error = reason
             log.error("bridge %s: %s", self.name, reason)
             status = protocol.Status(code=-1, frames_ok=0, frames_bad=0, bytes_dropped=0)
-            self._publishers.put("status", json.dumps({**vars(status), "error": reason}).encode())
+            self._publishers.put_json("status", json.dumps({**vars(status), "error": reason}).encode())
             self._stop.set()
 
     def wait(self) -> None:
