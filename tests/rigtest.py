@@ -9,6 +9,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from rig.data.usdlog import EventType, encode
@@ -46,6 +47,19 @@ def simulate_exact(survey: Path, trajectory: str = "circle-sine", effects: list[
 
     return simulate(SimConfig(trajectory=trajectory, survey=str(survey), effects=effects or [],
                               resolution=dict(FULL_PRECISION), **kw))
+
+
+def tdoa_poses(rec):
+    """The TDOA rows inside the ground truth's span (a mask), their times, and the true
+    body attitude and position there."""
+    from scipy.spatial.transform import Rotation, Slerp
+
+    tdoa, truth = rec.tdoa, rec.truth
+    inside = (tdoa.t > truth.t[0]) & (tdoa.t < truth.t[-1])
+    t = tdoa.t[inside]
+    body = Slerp(truth.t, Rotation.from_quat(truth.quaternion))(t)
+    position = np.stack([np.interp(t, truth.t, truth.position[:, i]) for i in range(3)], axis=1)
+    return inside, t, body, position
 
 
 def crafted_log(n: int = 50) -> bytes:

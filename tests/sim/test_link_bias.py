@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from rigtest import FULL_PRECISION
-from scipy.spatial.transform import Rotation, Slerp
+from rigtest import FULL_PRECISION, tdoa_poses
+from scipy.spatial.transform import Rotation
 
 from rig.sim.effects import LINK_TERMS, make_effect
 from rig.sim.simulate import SimConfig, simulate
@@ -36,11 +36,8 @@ def test_a_tdoa_carries_link_bs_bias_minus_link_as(survey_0425: Path) -> None:
                     resolution=dict(FULL_PRECISION),
                     effects=[{"effect": "link_bias", "params": {"coeffs_m": COEFFS.tolist()}}])
     biased, clean = simulate(cfg), simulate(replace(cfg, effects=[]))
-    tdoa, truth = biased.tdoa, biased.truth
-    inside = (tdoa.t > truth.t[0]) & (tdoa.t < truth.t[-1])
-    t = tdoa.t[inside]
-    body = Slerp(truth.t, Rotation.from_quat(truth.quaternion))(t)
-    position = np.stack([np.interp(t, truth.t, truth.position[:, i]) for i in range(3)], axis=1)
+    tdoa = biased.tdoa
+    inside, t, body, position = tdoa_poses(biased)
     anchors = {a.id: a for a in biased.anchors}
 
     def link(ids: np.ndarray) -> np.ndarray:

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from rigtest import FULL_PRECISION, ROOT, run_rig, simulate_exact
-from scipy.spatial.transform import Rotation, Slerp
+from rigtest import FULL_PRECISION, ROOT, run_rig, simulate_exact, tdoa_poses
+from scipy.spatial.transform import Rotation
 
 from rig.bias.dataset import measurement_features
 from rig.data.importer import load_any
@@ -252,11 +252,8 @@ def test_the_tags_antenna_pattern_biases_each_range_by_its_anchors_direction_in_
     cfg = SimConfig(trajectory="circle", duration=10.0, survey=str(survey_0425), resolution=dict(FULL_PRECISION),
                     effects=[{"effect": "tag_antenna_pattern", "params": {"coeffs_m": coeffs.tolist()}}])
     patterned, clean = simulate(cfg), simulate(replace(cfg, effects=[]))
-    tdoa, truth = patterned.tdoa, patterned.truth
-    inside = (tdoa.t > truth.t[0]) & (tdoa.t < truth.t[-1])
-    t = tdoa.t[inside]
-    body = Slerp(truth.t, Rotation.from_quat(truth.quaternion))(t)
-    position = np.stack([np.interp(t, truth.t, truth.position[:, i]) for i in range(3)], axis=1)
+    tdoa = patterned.tdoa
+    inside, t, body, position = tdoa_poses(patterned)
     anchors = {a.id: np.array(a.position) for a in patterned.anchors}
 
     def range_bias(ids: np.ndarray) -> np.ndarray:
