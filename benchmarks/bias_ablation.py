@@ -23,7 +23,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from rig.bias.config import FEATURE_SETS, TrainConfig  # noqa: E402
+from rig.bias.config import TrainConfig  # noqa: E402
 from rig.bias.dataset import Samples  # noqa: E402
 from rig.bias.train import run_training  # noqa: E402
 from rig.data import paths  # noqa: E402
@@ -40,7 +40,7 @@ TEST_DAY = "0426"
 
 def train(name: str, features: str, features_from: str = "estimate", seed: int = 0, **kwargs) -> dict:
     out = OUT / name / "bias_net.json"
-    prov = run_training(paths.flights(), out, config=TrainConfig(seed=seed, features=FEATURE_SETS[features]),
+    prov = run_training(paths.flights(), out, config=TrainConfig.with_features(features, seed=seed),
                         dataset_cache=CACHES[features_from], features_from=features_from, **kwargs)
     prov["path"] = str(out)
     print(f"{name}: test std {prov['test']['before']['std']:.3f} -> {prov['test']['after']['std']:.3f} m", flush=True)
@@ -73,7 +73,7 @@ def histogram(samples: Samples, models: dict[str, Path], png: Path) -> None:
     bins = np.linspace(-1, 1, 101)
     ax.hist(samples.label, bins, density=True, color="0.6", label=f"before (σ {samples.label.std():.3f} m)")
     for (name, path), colour in zip(models.items(), ("tab:red", "teal")):
-        residual = samples.label - BiasNet.load(path).predict(samples.features)
+        residual = samples.label - BiasNet.load(path).predict(samples.features, samples.id_a, samples.id_b)
         ax.hist(residual, bins, density=True, histtype="step", lw=1.8, color=colour,
                 label=f"{name} (σ {residual.std():.3f} m)")
     ax.set_xlabel("TDOA error (m)")

@@ -87,7 +87,7 @@ def main() -> None:
     parser.add_argument("--json", type=Path, default=ROOT / "out" / "bias_quality.json")
     args = parser.parse_args()
     samples, _ = load_or_build_dataset(paths.flights(), CACHES["estimate"])
-    residual = samples.label - BiasNet.load(MODEL).predict(samples.features)
+    residual = samples.label - BiasNet.load(MODEL).predict(samples.features, samples.id_a, samples.id_b)
     train = ~np.char.startswith(samples.flight.astype(str), TEST_DAY)
     quality = quality_network(samples.features[train], residual[train])
     sigma = quality(samples.features[~train])

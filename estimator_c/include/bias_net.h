@@ -26,6 +26,7 @@
 #define BN_LINK_INPUTS 7          /* features of one tag-anchor link */
 #define BN_LINK_HIDDEN 20         /* link form: three hidden layers of 20, stored BN_LANES wide */
 #define BN_LAYERS 4               /* three hidden layers and the output layer */
+#define BN_ANCHORS 16             /* anchor ids with a range offset of their own (EST_MAX_ANCHORS) */
 
 enum { BN_FORM_PAIR = 0, BN_FORM_LINK = 1 };
 
@@ -60,6 +61,10 @@ typedef struct {
     int8_t w4[BN_LINK_HIDDEN];
     float s1[BN_LANES], s2[BN_LANES], s3[BN_LANES], s4;
     float b1[BN_LANES], b2[BN_LANES], b3[BN_LANES], b4;
+    /* Each anchor's own range offset (its antenna delay's error, m), added to the link's
+     * bias: zero for an anchor the model never saw, and for every anchor of a model
+     * whose network tells anchors apart by their position. */
+    float anchor_offset[BN_ANCHORS];
 } bn_link_t;
 
 typedef struct {
@@ -76,8 +81,9 @@ void bn_features(const float tag_pos[3], const float tag_rot[3][3],
                  const float anchor_b_pos[3], const float anchor_b_rot[3][3],
                  float features[BN_INPUTS]);
 
-/* Predicted TDOA bias (m) for raw (unnormalised) features, in either form. */
-float bn_predict(const bias_net_t *net, const float features[BN_INPUTS]);
+/* Predicted TDOA bias (m) of the measurement between anchors id_a and id_b, for raw
+ * (unnormalised) features, in either form (the pair form ignores the ids). */
+float bn_predict(const bias_net_t *net, const float features[BN_INPUTS], unsigned id_a, unsigned id_b);
 
 /* The link form's range bias (m) of one link, from its raw link features. */
 float bn_link_bias(const bn_link_t *net, const float link[BN_LINK_INPUTS]);

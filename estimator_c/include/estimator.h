@@ -19,6 +19,7 @@
 
 #define EST_STATE_DIM 9            /* error state: position, velocity, attitude */
 #define EST_MAX_ANCHORS 16         /* anchor ids 0..EST_MAX_ANCHORS-1 */
+_Static_assert(EST_MAX_ANCHORS == BN_ANCHORS, "the bias model has one offset per anchor id");
 #define EST_TDOA_QUEUE 32          /* TDOA measurements buffered within one window */
 #define EST_API_VERSION 1
 

@@ -51,7 +51,12 @@ float bn_link_bias(const bn_link_t *net, const float link[BN_LINK_INPUTS])
     return linear_out(BN_LINK_HIDDEN, net->w4, net->s4, net->b4, h3) * net->out_scale;
 }
 
-static float link_predict(const bn_link_t *net, const float features[BN_INPUTS])
+static float anchor_offset(const bn_link_t *net, unsigned id)
+{
+    return id < BN_ANCHORS ? net->anchor_offset[id] : 0.0f;
+}
+
+static float link_predict(const bn_link_t *net, const float features[BN_INPUTS], unsigned id_a, unsigned id_b)
 {
     static const int index_a[BN_LINK_INPUTS] = BN_LINK_A, index_b[BN_LINK_INPUTS] = BN_LINK_B;
     float a[BN_LINK_INPUTS], b[BN_LINK_INPUTS];
@@ -59,10 +64,11 @@ static float link_predict(const bn_link_t *net, const float features[BN_INPUTS])
         a[i] = features[index_a[i]];
         b[i] = features[index_b[i]];
     }
-    return bn_link_bias(net, b) - bn_link_bias(net, a);
+    return bn_link_bias(net, b) + anchor_offset(net, id_b) - bn_link_bias(net, a) - anchor_offset(net, id_a);
 }
 
-float bn_predict(const bias_net_t *net, const float features[BN_INPUTS])
+float bn_predict(const bias_net_t *net, const float features[BN_INPUTS], unsigned id_a, unsigned id_b)
 {
-    return net->form == BN_FORM_LINK ? link_predict(&net->u.link, features) : pair_predict(&net->u.pair, features);
+    return net->form == BN_FORM_LINK ? link_predict(&net->u.link, features, id_a, id_b)
+                                     : pair_predict(&net->u.pair, features);
 }

@@ -46,7 +46,7 @@ void tdoa_update(estimator_t *est, const est_tdoa_t *m)
     if (est->params.use_bias_net && est->net) {
         float features[BN_INPUTS];
         bn_features(pos_then, est->rot, a->pos, a->rot, b->pos, b->rot, features);
-        measured -= bn_predict(est->net, features);
+        measured -= bn_predict(est->net, features, m->id_a, m->id_b);
     }
     const float innovation = measured - predicted;
     const float std = est->params.tdoa_std;

@@ -23,10 +23,10 @@ from pathlib import Path
 
 import numpy as np
 
-from rig.bias.config import TrainConfig
+from rig.bias.config import ANCHOR_OFFSET_BOUND_M, TrainConfig
 from rig.bias.dataset import Samples
 from rig.data import paths
-from rig.estimator.bias_net import BiasNet, link_features, shape
+from rig.estimator.bias_net import ANCHORS, BiasNet, link_features, shape
 
 log = logging.getLogger(__name__)
 
@@ -70,24 +70,29 @@ def _torch():
     return torch
 
 
-def _model(torch, form: str):
+def _model(torch, config: TrainConfig):
     """The network to train: the pair form maps a measurement's 14 standardised features
     to its bias; the link form applies one network g to both links' 7 standardised
-    features and returns g(B) − g(A)."""
+    features and returns g(B) − g(A), plus d[B] − d[A] with anchor offsets."""
     nn = torch.nn
-    n_in, hidden = shape(form)
+    n_in, hidden = shape(config.form)
     mlp = nn.Sequential(nn.Linear(n_in, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU(),
                         nn.Linear(hidden, hidden), nn.ReLU(), nn.Linear(hidden, 1))
-    if form == "pair":
+    if config.form == "pair":
         return mlp
 
     class LinkDifference(nn.Module):
         def __init__(self):
             super().__init__()
             self.g = mlp
+            self.offset = nn.Parameter(torch.zeros(ANCHORS)) if config.anchor_offsets else None
 
         def forward(self, x):
-            return self.g(x[:, n_in:]) - self.g(x[:, :n_in])
+            bias = self.g(x[:, n_in:2 * n_in]) - self.g(x[:, :n_in])
+            if self.offset is None:
+                return bias
+            ids = x[:, 2 * n_in:].long()            # the anchor ids ride in the last two columns
+            return bias + (self.offset[ids[:, 1]] - self.offset[ids[:, 0]])[:, None]
 
     return LinkDifference()
 
@@ -113,10 +118,10 @@ def _normalisation(x: np.ndarray, keep: list[int]) -> tuple[np.ndarray, np.ndarr
 
 def _network_inputs(features: np.ndarray, config: TrainConfig) -> np.ndarray:
     """What the network's standardisation sees: the kept measurement features (pair
-    form), or link A's features then link B's, side by side (link form)."""
+    form), or link A's kept features then link B's, side by side (link form)."""
     if config.form == "link":
-        return np.hstack(link_features(features)).astype(np.float64)
-    return _masked(features, config.features)
+        return np.hstack([_masked(link, config.kept_features()) for link in link_features(features)])
+    return _masked(features, config.kept_features())
 
 
 def _standardisation(train_set: Samples, config: TrainConfig) -> tuple[np.ndarray, np.ndarray]:
@@ -125,15 +130,29 @@ def _standardisation(train_set: Samples, config: TrainConfig) -> tuple[np.ndarra
     x = _network_inputs(train_set.features, config)
     if config.form == "link":
         n = x.shape[1] // 2
-        return _normalisation(np.vstack([x[:, :n], x[:, n:]]), list(range(n)))
-    return _normalisation(x, config.features)
+        return _normalisation(np.vstack([x[:, :n], x[:, n:]]), config.kept_features())
+    return _normalisation(x, config.kept_features())
 
 
-def _to_bias_net(model, in_mean, in_scale, out_scale, out_offset, form: str) -> BiasNet:
+def _to_bias_net(model, in_mean, in_scale, out_scale, out_offset, form: str, seen: np.ndarray) -> BiasNet:
     linears = _linears(model)
     return BiasNet([m.weight.detach().double().numpy().copy() for m in linears],
                    [m.bias.detach().double().numpy().copy() for m in linears],
-                   in_mean, in_scale, float(out_scale), float(out_offset), form)
+                   in_mean, in_scale, float(out_scale), float(out_offset), form,
+                   _anchor_offsets(model, out_scale, seen))
+
+
+def _anchor_offsets(model, out_scale: float, seen: np.ndarray) -> np.ndarray | None:
+    """The learnt offsets in metres, bounded, zero-mean over the anchors seen in training.
+    A TDOA sees only differences of offsets, so their common level is free; fixing it
+    at the seen anchors' mean gives an unseen anchor (offset 0) their mean delay."""
+    offset = getattr(model, "offset", None)
+    if offset is None:
+        return None
+    metres = offset.detach().double().numpy() * out_scale
+    out = np.zeros(ANCHORS)
+    out[seen] = metres[seen] - metres[seen].mean()
+    return np.clip(out, -ANCHOR_OFFSET_BOUND_M, ANCHOR_OFFSET_BOUND_M)
 
 
 def train(train_set: Samples, validation_set: Samples, config: TrainConfig = TrainConfig(),
@@ -150,15 +169,18 @@ def train(train_set: Samples, validation_set: Samples, config: TrainConfig = Tra
 
     def tensors(samples: Samples):
         x = (_network_inputs(samples.features, config) - np.tile(in_mean, repeat)) * np.tile(in_scale, repeat)
+        if config.anchor_offsets:
+            x = np.hstack([x, _anchor_ids(samples)])
         y = (samples.label - out_offset) / out_scale
         return torch.tensor(x, dtype=torch.float32), torch.tensor(y[:, None], dtype=torch.float32)
 
     data = (*tensors(train_set), *tensors(validation_set))
+    seen = np.unique(np.concatenate([train_set.id_a, train_set.id_b]).astype(int))
     tic = time.perf_counter()
     runs = []
     for restart in range(config.first_restart, config.first_restart + config.restarts):
         model, run = _train_once(torch, data, config, restart, progress)
-        net = _to_bias_net(model, in_mean, in_scale, out_scale, out_offset, config.form)
+        net = _to_bias_net(model, in_mean, in_scale, out_scale, out_offset, config.form, seen)
         if score is not None:
             run["validation_rmse_3d"] = score(net)
         runs.append((net, run))
@@ -186,7 +208,7 @@ def _train_once(torch, data: tuple, config: TrainConfig, restart: int, progress=
     init_seed = config.init_seed(restart)
     torch.manual_seed(init_seed)
     rng = np.random.default_rng(init_seed)
-    model = _model(torch, config.form)
+    model = _model(torch, config)
     optimiser = torch.optim.Adam(model.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay)
     loss_fn = torch.nn.MSELoss()
     best, best_state, best_epoch, history = np.inf, None, -1, []
@@ -214,13 +236,21 @@ def _train_once(torch, data: tuple, config: TrainConfig, restart: int, progress=
                    "epochs": len(history), "best_epoch": best_epoch, "history": history}
 
 
+def _anchor_ids(samples: Samples) -> np.ndarray:
+    ids = np.column_stack([samples.id_a, samples.id_b]).astype(int)
+    if ids.size and (ids.min() < 0 or ids.max() >= ANCHORS):
+        raise ValueError(f"anchor ids must be 0..{ANCHORS - 1} to have an offset, got {ids.min()}..{ids.max()}")
+    return ids
+
+
 def residual_stats(net: BiasNet, samples: Samples) -> dict:
     """TDOA error before and after subtracting the network's prediction (float and int8 weights)."""
     if not len(samples):
         return {}
     return {"before": error_stats(samples.label),
-            "after": error_stats(samples.label - net.predict(samples.features)),
-            "after_int8": error_stats(samples.label - net.quantized().predict(samples.features))}
+            "after": error_stats(samples.label - net.predict(samples.features, samples.id_a, samples.id_b)),
+            "after_int8": error_stats(samples.label - net.quantized().predict(samples.features, samples.id_a,
+                                                                              samples.id_b))}
 
 
 

@@ -15,7 +15,7 @@ from rig.estimator.bias_net import FORMS
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    from rig.bias.config import FEATURE_SETS
+    from rig.bias.config import DEFAULT_FEATURE_SET, FEATURE_SETS
     from rig.bias.train import provenance_path, run_training, trained_on
 
     flights = _matching_flights(args.flights)
@@ -29,9 +29,13 @@ def cmd_train(args: argparse.Namespace) -> int:
         raise CliError(f"no flight matches {args.flights or 'all'} apart from {args.apart_from}'s training flights")
     if args.restarts < 1:
         raise CliError(f"--restarts must be at least 1, got {args.restarts}")
+    feature_set = args.features or DEFAULT_FEATURE_SET[args.form]
+    if FEATURE_SETS[feature_set][0] != args.form:
+        raise CliError(f"--features {feature_set} is a {FEATURE_SETS[feature_set][0]} form's set, "
+                       f"not the {args.form} form's")
     try:
-        config = TrainConfig(seed=args.seed, restarts=args.restarts, select_by=args.select_by,
-                             max_epochs=args.max_epochs, features=FEATURE_SETS[args.features], form=args.form)
+        config = TrainConfig.with_features(feature_set, seed=args.seed, restarts=args.restarts,
+                                           select_by=args.select_by, max_epochs=args.max_epochs)
     except ValueError as exc:
         raise CliError(str(exc)) from exc
     anchors = [int(a) for a in args.exclude_anchors.split(",")] if args.exclude_anchors else []
@@ -124,8 +128,11 @@ def register_train(sub) -> None:
     p.add_argument("--form", choices=FORMS, default=TrainConfig().form,
                    help="link (default): one network of a tag-anchor link's 7 features, TDOA bias = g(B) - g(A); "
                         "pair: a network of the measurement's 14 features (the paper's form)")
-    p.add_argument("--features", choices=("14", "10"), default="14",
-                   help="10 drops the anchors' orientation (the tag's angles in each anchor's frame)")
+    p.add_argument("--features", choices=("14", "10", "7", "shared"),
+                   help="pair form: 14 (default) or 10, without the anchors' orientation (the tag's angles in "
+                        "each anchor's frame); link form: 7 (default) or shared, only what every anchor shares "
+                        "(the tag's angles in the anchor's frame, the anchor's elevation from the tag) with a "
+                        "bounded range offset per anchor")
     p.add_argument("--features-from", choices=FEATURES_FROM, default=FEATURES_FROM[0],
                    help="the tag pose the features are computed from: the estimator's own (a replay without "
                         "correction; what the network sees in flight) or the ground truth")

@@ -9,8 +9,10 @@ Two forms (estimator_c/include/bias_net.h):
   links' range biases.
 
 Layer l computes y = relu(W_l x + b_l) (no ReLU on the output layer); inputs are
-standardised as (x - in_mean) * in_scale; the output in metres is
-out_scale * y + out_offset (the link form's offset cancels in the difference: 0).
+standardised as (x - in_mean) * in_scale (a scale of 0 keeps a feature out); the output
+in metres is out_scale * y + out_offset (the link form's offset cancels in the
+difference: 0). A link model may add each anchor's own range offset (`anchor_offset`,
+zero for an anchor it never saw): TDOA bias = g(B) + d[B] − g(A) − d[A].
 """
 
 from __future__ import annotations
@@ -32,9 +34,10 @@ LINK_A = [0, 1, 2, 6, 8, 10, 12]
 LINK_B = [3, 4, 5, 7, 9, 11, 13]
 DEFAULT_NETWORK = paths.SHIPPED_BIAS_NET
 LANES = 32  # C storage width of a pair layer (BN_LANES): two zero neurons of padding
+ANCHORS = 16  # anchor ids with an offset (BN_ANCHORS)
 
 
-def _layer_dtype(n_in: int, hidden: int, lanes: int, offset: bool) -> np.dtype:
+def _layer_dtype(n_in: int, hidden: int, lanes: int, offset: bool, anchors: int = 0) -> np.dtype:
     return np.dtype([
         ("in_mean", "<f4", n_in), ("in_scale", "<f4", n_in), ("out_scale", "<f4"),
         *([("out_offset", "<f4")] if offset else []),
@@ -42,11 +45,12 @@ def _layer_dtype(n_in: int, hidden: int, lanes: int, offset: bool) -> np.dtype:
         ("w4", "i1", hidden),
         ("s1", "<f4", lanes), ("s2", "<f4", lanes), ("s3", "<f4", lanes), ("s4", "<f4"),
         ("b1", "<f4", lanes), ("b2", "<f4", lanes), ("b3", "<f4", lanes), ("b4", "<f4"),
+        *([("anchor_offset", "<f4", anchors)] if anchors else []),
     ], align=True)
 
 
 PAIR_DTYPE = _layer_dtype(INPUTS, HIDDEN, LANES, offset=True)
-LINK_DTYPE = _layer_dtype(LINK_INPUTS, LINK_HIDDEN, LANES, offset=False)
+LINK_DTYPE = _layer_dtype(LINK_INPUTS, LINK_HIDDEN, LANES, offset=False, anchors=ANCHORS)
 # bias_net_t: the form, then a union of the two layouts.
 NET_DTYPE = np.dtype({"names": ["form", "pair", "link"], "formats": ["<u4", PAIR_DTYPE, LINK_DTYPE],
                       "offsets": [0, 4, 4], "itemsize": 4 + max(PAIR_DTYPE.itemsize, LINK_DTYPE.itemsize)})
@@ -74,10 +78,26 @@ class BiasNet:
     out_scale: float = 1.0
     out_offset: float = 0.0
     form: str = "pair"
+    anchor_offset: np.ndarray | None = None   # link form: (ANCHORS,) range offset per anchor id (m)
 
     def __post_init__(self) -> None:
         if self.form not in FORMS:
             raise ValueError(f"form must be one of {FORMS}, not {self.form!r}")
+        if self.anchor_offset is not None:
+            self.anchor_offset = np.asarray(self.anchor_offset, float)
+            if self.form != "link" or self.anchor_offset.shape != (ANCHORS,):
+                raise ValueError(f"anchor offsets belong to the link form, one per anchor id 0..{ANCHORS - 1}")
+            if not np.any(self.anchor_offset):
+                self.anchor_offset = None
+
+    def offsets(self, ids: np.ndarray) -> np.ndarray:
+        """Each id's range offset (m); 0 for ids beyond the table, as the C code does."""
+        ids = np.asarray(ids, int)
+        out = np.zeros(ids.shape)
+        if self.anchor_offset is not None:
+            inside = (ids >= 0) & (ids < ANCHORS)
+            out[inside] = self.anchor_offset[ids[inside]]
+        return out
 
     def _network(self, x: np.ndarray) -> np.ndarray:
         x = (np.atleast_2d(x) - self.in_mean) * self.in_scale
@@ -91,12 +111,18 @@ class BiasNet:
         """The link form's range bias (m) of rows of link features."""
         return self._network(links)
 
-    def predict(self, features: np.ndarray) -> np.ndarray:
-        """Float reference inference on rows of raw measurement features: the TDOA bias (m)."""
-        if self.form == "link":
-            a, b = link_features(features)
-            return self.link_bias(b) - self.link_bias(a)
-        return self._network(features) + self.out_offset
+    def predict(self, features: np.ndarray, id_a=None, id_b=None) -> np.ndarray:
+        """Float reference inference on rows of raw measurement features and their anchor
+        ids: the TDOA bias (m). The ids may be left out of a model without anchor offsets."""
+        if self.form == "pair":
+            return self._network(features) + self.out_offset
+        a, b = link_features(features)
+        bias = self.link_bias(b) - self.link_bias(a)
+        if self.anchor_offset is None:
+            return bias
+        if id_a is None or id_b is None:
+            raise ValueError("this model has per-anchor offsets: predict needs the anchor ids")
+        return bias + self.offsets(id_b) - self.offsets(id_a)
 
     def quantized(self) -> "BiasNet":
         """The same network with weights rounded exactly as `pack` stores them."""
@@ -104,8 +130,9 @@ class BiasNet:
         for w in self.weights:
             q, scale = _quantize_rows(w)
             weights.append(q.astype(np.float64) * scale[:, None])
+        offsets = None if self.anchor_offset is None else self.anchor_offset.astype(np.float32).astype(float)
         return BiasNet(weights, [b.copy() for b in self.biases], self.in_mean, self.in_scale,
-                       self.out_scale, self.out_offset, self.form)
+                       self.out_scale, self.out_offset, self.form, offsets)
 
     def pack(self) -> np.ndarray:
         """One NET_DTYPE record, laid out like the C bias_net_t."""
@@ -116,6 +143,8 @@ class BiasNet:
         layout["in_mean"], layout["in_scale"], layout["out_scale"] = self.in_mean, self.in_scale, self.out_scale
         if self.form == "pair":
             layout["out_offset"] = self.out_offset
+        elif self.anchor_offset is not None:
+            layout["anchor_offset"] = self.anchor_offset
         for k, (w, b) in enumerate(zip(self.weights, self.biases), start=1):
             q, scale = _quantize_rows(w)
             if k < 4:  # C stores input-major, `hidden` neurons in its lanes (padding stays zero)
@@ -134,13 +163,15 @@ class BiasNet:
             "in_mean": self.in_mean.tolist(), "in_scale": self.in_scale.tolist(),
             "out_scale": self.out_scale, "out_offset": self.out_offset,
             "weights": [w.tolist() for w in self.weights], "biases": [b.tolist() for b in self.biases],
+            **({"anchor_offset": self.anchor_offset.tolist()} if self.anchor_offset is not None else {}),
         }
 
     @classmethod
     def from_json(cls, obj: dict) -> "BiasNet":
         return cls([np.array(w, float) for w in obj["weights"]], [np.array(b, float) for b in obj["biases"]],
                    np.array(obj["in_mean"], float), np.array(obj["in_scale"], float),
-                   float(obj["out_scale"]), float(obj["out_offset"]), obj.get("form", "pair"))
+                   float(obj["out_scale"]), float(obj["out_offset"]), obj.get("form", "pair"),
+                   obj.get("anchor_offset"))
 
     def save(self, path: Path) -> None:
         Path(path).write_text(json.dumps(self.to_json()) + "\n")

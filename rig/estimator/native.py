@@ -146,7 +146,7 @@ def _load(path: Path) -> ctypes.CDLL:
     lib.est_copy_covariance.argtypes = [ctypes.c_void_p, ctypes.c_void_p]
     lib.bn_features.argtypes = [ctypes.c_void_p] * 7
     lib.bn_features_batch.argtypes = [ctypes.c_size_t] + [ctypes.c_void_p] * 7
-    lib.bn_predict.argtypes = [ctypes.c_void_p, ctypes.c_void_p]
+    lib.bn_predict.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_uint, ctypes.c_uint]
     lib.bn_predict.restype = ctypes.c_float
     return lib
 
@@ -230,9 +230,10 @@ def features_batch(tag_pos, tag_rot, a_pos, a_rot, b_pos, b_rot) -> np.ndarray:
     return out
 
 
-def predict_bias(packed: np.ndarray, feature_vector) -> float:
+def predict_bias(packed: np.ndarray, feature_vector, id_a: int = 0, id_b: int = 1) -> float:
+    """The C inference of a packed model for one measurement between anchors id_a and id_b."""
     features32 = _f32(feature_vector, 14)
-    return float(library().bn_predict(_ptr(packed), _ptr(features32)))
+    return float(library().bn_predict(_ptr(packed), _ptr(features32), id_a, id_b))
 
 
 def params_with(**overrides) -> EstimatorParams:

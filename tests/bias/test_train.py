@@ -9,9 +9,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 from rigtest import ROOT, run_rig
 
-from rig.bias.config import TrainConfig
+from rig.bias.config import ANCHOR_OFFSET_BOUND_M, TrainConfig
 from rig.bias.dataset import Samples
 from rig.bias.train import provenance_path, run_training, split_flights, train, trained_on
 from rig.data.recording import read_recording
@@ -69,6 +70,59 @@ def test_the_link_form_learns_each_links_own_bias() -> None:
     truth = 0.3 * np.sin(2 * links[:, 5]) + 0.1 * np.cos(links[:, 3])       # elevation, azimuth in the anchor's frame
     learned = net.link_bias(links)
     assert np.std((learned - learned.mean()) - (truth - truth.mean())) < 0.05
+
+
+def delayed_anchor_samples(delay: np.ndarray, per_flight: int, seed: int) -> Samples:
+    """Six anchors facing the room's centre, three low and three high, each with its own
+    range offset (`delay`) on top of a pattern every anchor shares: the tag's elevation
+    and azimuth in the anchor's frame."""
+    rng = np.random.default_rng(seed)
+    xy = np.array([[-3, -4], [4, 4], [-3, 4], [4, -4], [0, 4.5], [0, -4.5]], float)
+    anchors = np.column_stack([xy, [0.2, 0.2, 0.2, 3.0, 3.0, 3.0]])
+    facing = Rotation.from_euler("z", np.arctan2(-xy[:, 1], -xy[:, 0])[:, None]).as_matrix()
+    parts = []
+    for k in range(5):
+        tag = rng.uniform([-2, -2, 0.5], [2, 2, 2.5], (per_flight, 3))
+        ia = rng.integers(0, 6, per_flight)
+        ib = (ia + 1 + rng.integers(0, 5, per_flight)) % 6
+        level = np.repeat(np.eye(3)[None], per_flight, axis=0)
+        feats = native.features_batch(tag, level, anchors[ia], facing[ia], anchors[ib], facing[ib])
+        pattern = lambda elevation, azimuth: 0.3 * np.sin(2 * elevation) + 0.1 * np.cos(azimuth)  # noqa: E731
+        label = pattern(feats[:, 11], feats[:, 7]) + delay[ib] - pattern(feats[:, 10], feats[:, 6]) - delay[ia]
+        parts.append(Samples(feats, label + rng.normal(0, 0.05, per_flight), np.full(per_flight, f"sim{k}"),
+                             ia, ib, np.arange(per_flight) * 0.02))
+    return Samples.concatenate(parts)
+
+
+def test_anchor_offsets_are_learnt_beside_a_network_of_shared_features() -> None:
+    """Each anchor's own range offset (a miscalibrated antenna delay) on top of a pattern
+    every anchor shares: the offsets learn the delays where the shared features cannot
+    tell the anchors apart (anchors of one height, facing the centre), they stay within
+    their bound, and an anchor never seen in training gets none."""
+    delay = np.array([0.1, -0.1, 0.6, 0.05, -0.05, 0.2])     # anchor 2 beyond the bound
+    data = delayed_anchor_samples(delay, 3000, seed=4)
+    config = TrainConfig.with_features("shared", max_epochs=40)
+    assert (config.form, config.features, config.anchor_offsets) == ("link", [3, 5, 6], True)
+    unseen = 5
+    train_set = data.select((data.flight != "sim4") & (data.id_a != unseen) & (data.id_b != unseen))
+    net, _ = train(train_set, data.select(data.flight == "sim4"), config)
+    d = net.anchor_offset
+    assert d[0] - d[1] == pytest.approx(0.2, abs=0.03) and d[3] - d[4] == pytest.approx(0.1, abs=0.03)
+    assert np.abs(d).max() == pytest.approx(ANCHOR_OFFSET_BOUND_M) and np.argmax(d) == 2
+    assert d[unseen] == 0.0 and not np.any(d[6:])
+    assert not np.any(net.in_scale[[0, 1, 2, 4]])          # the features that tell anchors apart stay out
+    ok = data.select(~np.isin(data.id_a, [2, unseen]) & ~np.isin(data.id_b, [2, unseen]))
+    residual = ok.label - net.quantized().predict(ok.features, ok.id_a, ok.id_b)
+    assert residual.std() < 0.07
+
+
+def test_a_feature_set_belongs_to_one_form() -> None:
+    with pytest.raises(ValueError, match="features are 0..6"):
+        TrainConfig(form="link", features=[3, 9])
+    with pytest.raises(ValueError, match="anchor offsets belong to the link form"):
+        TrainConfig(form="pair", anchor_offsets=True)
+    refused = run_rig("train", "--form", "pair", "--features", "shared")
+    assert refused.returncode == 2 and "--features shared is a link form's set" in refused.stderr
 
 
 def test_same_seed_same_network_other_seed_other_network() -> None:

@@ -9,7 +9,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from rig.estimator import native
-from rig.estimator.bias_net import INPUTS, LINK_A, LINK_B, BiasNet, identity_probe_net, shape
+from rig.estimator.bias_net import ANCHORS, INPUTS, LINK_A, LINK_B, BiasNet, identity_probe_net, shape
 from rig.estimator.native import ESTIMATOR_DIR
 
 LEVEL = [0.0, 0.0, 0.0, 1.0]
@@ -87,19 +87,40 @@ def test_the_link_form_is_the_difference_of_the_two_links_biases() -> None:
     assert native.predict_bias(packed, features) == pytest.approx(0.0, abs=1e-6)
 
 
+def test_each_anchors_offset_enters_the_link_bias_and_an_unknown_id_has_none() -> None:
+    """TDOA bias = g(B) + d[B] − g(A) − d[A]: with g zero, a measurement from anchor 3 to
+    anchor 5 reads d[5] − d[3]; an id beyond the table (or an unseen anchor) adds nothing."""
+    offsets = np.zeros(ANCHORS)
+    offsets[3], offsets[5] = -0.1, 0.25
+    net = identity_probe_net(feature=2, gain=0.0, form="link")
+    net.anchor_offset = offsets
+    packed = BiasNet.from_json(net.to_json()).pack()     # through the saved form, as shipped
+    features = np.zeros(INPUTS)
+    assert native.predict_bias(packed, features, 3, 5) == pytest.approx(0.35, abs=1e-6)
+    assert native.predict_bias(packed, features, 5, 3) == pytest.approx(-0.35, abs=1e-6)
+    assert native.predict_bias(packed, features, 3, 200) == pytest.approx(0.1, abs=1e-6)
+    assert BiasNet.from_json(net.to_json()).predict(features, [3, 3], [5, 200]) == pytest.approx([0.35, 0.1])
+    with pytest.raises(ValueError, match="anchor ids"):
+        BiasNet.from_json(net.to_json()).predict(features)
+
+
 @pytest.mark.parametrize("form", ["pair", "link"])
 def test_c_and_python_inference_agree_to_float32_precision(form: str) -> None:
     rng = np.random.default_rng(0)
     n_in, hidden = shape(form)
     shapes = [(hidden, n_in), (hidden, hidden), (hidden, hidden), (1, hidden)]
+    anchors = np.random.default_rng(1)        # apart, so the network's draws stay as they were
+    offsets = anchors.normal(0, 0.1, ANCHORS) if form == "link" else None
     net = BiasNet([rng.normal(0, 0.4, s) for s in shapes], [rng.normal(0, 0.1, s[0]) for s in shapes],
-                  rng.normal(0, 1, n_in), rng.uniform(0.5, 2, n_in), 0.2, -0.01 if form == "pair" else 0.0, form)
+                  rng.normal(0, 1, n_in), rng.uniform(0.5, 2, n_in), 0.2, -0.01 if form == "pair" else 0.0, form,
+                  offsets)
     reference = net.quantized()
     packed = net.pack()
     x = rng.normal(0, 2, (200, INPUTS))
-    c_out = np.array([native.predict_bias(packed, row) for row in x])
-    py_out = reference.predict(x.astype(np.float32).astype(float))
+    ids = anchors.integers(0, ANCHORS, (200, 2))
+    c_out = np.array([native.predict_bias(packed, row, a, b) for row, (a, b) in zip(x, ids)])
+    py_out = reference.predict(x.astype(np.float32).astype(float), ids[:, 0], ids[:, 1])
     np.testing.assert_allclose(c_out, py_out, rtol=1e-4, atol=1e-5)
     # and the int8 quantisation itself stays close to the float network (RMS within 2 %)
-    exact = net.predict(x)
+    exact = net.predict(x, ids[:, 0], ids[:, 1])
     assert np.sqrt(np.mean((exact - py_out) ** 2)) < 0.02 * np.std(exact)

@@ -304,7 +304,7 @@ class LearnedBias(Effect):
         poses = [world.anchor_poses(ids[known]) for ids in (tdoa.id_a, tdoa.id_b)]
         features = native.features_batch(tdoa.tag_position[known], tdoa.tag_rotation[known].as_matrix(),
                                           *poses[0], *poses[1])
-        out[known] = self.net.predict(features)
+        out[known] = self.net.predict(features, tdoa.id_a[known], tdoa.id_b[known])
         return out
 
     def apply_tdoa(self, tdoa: TdoaBatch, world: World, rng: np.random.Generator | None) -> None:
