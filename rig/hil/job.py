@@ -30,7 +30,7 @@ METRICS_FILE = "metrics.json"
 # the board or its link failed; the rig itself failed.
 ENDED = ("completed", "interrupted", "board_lost", "error")
 BOARD_NAME = re.compile(r"[A-Za-z0-9_.-]+")      # no zenoh wildcard or separator (* ** $ / #) in a name
-TARGET = re.compile(r"native|native-udp|qemu|(serial|crazyflie|zenoh):.+")
+TARGET = re.compile(r"native|native-udp|qemu|qemu-usart|(serial|crazyflie|zenoh):.+")
 
 
 @dataclass
@@ -97,7 +97,7 @@ def check_options(target: str, board: str = "local", start: float | None = None,
     """Refuse option values a replay cannot use, before anything starts or is written
     (ValueError, saying the rule)."""
     if not TARGET.fullmatch(target):
-        raise ValueError(f"unknown target {target!r} (native, native-udp, qemu, serial:URL, crazyflie:URI or "
+        raise ValueError(f"unknown target {target!r} (native, native-udp, qemu, qemu-usart, serial:URL, crazyflie:URI or "
                          "zenoh:NAME)")
     for name in ([board] + ([target[len("zenoh:"):]] if target.startswith("zenoh:") else [])):
         if not BOARD_NAME.fullmatch(name):

@@ -2,7 +2,10 @@
 
     native          build estimator_c/build/estimator_native and run it on a pty
     native-udp      the same program on its UDP endpoint, reached through cflib's udp:// driver
-    qemu            build the STM32F405 firmware and run it in qemu-system-arm -M netduinoplus2
+    qemu            build the STM32F405 firmware and run it in qemu-system-arm -M netduinoplus2,
+                    its bytes through the bulk link (ARM semihosting on a socket chardev)
+    qemu-usart      the same firmware and emulator, its bytes through the emulated USART1, one
+                    byte per interrupt, as on a real board
     serial:URL      open URL with pyserial (a board that is already running)
     crazyflie:URI   a cflib link (radio://, usb:// or udp://) to a board running the estimator app
 """
@@ -10,6 +13,7 @@
 from __future__ import annotations
 
 import ctypes
+import os
 import shutil
 import signal
 import socket
@@ -21,7 +25,7 @@ import serial
 
 from rig.estimator import native
 from rig.hil.links import BoardLink, CrtpLink, Link, LinkError, open_crazyflie, open_url
-from rig.hil.links.serial_port import serial_for_url
+from rig.hil.links.serial_port import PipePort, serial_for_url
 
 QEMU = "qemu-system-arm"
 PR_SET_PDEATHSIG = 1
@@ -63,16 +67,35 @@ def open_native(program: Path | None = None, read_timeout: float = 0.05) -> Link
     return Link(port, f"native {line[4:]}", proc)
 
 
-def open_qemu(firmware: Path | None = None, read_timeout: float = 0.05, connect_timeout: float = 10.0) -> Link:
+# The bulk link (targets/stm32f405/board.h): the selector the firmware reads at reset, in
+# the last RAM words, and semihosting, whose console (":tt") QEMU 7.2 maps to its own
+# standard input and output.
+BULK_MAGIC = 0x6B6C7562
+BULK_SELECT_ADDRESS = 0x2001FFF0
+QEMU_CHANNELS = ("bulk", "usart")
+BULK_ARGS = ["-serial", "null", "-semihosting-config", "enable=on,target=native",
+             "-device", f"loader,addr={BULK_SELECT_ADDRESS:#x},data={BULK_MAGIC:#x},data-len=4",
+             "-device", f"loader,addr={BULK_SELECT_ADDRESS + 4:#x},data={~BULK_MAGIC & 0xFFFFFFFF:#x},data-len=4"]
+
+
+def open_qemu(firmware: Path | None = None, read_timeout: float = 0.05, connect_timeout: float = 10.0,
+              channel: str = "bulk") -> Link:
+    """The firmware in QEMU: through the bulk link (default), or through the emulated
+    USART on a local socket (`channel="usart"`, the path a real board's bytes take)."""
+    if channel not in QEMU_CHANNELS:
+        raise LinkError(f"unknown QEMU channel {channel!r} (one of {', '.join(QEMU_CHANNELS)})")
     if shutil.which(QEMU) is None:
         raise LinkError(f"{QEMU} is not installed (run scripts/setup.sh)")
     firmware = firmware or _build_for_target(native.FIRMWARE_ELF, "firmware")
-    port_number, monitor_port = _free_port(), _free_port()
+    monitor_port = _free_port()
+    args = [QEMU, *QEMU_ARGS, "-kernel", str(firmware), "-monitor",
+            f"tcp:127.0.0.1:{monitor_port},server=on,wait=off"]
+    if channel == "bulk":
+        return _open_qemu_bulk(args, read_timeout, monitor_port)
+    port_number = _free_port()
     serial_arg = f"tcp:127.0.0.1:{port_number},server=on,wait=on,nodelay=on"
-    monitor_arg = f"tcp:127.0.0.1:{monitor_port},server=on,wait=off"
-    proc = start_child([QEMU, *QEMU_ARGS, "-kernel", str(firmware), "-serial", serial_arg,
-                             "-monitor", monitor_arg],
-                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    proc = start_child([*args, "-serial", serial_arg],
+                       stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     deadline = time.monotonic() + connect_timeout
     while True:
         try:
@@ -83,7 +106,24 @@ def open_qemu(firmware: Path | None = None, read_timeout: float = 0.05, connect_
                 proc.kill()
                 raise LinkError(f"QEMU did not open its serial socket: {exc}") from exc
             time.sleep(0.05)
-    return Link(port, f"qemu :{port_number}", proc, monitor_port)
+    return Link(port, f"qemu usart :{port_number}", proc, monitor_port)
+
+
+def _open_qemu_bulk(args: list[str], read_timeout: float, monitor_port: int) -> Link:
+    """QEMU with the bulk link on its standard input and output. Its input is non-blocking,
+    so a semihosting read with nothing to read returns at once (the firmware polls, and
+    QEMU's main loop, the monitor included, keeps running between calls)."""
+    to_board, from_rig = os.pipe()
+    os.set_blocking(to_board, False)
+    try:
+        proc = start_child([*args, *BULK_ARGS], stdin=to_board, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    except OSError:
+        os.close(from_rig)
+        raise
+    finally:
+        os.close(to_board)
+    port = PipePort(from_rig, proc.stdout.fileno(), timeout=read_timeout)
+    return Link(port, f"qemu bulk pid {proc.pid}", proc, monitor_port)
 
 
 def open_native_udp(program: Path | None = None) -> CrtpLink:
@@ -108,11 +148,13 @@ def open_target(target: str) -> BoardLink:
         return open_native_udp()
     if target == "qemu":
         return open_qemu()
+    if target == "qemu-usart":
+        return open_qemu(channel="usart")
     if target.startswith("serial:"):
         return open_url(target[len("serial:"):])
     if target.startswith("crazyflie:"):
         return open_crazyflie(target[len("crazyflie:"):])
-    raise LinkError(f"unknown target {target!r} (native, native-udp, qemu, serial:URL or crazyflie:URI)")
+    raise LinkError(f"unknown target {target!r} (native, native-udp, qemu, qemu-usart, serial:URL or crazyflie:URI)")
 
 
 def _build_for_target(artifact: Path, make_target: str) -> Path:

@@ -73,23 +73,30 @@ def test_cflib_udp_link_to_the_native_program_equals_the_library(default_rec) ->
     assert session.counters.imu_lost == 0
 
 
-def test_qemu_firmware_matches_native_on_a_real_flight_and_counts_are_deterministic(real_rec) -> None:
+@pytest.mark.parametrize("channel", targets.QEMU_CHANNELS)
+def test_qemu_firmware_matches_native_on_a_real_flight_and_counts_are_deterministic(real_rec, channel: str) -> None:
+    """The same firmware image through either link: the bulk link (semihosting, which the
+    firmware takes only when QEMU writes its selector) and the emulated USART, the path
+    a real board's bytes take."""
     params, model = native.params_with(), load_model()
-    duration = 12.0
+    duration = 12.0 if channel == "bulk" else 6.0
     lib = library_estimates(real_rec, params, model, duration)
-    first = run_target(targets.open_qemu(), real_rec, params, model, duration)
-    second = run_target(targets.open_qemu(), real_rec, params, model, duration=2.0)
+    first = run_target(targets.open_qemu(channel=channel), real_rec, params, model, duration)
+    second = run_target(targets.open_qemu(channel=channel), real_rec, params, model, duration=2.0)
     assert first.unit == "instructions"
     np.testing.assert_allclose(positions(first), lib["pos"], atol=2e-3)
-    # identical instruction counts run to run (QEMU -icount): the calls inside a STEP exactly; the
-    # window also holds the receive interrupts' entry and exit, a few instructions per byte,
-    # and how many bytes land inside it depends on the host's timing (1.07 % apart once, on
-    # a loaded 2-core machine with the link-form correction's 200 k-instruction windows)
+    # identical instruction counts run to run (QEMU -icount): the calls inside a STEP exactly
     calls = lambda s: [(t.predict, t.tdoa_total, t.tdoa_max) for t in s.timing]  # noqa: E731
     assert calls(first)[:len(second.timing)] == calls(second)
     a = np.array([t.window for t in first.timing[:len(second.timing)]], float)
     b = np.array([t.window for t in second.timing], float)
-    assert np.abs(a - b).max() <= 0.02 * a.max()
+    if channel == "bulk":       # no byte interrupts: whole windows are identical too
+        np.testing.assert_array_equal(a, b)
+    else:
+        # the window also holds the receive interrupts' entry and exit, a few instructions
+        # per byte, and how many bytes land inside it depends on the host's timing (1.07 %
+        # apart once, on a loaded 2-core machine with 200 k-instruction windows)
+        assert np.abs(a - b).max() <= 0.02 * a.max()
     summary = replay.timing_summary(first)
     assert summary["window_max"] <= 0.2 * summary["budget"]
     assert summary["per_call"]["tdoa_update"]["calls"] > 100
@@ -237,13 +244,13 @@ def test_real_time_mode_gives_the_lock_step_estimates_and_counts_a_lost_window(d
 
 
 @pytest.mark.serial
-def test_real_time_mode_exposes_the_slow_qemu_link_that_lock_step_hides(tmp_path: Path) -> None:
+def test_real_time_mode_exposes_the_slow_qemu_usart_that_lock_step_hides(tmp_path: Path) -> None:
     """QEMU's emulated UART takes about 75 us a byte: lock-step hides it (every window
     still meets the board's budget), real time at 3x the recording's clock shows the
     estimates falling ever further behind; --assert-deadlines fails the run, the run
     record carries each window's latency."""
     out = tmp_path / "rt"
-    proc = subprocess.run([*RIG, "replay", "recordings/default.mcap", "--target", "qemu", "--duration", "8",
+    proc = subprocess.run([*RIG, "replay", "recordings/default.mcap", "--target", "qemu-usart", "--duration", "8",
                            "--mode", "realtime", "--speed", "3", "--assert-deadlines", "--assert-budget", "0.2",
                            "--out", str(out)], capture_output=True, text=True, timeout=300)
     assert proc.returncode == 1, proc.stdout + proc.stderr
@@ -259,6 +266,19 @@ def test_real_time_mode_exposes_the_slow_qemu_link_that_lock_step_hides(tmp_path
     from rig.hil.runrecord import TOPIC_TIMING, read_run
     latency = [r["latency_ms"] for r in read_run(out / "run.mcap")[TOPIC_TIMING]]
     assert len(latency) == result["n_estimates"] and max(latency) == pytest.approx(rt["latency_ms"]["max"])
+
+
+@pytest.mark.serial
+def test_real_time_into_qemu_through_the_bulk_link_meets_every_deadline(tmp_path: Path) -> None:
+    """Real time at 1x into the firmware in QEMU, through the bulk link: no window late or
+    missed, so what a real-time run measures is the board, not the emulated link."""
+    out = tmp_path / "rt"
+    proc = subprocess.run([*RIG, "replay", "recordings/default.mcap", "--target", "qemu", "--mode", "realtime",
+                           "--duration", "20", "--assert-deadlines", "--out", str(out)],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    rt = json.loads((out / "metrics.json").read_text())["realtime"]
+    assert rt["windows_sent"] == 2000 and rt["late_windows"] == rt["missed_windows"] == 0
 
 
 def test_a_run_too_short_to_score_still_reports_and_fails_its_accuracy_assertion(tmp_path: Path) -> None:

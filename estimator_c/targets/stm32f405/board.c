@@ -218,3 +218,59 @@ void board_write(const uint8_t *data, size_t n)
     tx_pump();
     __asm volatile("cpsie i");
 }
+
+/* Written by the emulator before reset, never by the firmware (linker.ld: NOLOAD, outside
+ * .bss). A magic word and its complement: power-on RAM never matches both by chance. */
+__attribute__((section(".link_select"), used)) static volatile uint32_t link_select[2];
+
+int board_bulk_selected(void)
+{
+    return link_select[0] == BOARD_BULK_MAGIC && link_select[1] == ~BOARD_BULK_MAGIC;
+}
+
+#define SYS_OPEN 0x01u
+#define SYS_WRITE 0x05u
+#define SYS_READ 0x06u
+#define OPEN_READ 0u   /* "r" */
+#define OPEN_WRITE 4u  /* "w" */
+
+/* One semihosting call (ARM DUI 0471): BKPT 0xAB, operation in r0, parameter block in r1,
+ * result in r0. */
+static uint32_t semihost(uint32_t op, const uint32_t *block)
+{
+    register uint32_t r0 __asm("r0") = op;
+    register const uint32_t *r1 __asm("r1") = block;
+    __asm volatile("bkpt 0xab" : "+r"(r0) : "r"(r1) : "memory");
+    return r0;
+}
+
+static struct {
+    uint32_t in, out;   /* semihosting handles of the console (":tt") */
+} bulk;
+
+static uint32_t console(uint32_t mode)
+{
+    static const char name[] = ":tt";
+    const uint32_t block[3] = {(uint32_t)name, mode, sizeof name - 1};
+    return semihost(SYS_OPEN, block);
+}
+
+int board_bulk_open(void)
+{
+    bulk.in = console(OPEN_READ);
+    bulk.out = console(OPEN_WRITE);
+    return bulk.in == 0xFFFFFFFFu || bulk.out == 0xFFFFFFFFu ? -1 : 0;
+}
+
+size_t board_bulk_read(uint8_t *dst, size_t max)
+{
+    const uint32_t block[3] = {bulk.in, (uint32_t)dst, max};
+    const uint32_t missing = semihost(SYS_READ, block);   /* bytes not read */
+    return missing <= max ? max - missing : 0;
+}
+
+void board_bulk_write(const uint8_t *data, size_t n)
+{
+    const uint32_t block[3] = {bulk.out, (uint32_t)data, n};
+    semihost(SYS_WRITE, block);
+}

@@ -23,4 +23,15 @@ uint8_t board_clock_unit(void);       /* proto_timer_unit_t of board_clock */
 size_t board_read(uint8_t *dst, size_t max);
 void board_write(const uint8_t *data, size_t n);
 
+/* The bulk link: the host's bytes through ARM semihosting (SYS_READ and SYS_WRITE on the
+ * console, which QEMU connects to a chardev), a whole buffer per call instead of one
+ * USART byte per emulated interrupt. Only where an emulator selected it, writing
+ * BOARD_BULK_MAGIC and its complement into the last RAM words before reset
+ * (`-device loader`): on a board without a debugger a semihosting call is a fault. */
+#define BOARD_BULK_MAGIC 0x6B6C7562u   /* "bulk" */
+int board_bulk_selected(void);
+int board_bulk_open(void);             /* 0 on success */
+size_t board_bulk_read(uint8_t *dst, size_t max);  /* blocks until at least one byte */
+void board_bulk_write(const uint8_t *data, size_t n);
+
 #endif

@@ -1,10 +1,11 @@
 """A pyserial port carrying rig.hil.protocol frames: the native program's pty, QEMU's
-emulated USART1 over a TCP socket, or any pyserial URL (a real tty, ``socket://``,
-``rfc2217://``)."""
+emulated USART1 over a TCP socket, any pyserial URL (a real tty, ``socket://``,
+``rfc2217://``), or a child's standard input and output (QEMU's bulk link)."""
 
 from __future__ import annotations
 
 import fcntl
+import os
 import select
 import socket
 import struct
@@ -34,6 +35,44 @@ class SocketPort(protocol_socket.Serial):
         if not self.is_open:
             raise serial.PortNotOpenError()
         return struct.unpack("I", fcntl.ioctl(self._socket, termios.FIONREAD, b"\0\0\0\0"))[0]
+
+
+class PipePort:
+    """The part of a pyserial port that `Link` uses, on two pipes: what is written goes to
+    `write_fd`, what is read comes from `read_fd` (a child's standard input and output)."""
+
+    def __init__(self, write_fd: int, read_fd: int, timeout: float = 0.05,
+                 write_timeout: float = WRITE_TIMEOUT_S):
+        self.write_fd, self.read_fd = write_fd, read_fd
+        self.timeout, self.write_timeout = timeout, write_timeout
+        os.set_blocking(write_fd, False)
+        self.is_open = True
+
+    def fileno(self) -> int:
+        return self.read_fd
+
+    @property
+    def in_waiting(self) -> int:
+        return struct.unpack("I", fcntl.ioctl(self.read_fd, termios.FIONREAD, b"\0\0\0\0"))[0]
+
+    def read(self, size: int = 1) -> bytes:
+        data = os.read(self.read_fd, size)
+        if not data:
+            raise serial.SerialException("the board closed its output")
+        return data
+
+    def write(self, data: bytes) -> int:
+        view, deadline = memoryview(data), time.monotonic() + self.write_timeout
+        while view:
+            if not select.select([], [self.write_fd], [], max(0.0, deadline - time.monotonic()))[1]:
+                raise serial.SerialTimeoutException("write timeout")
+            view = view[os.write(self.write_fd, view):]
+        return len(data)
+
+    def close(self) -> None:
+        if self.is_open:
+            self.is_open = False
+            os.close(self.write_fd)
 
 
 def serial_for_url(url: str, write_timeout: float = WRITE_TIMEOUT_S, **kwargs) -> serial.SerialBase:
