@@ -1,16 +1,14 @@
 """The HTML page of one run: `rig report DIR` (and the end of every replay).
 
 Reads DIR/run.mcap and DIR/metrics.json and writes DIR/report.html, self-contained
-(plots embedded as PNG): the trajectory against ground truth, the error over time,
+(charts inline as SVG): the trajectory against ground truth, the error over time,
 per-anchor innovation statistics (each TDOA as sent against the one predicted from the
 board's estimate at that time) and the histogram of window costs against the budget.
 """
 
 from __future__ import annotations
 
-import base64
 import html
-import io
 import json
 import logging
 from pathlib import Path
@@ -19,6 +17,7 @@ import numpy as np
 
 from rig.data.recording import TOPIC_ANCHORS
 from rig.estimator.metrics import interpolate
+from rig.hil.svgplot import COLORS, Chart, Series, histogram, render
 from rig.hil.runrecord import RUN_FILE, TOPIC_ESTIMATE, TOPIC_TDOA, TOPIC_TIMING, TOPIC_TRUTH, read_run
 
 log = logging.getLogger(__name__)
@@ -59,73 +58,45 @@ def innovation_stats(messages: dict) -> list[dict]:
     return stats
 
 
-def _png(fig) -> str:
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", dpi=90, bbox_inches="tight")
-    return base64.b64encode(buffer.getvalue()).decode()
-
-
 def _plots(messages: dict, stats: list[dict]) -> dict[str, str]:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    """The report's charts, as inline SVG (rig.hil.svgplot)."""
     est, truth, timing = (messages.get(k, []) for k in (TOPIC_ESTIMATE, TOPIC_TRUTH, TOPIC_TIMING))
-    images = {}
+    charts: dict[str, list[Chart]] = {}
     if est:
         t_est, p_est = np.array([r["t"] for r in est]), _xyz(est, "position")
-        fig, (ax_xy, ax_t) = plt.subplots(1, 2, figsize=(12, 4.5))
+        top = Chart("trajectory (top view)", "x [m]", "y [m]", equal_aspect=True, width=430, height=400)
+        over_time = Chart("position (black: ground truth)", "time [s]", "position [m]", width=640, height=400)
         if truth:
             t_truth, p_truth = np.array([r["t"] for r in truth]), _xyz(truth, "position")
-            ax_xy.plot(p_truth[:, 0], p_truth[:, 1], "k-", lw=1, label="ground truth")
-            for i, axis in enumerate("xyz"):
-                ax_t.plot(t_truth - t_est[0], p_truth[:, i], "k-", lw=0.8)
-        ax_xy.plot(p_est[:, 0], p_est[:, 1], "C0-", lw=1, label="estimate")
-        ax_xy.set(xlabel="x [m]", ylabel="y [m]", title="trajectory (top view)", aspect="equal")
-        ax_xy.legend()
-        for i, axis in enumerate("xyz"):
-            ax_t.plot(t_est - t_est[0], p_est[:, i], f"C{i}-", lw=1, label=f"{axis} estimate")
-        ax_t.set(xlabel="time [s]", ylabel="position [m]", title="position (black: ground truth)")
-        ax_t.legend(fontsize=8)
-        images["trajectory"] = _png(fig)
-        plt.close(fig)
+            top.series.append(Series(p_truth[:, 0], p_truth[:, 1], "ground truth", "#000", width=1.0))
+            over_time.series += [Series(t_truth - t_est[0], p_truth[:, i], "", "#000", width=0.8) for i in range(3)]
+        top.series.append(Series(p_est[:, 0], p_est[:, 1], "estimate", COLORS[0]))
+        over_time.series += [Series(t_est - t_est[0], p_est[:, i], f"{axis} estimate", COLORS[i])
+                             for i, axis in enumerate("xyz")]
+        charts["trajectory"] = [top, over_time]
         if truth:
             err = np.linalg.norm(p_est - interpolate(t_est, t_truth, p_truth), axis=1)
-            fig, ax = plt.subplots(figsize=(12, 3))
-            ax.plot(t_est - t_est[0], err, lw=0.8)
-            ax.set(xlabel="time [s]", ylabel="3D error [m]", title="position error over time")
-            images["error"] = _png(fig)
-            plt.close(fig)
+            charts["error"] = [Chart("position error over time", "time [s]", "3D error [m]", width=1080, height=260,
+                                     series=[Series(t_est - t_est[0], err, width=0.8)])]
     if stats:
-        fig, ax = plt.subplots(figsize=(8, 3))
-        ids = [s["anchor"] for s in stats]
-        ax.bar(ids, [s["median"] for s in stats], yerr=[s["mad"] for s in stats], capsize=3)
-        ax.axhline(0, color="k", lw=0.5)
-        ax.set(xlabel="anchor", ylabel="innovation [m]", title="per-anchor TDOA innovation: median ± MAD",
-               xticks=ids)
-        images["innovation"] = _png(fig)
-        plt.close(fig)
+        ids = np.array([s["anchor"] for s in stats], float)
+        charts["innovation"] = [Chart(
+            "per-anchor TDOA innovation: median ± MAD", "anchor", "innovation [m]", hlines=[(0.0, "#000")],
+            xticks=ids.tolist(), series=[Series(ids, np.array([s["median"] for s in stats]), kind="bars",
+                                                yerr=np.array([s["mad"] for s in stats]))])]
     if timing:
         window = np.array([r["window"] for r in timing], float)
         budget, unit = timing[0]["budget"], timing[0]["unit"]
-        fig, ax = plt.subplots(figsize=(8, 3))
-        ax.hist(window / budget * 100, bins=60)
-        ax.axvline(100, color="r", label="budget (10 ms)")
-        ax.axvline(20, color="orange", ls="--", label="20 % target")
-        ax.set(xlabel=f"window cost [% of the budget; {unit}]", ylabel="windows", title="window cost", yscale="log")
-        ax.legend()
-        images["timing"] = _png(fig)
-        plt.close(fig)
+        charts["timing"] = [Chart(
+            "window cost", f"window cost [% of the budget; {unit}]", "windows", log_y=True,
+            series=[histogram(window / budget * 100)],
+            vlines=[(100.0, "#d62728", "budget (10 ms)"), (20.0, "#ff7f0e", "20 % target")])]
     latency = [(r["t"], r["latency_ms"]) for r in timing if r.get("latency_ms") is not None]
     if latency:
         t, ms = np.array(latency).T
-        fig, ax = plt.subplots(figsize=(8, 3))
-        ax.plot(t - t[0], ms, ".", ms=2)
-        ax.set(xlabel="time [s]", ylabel="latency [ms]", title="real time: input-to-estimate latency", yscale="log")
-        images["latency"] = _png(fig)
-        plt.close(fig)
-    return images
+        charts["latency"] = [Chart("real time: input-to-estimate latency", "time [s]", "latency [ms]", log_y=True,
+                                   series=[Series(t - t[0], ms, kind="dots")])]
+    return {key: "".join(render(c) for c in group) for key, group in charts.items()}
 
 
 def _table(rows: list[dict], columns: list[str]) -> str:
@@ -176,7 +147,7 @@ def write_report(directory: Path, messages: dict[str, list[dict]] | None = None)
               "latency": "Input-to-estimate latency (real-time mode)"}
     for key, title in titles.items():
         if key in images:
-            parts.append(f"<h2>{title}</h2><img src='data:image/png;base64,{images[key]}'>")
+            parts.append(f"<h2>{title}</h2>{images[key]}")
         if key == "innovation" and stats:
             parts.append(_table(stats, ["anchor", "n", "mean", "median", "std", "mad"]))
     out = directory / REPORT_FILE
