@@ -2,7 +2,9 @@
 
 Topics (JSON, with JSON schemas, readable in Foxglove; documented in recordings/README.md):
 
-    /run/input/imu      IMU samples as the board received them (quantised), at their sample time
+    /run/input/imu      each window's IMU samples as the board received them (quantised), one
+                        message a window at its first sample's time (records written before
+                        2026-11-27 hold one message a sample, uwb_rig.RunImu)
     /run/input/tdoa     TDOA measurements as sent
     /run/truth          ground truth over the replayed span
     /run/estimate       the board's estimates (position, velocity, attitude, covariance diagonal)
@@ -64,10 +66,13 @@ TOPIC_POSITION_ERROR = "/run/position_error"
 CHUNK_BYTES = 256 * 1024      # what an unfinished file can lose at most
 
 _T = number_schema("time on the recording's clock", "s")
+_IMU_SAMPLE = object_schema("uwb_rig.RunImu", {
+    "t": _T, "accel": vector_schema("specific force as received (quantised)", "m/s^2"),
+    "gyro": vector_schema("angular rate as received (quantised)", "rad/s")})
 RUN_SCHEMAS = {
-    "uwb_rig.RunImu": object_schema("uwb_rig.RunImu", {
-        "t": _T, "accel": vector_schema("specific force as received (quantised)", "m/s^2"),
-        "gyro": vector_schema("angular rate as received (quantised)", "rad/s")}),
+    "uwb_rig.RunImuWindow": object_schema("uwb_rig.RunImuWindow", {
+        "t": _T, "samples": {"type": "array", "items": _IMU_SAMPLE,
+                             "description": "the window's samples in time order"}}),
     "uwb_rig.Estimate": object_schema("uwb_rig.Estimate", {
         "t": _T, "position": vector_schema("estimated position", "m"), "velocity": vector_schema("estimated velocity", "m/s"),
         "orientation": {**SCHEMAS["uwb_rig.Pose"]["properties"]["orientation"],
@@ -182,10 +187,12 @@ class RunRecorder:
 
     def _write_inputs(self, t0: float, t_prev_us: int, imu: list, counts: np.ndarray, tdoa: list) -> None:
         if imu:
+            # one message a window: a tenth of the messages of one a sample, which made up
+            # half of the record's writing time
             acc, gyro = protocol.imu_values(counts)
-            for (dt, _, _), a, g in zip(imu, acc, gyro):
-                t = t0 + (t_prev_us + dt) * 1e-6
-                self._write(TOPIC_IMU, "uwb_rig.RunImu", t, {"t": t, "accel": _xyz_dict(a), "gyro": _xyz_dict(g)})
+            samples = [{"t": t0 + (t_prev_us + dt) * 1e-6, "accel": _xyz_dict(a), "gyro": _xyz_dict(g)}
+                       for (dt, _, _), a, g in zip(imu, acc, gyro)]
+            self._write(TOPIC_IMU, "uwb_rig.RunImuWindow", samples[0]["t"], {"t": samples[0]["t"], "samples": samples})
         for dt, a, b, v in tdoa:
             t = t0 + (t_prev_us + dt) * 1e-6
             self._write(TOPIC_TDOA, "uwb_rig.Tdoa", t, {"t": t, "id_a": a, "id_b": b,

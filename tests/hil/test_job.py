@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 from mcap.reader import make_reader
 
@@ -19,7 +20,9 @@ from rig.hil.runrecord import (
     TOPIC_FOXGLOVE_ANCHORS,
     TOPIC_FOXGLOVE_ESTIMATE,
     TOPIC_FOXGLOVE_TRUTH,
+    TOPIC_IMU,
     TOPIC_POSITION_ERROR,
+    read_run,
 )
 
 
@@ -36,6 +39,12 @@ def test_a_short_native_replay_writes_its_metrics_record_and_report(tmp_path: Pa
         counts = reader.get_summary().statistics.channel_message_counts
         topics = {c.id: c.topic for c in reader.get_summary().channels.values()}
     assert {topics[k]: n for k, n in counts.items()}[TOPIC_ESTIMATE] == result["n_estimates"]
+    # the IMU as the board received it, one message a window, its samples 1 ms apart in order
+    imu = read_run(tmp_path / "run.mcap")[TOPIC_IMU]
+    assert result["n_estimates"] - 1 <= len(imu) <= result["n_estimates"] + 2
+    times = np.array([s["t"] for m in imu for s in m["samples"]])
+    assert [m["t"] for m in imu] == [m["samples"][0]["t"] for m in imu]
+    assert np.all(np.diff(times) > 0) and np.median(np.diff(times)) == pytest.approx(0.001, abs=2e-4)
     report = tmp_path / "report.html"
     assert report.stat().st_size > 10_000
     built_in_memory = report.read_bytes()              # from what the replay held: the same as from its record

@@ -76,7 +76,7 @@ def test_held_out_flight_into_qemu_is_recorded_and_published_to_another_process(
     assert finished_mcap(out / "run.mcap")
     counts = _topics(out / "run.mcap")
     assert counts["/run/estimate"] == counts["/run/timing"] == n
-    assert counts["/run/input/imu"] > 9000 and counts["/run/input/tdoa"] > 2000 and counts["/run/truth"] > 1000
+    assert counts["/run/input/imu"] >= 1000 and counts["/run/input/tdoa"] > 2000 and counts["/run/truth"] > 1000
     assert (out / "report.html").stat().st_size > 20_000
     assert json.loads((tmp_path / "watch.json").read_text())["counts"]["qemu0"] >= 1000
 
