@@ -248,18 +248,20 @@ def run(link: BoardLink, rec: Recording, params: native.EstimatorParams, model: 
 
 
 class Wire:
-    """The windows of a replay, encoded once before it starts, and what sending window
-    k means: its payloads on the link and its inputs in the run record."""
+    """The windows of a replay, encoded (and framed, for byte-stream links) once before it
+    starts, and what sending window k means: its payloads on the link and its inputs in
+    the run record."""
 
     def __init__(self, ws: list[Window]) -> None:
         self.windows, self.counts = ws, imu_counts(ws)
         self.payloads = encode_windows(ws, counts=self.counts)
+        self.framed = [protocol.frames(p) for p in self.payloads]
 
     def __len__(self) -> int:
         return len(self.windows)
 
     def send(self, link: BoardLink, k: int, session: Session) -> None:
-        link.send(self.payloads[k])
+        link.send(self.payloads[k], self.framed[k])
         if session.recorder is not None:
             w = self.windows[k]
             session.recorder.inputs(session.t0, self.windows[k - 1].t_us if k else 0, w.imu, self.counts[k], w.tdoa)
@@ -295,7 +297,7 @@ def _real_time(link: BoardLink, wire: Wire, session: Session, progress) -> None:
         while (now := time.monotonic()) < due:
             collector.take(link.next_message(due - now))
         rt.send_lag_max = max(rt.send_lag_max, now - due)
-        link.send(wire.payloads[k])
+        link.send(wire.payloads[k], wire.framed[k])
         rt.sent_at[ws[k].t_us] = time.monotonic()
         session.windows_sent = k + 1
         if session.recorder is not None:

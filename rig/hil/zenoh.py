@@ -258,8 +258,8 @@ class TapLink(BoardLink):
         self._publishers = BoardPublishers(self.session, self.board)
         self._token = self.session.liveliness().declare_token(key(self.board, "alive"))
 
-    def send(self, payloads: list[bytes]) -> None:
-        self.link.send(payloads)
+    def send(self, payloads: list[bytes], framed: bytes | None = None) -> None:
+        self.link.send(payloads, framed)
         self.bytes_sent = self.link.bytes_sent
 
     def receive_payloads(self, timeout: float) -> list[bytes]:
@@ -320,7 +320,7 @@ class ZenohLink(BoardLink):
         if sample.kind == zenoh.SampleKind.DELETE:
             self._gone.set()
 
-    def send(self, payloads: list[bytes]) -> None:
+    def send(self, payloads: list[bytes], framed: bytes | None = None) -> None:
         self._check_alive()
         data = pack_batch(payloads)
         self._tx.put(data)

@@ -132,11 +132,11 @@ def test_corrupt_bytes_mid_stream_are_dropped_and_counted(default_rec) -> None:
     original = link.send
     sent = {"n": 0}
 
-    def noisy_send(payloads):
+    def noisy_send(payloads, framed=None):
         sent["n"] += 1
         if sent["n"] % 50 == 0:  # a burst of line noise between windows
             link.port.write(bytes(range(1, 40)) + b"\x00")
-        original(payloads)
+        original(payloads, framed)
 
     link.send = noisy_send
     session = run_target(link, default_rec, params, None, duration=5.0)
@@ -151,9 +151,9 @@ def test_a_target_that_stops_answering_fails_clearly_within_seconds(default_rec)
     original = link.send
     state = {"n": 0, "stopped_at": None}
 
-    def send_then_freeze(payloads):
+    def send_then_freeze(payloads, framed=None):
         state["n"] += 1
-        original(payloads)
+        original(payloads, framed)
         if state["n"] == 100:  # mid-replay the board hangs
             os.kill(link.process.pid, signal.SIGSTOP)
             state["stopped_at"] = time.monotonic()
@@ -194,9 +194,9 @@ def test_a_board_that_resets_mid_replay_fails_clearly_and_keeps_the_record(defau
     link = targets.open_qemu()
     original, count = link.send, {"n": 0}
 
-    def send_then_reset(payloads):
+    def send_then_reset(payloads, framed=None):
         count["n"] += 1
-        original(payloads)
+        original(payloads, framed)
         if count["n"] == 300:
             link.reset_board()
 
@@ -224,10 +224,10 @@ def test_real_time_mode_gives_the_lock_step_estimates_and_counts_a_lost_window(d
     link, original, calls = targets.open_native(), None, {"n": 0}
     original = link.send
 
-    def drop_one_window(payloads):
+    def drop_one_window(payloads, framed=None):
         calls["n"] += 1
         if calls["n"] != 300:       # the 300th send is a window (handshake and set-up come first)
-            original(payloads)
+            original(payloads, framed)
 
     link.send = drop_one_window
     try:

@@ -42,11 +42,11 @@ def faulty_board(plan: str, rng: random.Random):
     link = targets.open_native()
     send, sends, at = link.send, {"n": 0}, rng.randrange(60, WINDOWS - 20)
 
-    def faulty_send(payloads):
+    def faulty_send(payloads, framed=None):
         sends["n"] += 1
         if plan == "noise" and sends["n"] % 7 == 0:
             link.port.write(bytes(rng.randrange(1, 256) for _ in range(rng.randrange(1, 60))) + b"\x00")
-        send(payloads)
+        send(payloads, framed)
         if plan == "power_loss" and sends["n"] == at:
             os.kill(link.process.pid, signal.SIGKILL)
 

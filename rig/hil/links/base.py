@@ -25,7 +25,9 @@ class BoardLink:
     bytes_sent: int
     pending: deque
 
-    def send(self, payloads: list[bytes]) -> None:
+    def send(self, payloads: list[bytes], framed: bytes | None = None) -> None:
+        """Send `payloads`; a byte-stream link may take them already framed (`framed`,
+        protocol.frames of the same payloads), as a replay prepares its windows."""
         raise NotImplementedError
 
     def receive_payloads(self, timeout: float) -> list[bytes]:

@@ -26,7 +26,7 @@ class CrtpLink(BoardLink):
     pending: deque = field(default_factory=deque)
     errors: list = field(default_factory=list)
 
-    def send(self, payloads: list[bytes]) -> None:
+    def send(self, payloads: list[bytes], framed: bytes | None = None) -> None:
         from cflib.crtp.crtpstack import CRTPPacket
 
         self._raise_link_error()

@@ -95,8 +95,8 @@ class Link(BoardLink):
     bytes_sent: int = 0
     pending: deque = field(default_factory=deque)
 
-    def send(self, payloads: list[bytes]) -> None:
-        data = b"".join(protocol.frame(p) for p in payloads)
+    def send(self, payloads: list[bytes], framed: bytes | None = None) -> None:
+        data = protocol.frames(payloads) if framed is None else framed
         try:
             self.port.write(data)
         except serial.SerialTimeoutException as exc:
