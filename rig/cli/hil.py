@@ -256,7 +256,8 @@ def register(sub) -> None:
     add_estimator_options(p)
     p.add_argument("--target", default="native",
                    help="native (program on a pty), native-udp (its UDP endpoint through cflib's udp:// driver), "
-                        "qemu, serial:URL (any pyserial URL), crazyflie:URI (cflib radio://, usb://, udp://) or "
+                        "qemu (the STM32F405 firmware in QEMU, through the bulk link), qemu-usart (the same through "
+                        "its emulated USART), serial:URL (any pyserial URL), crazyflie:URI (cflib radio://, usb://, udp://) or "
                         "zenoh:NAME (a board served by a `bridge` process); default native")
     p.add_argument("--out", type=Path, required=True, help="output directory")
     p.add_argument("--start", type=float, help="start time on the recording's clock (default 1 s before take-off)")

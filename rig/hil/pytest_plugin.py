@@ -8,7 +8,7 @@ the-loop tests written as pytest-embedded users write theirs with `dut`.
     pytest --rig-target native --rig-target qemu --rig-target serial:/dev/ttyACM0
 
 `--rig-target` (repeatable; default `native`) takes what `rig replay --target` takes:
-native, native-udp, qemu, serial:URL, crazyflie:URI, zenoh:NAME. The `board` fixture
+native, native-udp, qemu, qemu-usart, serial:URL, crazyflie:URI, zenoh:NAME. The `board` fixture
 is parametrized over them; `board.replay(recording, **options)` replays as `rig
 replay` does (options: `start`, `duration`, `mode` "lockstep" or "realtime", `speed`,
 `lookahead`, `no_nn`, `no_robust`, `model`, `survey`, `report`) into a directory of
@@ -32,7 +32,7 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     group = parser.getgroup("rig", "uwb-rig hardware in the loop")
     group.addoption("--rig-target", action="append", default=[], metavar="TARGET",
                     help="a board for the `board` fixture, as `rig replay --target` takes it (repeatable; default "
-                         "native): native, native-udp, qemu, serial:URL, crazyflie:URI, zenoh:NAME")
+                         "native): native, native-udp, qemu, qemu-usart, serial:URL, crazyflie:URI, zenoh:NAME")
 
 
 def pytest_generate_tests(metafunc: pytest.Metafunc) -> None:
