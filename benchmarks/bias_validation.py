@@ -236,7 +236,39 @@ def main() -> None:
             args.json.write_text(json.dumps({"rows": rows, "summary": summary(rows)}, indent=1) + "\n")
     for entry in summary(rows):
         print(json.dumps(entry))
+    print(json.dumps(choose_form(rows)))
     write_doc(rows, args.doc)
+
+
+FLIGHT_SPLITS = ("day-0426", "day-0425", "mode-tdoa3", "mode-tdoa2")
+ACCURACY_TOLERANCE_M = 0.01
+
+
+def choose_form(rows: list[dict]) -> dict:
+    """The protocol's choice (module docstring): each form's accuracy (the mean over the
+    four day and mode splits of its mean 3D RMSE over seeds), whether it passes the
+    anchor check (no unseen anchor's spread widened), and the form to ship."""
+    forms = {}
+    for entry in summary([r for r in rows if r["split"] in FLIGHT_SPLITS]):
+        forms.setdefault(entry["form"], {})[entry["split"]] = entry["mean_rmse_3d"]["mean"]
+    table = {}
+    for form, by_split in forms.items():
+        if set(by_split) != set(FLIGHT_SPLITS):
+            continue
+        anchors = [r["tdoa"] for r in rows if r["split"] == "anchors" and r["form"] == form]
+        widened = sum(t["std_after"] > t["std_before"] for t in anchors)
+        table[form] = {"accuracy_m": float(np.mean(list(by_split.values()))), "anchors_run": len(anchors),
+                       "anchors_widened": int(widened), "passes_anchor_check": len(anchors) == 8 and widened == 0}
+    if not table:
+        return {"forms": {}, "ship": None}
+    best = min(table, key=lambda f: table[f]["accuracy_m"])
+    passing = [f for f in table if table[f]["passes_anchor_check"]]
+    ship = best
+    if passing:
+        candidate = min(passing, key=lambda f: table[f]["accuracy_m"])
+        if table[candidate]["accuracy_m"] <= table[best]["accuracy_m"] + ACCURACY_TOLERANCE_M:
+            ship = candidate
+    return {"forms": table, "ship": ship, "anchor_check_met": table[ship]["passes_anchor_check"]}
 
 
 def row_key(row: dict) -> tuple:
@@ -281,6 +313,17 @@ def write_doc(rows: list[dict], doc: Path) -> None:
                 hit = [r["tdoa"] for r in anchors if r["anchor"] == k and r["form"] == form]
                 cells.append(f"{hit[0]['std_before']:.3f} → {hit[0]['std_after']:.3f} m" if hit else "")
             lines.append(f"| {k} | " + " | ".join(cells) + " |")
+    choice = choose_form(rows)
+    if choice["forms"]:
+        lines += ["", "## The choice, by the rule fixed above", "",
+                  "| form | accuracy: mean over the day and mode splits | unseen anchors widened | anchor check |",
+                  "|---|---|---|---|"]
+        for form, c in sorted(choice["forms"].items(), key=lambda kv: kv[1]["accuracy_m"]):
+            lines.append(f"| {form} | {c['accuracy_m']:.3f} m | {c['anchors_widened']} of {c['anchors_run']} "
+                         f"| {'passes' if c['passes_anchor_check'] else 'fails'} |")
+        lines += ["", f"Shipped: **{choice['ship']}**" + ("" if choice["anchor_check_met"] else
+                  " — the most accurate form; no form within "
+                  f"{ACCURACY_TOLERANCE_M:.2f} m of it passes the anchor check, which stays failing.")]
     region = [r for r in rows if r["split"] == "region"]
     planned = {("anchors", form, k) for form in {r["form"] for r in rows} for k in range(8)}
     missing = sorted(planned - {("anchors", r["form"], r["anchor"]) for r in anchors})

@@ -185,51 +185,58 @@ class ImuStream:
     since_key: int = 0
 
     def encode(self, counts: np.ndarray) -> list[bytes]:
+        # Each sample's delta from the one before (the first's from the stream's last) and
+        # whether it fits int8, computed once for the window; the messages are then cut on
+        # Python ints (a window holds about ten samples, too few for numpy to pay per step).
         counts = np.asarray(counts, np.int32).reshape(-1, IMU_AXES)
+        if not len(counts):
+            return []
+        previous = counts[:1] if self.last is None else np.asarray(self.last, np.int32)[None]
+        deltas = np.diff(np.vstack([previous, counts]), axis=0)
+        fits = np.all(np.abs(deltas) <= 127, axis=1).tolist()
+        if self.last is None:
+            fits[0] = False
+        rows, deltas = [tuple(r) for r in counts.tolist()], [tuple(d) for d in deltas.tolist()]
         msgs, i = [], 0
-        while i < len(counts):
-            if self.last is None or self.since_key >= self.key_every or not _fits(counts[i] - self.last):
-                n = 1 + _run_of_small_deltas(counts[i:], IMU_KEY_MAX_DELTAS)
-                deltas = np.diff(counts[i:i + n], axis=0)
-                msgs.append(struct.pack("<BB6h", IMU, self.seq, *counts[i].tolist()) + deltas.astype(np.int8).tobytes())
+        while i < len(rows):
+            if self.since_key >= self.key_every or not fits[i]:
+                n = 1 + _leading(fits[i + 1:i + 1 + IMU_KEY_MAX_DELTAS])
+                flat = [d for delta in deltas[i + 1:i + n] for d in delta]
+                msgs.append(struct.pack(f"<BB6h{len(flat)}b", IMU, self.seq, *rows[i], *flat))
                 self.since_key = 0
             else:
-                chain = np.vstack([self.last, counts[i:]])
-                n, payload = _packed_deltas(np.diff(chain, axis=0)[:_run_of_small_deltas(chain, IMU_DELTA_MAX)])
+                n, payload = _packed_deltas(deltas[i:i + _leading(fits[i:i + IMU_DELTA_MAX])])
                 msgs.append(bytes([IMU_DELTA, self.seq]) + payload)
                 self.since_key += 1
             self.seq = (self.seq + 1) & 0xFF
-            self.last = counts[i + n - 1]
+            self.last = rows[i + n - 1]
             i += n
         return msgs
 
 
-def _fits(delta: np.ndarray) -> bool:
-    return bool(np.all(np.abs(delta) <= 127))
+def _leading(flags: list[bool]) -> int:
+    """How many of `flags` are true before the first false."""
+    for k, flag in enumerate(flags):
+        if not flag:
+            return k
+    return len(flags)
 
 
-def _run_of_small_deltas(counts: np.ndarray, limit: int) -> int:
-    """How many samples after the first differ from their predecessor by int8 (<= limit)."""
-    small = np.all(np.abs(np.diff(counts[:limit + 1], axis=0)) <= 127, axis=1)
-    return int(np.argmin(small)) if not small.all() else len(small)
-
-
-def _width(values: np.ndarray) -> np.ndarray:
+def _width(rows: list[tuple]) -> list[int]:
     """Two's-complement bits needed per column (1..8)."""
-    hi = np.maximum(values.max(axis=0), -values.min(axis=0) - 1)
-    return np.maximum(1, np.ceil(np.log2(hi + 1)).astype(int) + 1)
+    return [max(1, max(max(column), -min(column) - 1).bit_length() + 1) for column in zip(*rows)]
 
 
-def _packed_deltas(deltas: np.ndarray) -> tuple[int, bytes]:
+def _packed_deltas(deltas: list[tuple]) -> tuple[int, bytes]:
     """The longest prefix of `deltas` (at least one) whose packed form fits one message."""
     for n in range(len(deltas), 0, -1):
         width = _width(deltas[:n])
-        if IMU_DELTA_HEADER + (n * int(width.sum()) + 7) // 8 <= MAX_PAYLOAD:
+        if IMU_DELTA_HEADER + (n * sum(width) + 7) // 8 <= MAX_PAYLOAD:
             break
-    layout = sum(int(w - 1) << (3 * i) for i, w in enumerate(width)) | (n - 1) << 18
+    layout = sum((w - 1) << (3 * i) for i, w in enumerate(width)) | (n - 1) << 18
     bits, nbits = 0, 0
     for row in deltas[:n]:
-        for value, w in zip(row.tolist(), width.tolist()):
+        for value, w in zip(row, width):
             bits |= (value & ((1 << w) - 1)) << nbits
             nbits += w
     return n, layout.to_bytes(3, "little") + bits.to_bytes((nbits + 7) // 8, "little")
@@ -240,13 +247,14 @@ def tdoa(dt_us: int, id_a: int, id_b: int, value: float) -> bytes:
     return struct.pack("<BHBBf", TDOA, dt_us, id_a, id_b, value)
 
 
-def tdoa_item(dt_us: int, id_a: int, id_b: int, value: float) -> bytes | None:
-    """A packed TDOA item (5 bytes), or None when the ids or the value do not fit it."""
+def tdoa_item(dt_us: int, id_a: int, id_b: int, value: float, counts: int | None = None) -> bytes | None:
+    """A packed TDOA item (5 bytes), or None when the ids or the value do not fit it.
+    `counts`: the value already quantised (as `quantize` makes it), when known."""
     q = float(value) / float(TDOA_LSB)
     if not (math.isfinite(q) and abs(q) < 32767.0 and 0 <= id_a < PACKED_ID_LIMIT and 0 <= id_b < PACKED_ID_LIMIT
             and 0 <= dt_us <= 0xFFFF):
         return None
-    return struct.pack("<HBh", dt_us, id_a << 4 | id_b, int(quantize(value, TDOA_LSB)))
+    return struct.pack("<HBh", dt_us, id_a << 4 | id_b, int(quantize(value, TDOA_LSB)) if counts is None else counts)
 
 
 def tdoa_pack(items: list[bytes]) -> bytes:
@@ -266,8 +274,9 @@ def tdoa_messages(tdoas: list[tuple[int, int, int, float]], t_step_us: int) -> l
     """A window's TDOAs and its STEP: unpackable ones as TDOA, the rest packed, the last
     five of them riding on the STEP."""
     items, full = [], []
-    for dt, a, b, v in tdoas:
-        item = tdoa_item(dt, a, b, v)
+    counts = quantize([v for _, _, _, v in tdoas], TDOA_LSB).tolist() if tdoas else []
+    for (dt, a, b, v), q in zip(tdoas, counts):
+        item = tdoa_item(dt, a, b, v, q)
         items.append(item) if item is not None else full.append(tdoa(dt, a, b, v))
     split = max(0, len(items) - TDOA_PACK_MAX)
     packs = [tdoa_pack(items[k:min(k + TDOA_PACK_MAX, split)]) for k in range(0, split, TDOA_PACK_MAX)]
