@@ -25,7 +25,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from rig.data.errors import SurveyError
 
@@ -48,7 +47,11 @@ class Anchor:
     quaternion: tuple[float, float, float, float]
 
     @property
-    def rotation(self) -> Rotation:
+    def rotation(self):
+        """The orientation as a scipy Rotation (scipy imported here: reading a survey, as
+        every replay does, should not cost its import)."""
+        from scipy.spatial.transform import Rotation
+
         return Rotation.from_quat(self.quaternion)
 
     def to_json(self) -> dict:
@@ -112,6 +115,8 @@ def parse_survey(path: Path) -> list[Anchor]:
             markers[(int(match["mk"]), int(match["idx"]))] = point
     if not antennas:
         raise SurveyError(f"{path}: no anchorAntK lines found")
+    from scipy.spatial.transform import Rotation
+
     anchors = []
     for aid in sorted(antennas):
         missing = [i for i in (1, 2, 3) if (aid, i) not in markers]

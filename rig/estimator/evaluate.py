@@ -14,7 +14,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
 
 from rig.data.recording import Recording
 from rig.estimator import metrics, native
@@ -50,10 +49,29 @@ def start_time(rec: Recording, rule: metrics.SegmentRule = metrics.SegmentRule()
 
 
 def truth_pose_at(rec: Recording, t: float) -> tuple[np.ndarray, np.ndarray]:
+    """The ground truth's position and orientation (quaternion x, y, z, w) at `t`, the
+    orientation interpolated on the great circle between the two poses around it."""
     pos = metrics.interpolate_positions(rec.truth, np.array([t]))[0]
     times, keep = np.unique(rec.truth.t, return_index=True)
-    quat = Slerp(times, Rotation.from_quat(rec.truth.quaternion[keep]))(np.clip(t, times[0], times[-1])).as_quat()
-    return pos, quat
+    quats = rec.truth.quaternion[keep]
+    t = float(np.clip(t, times[0], times[-1]))
+    k = int(np.clip(np.searchsorted(times, t, side="right") - 1, 0, max(len(times) - 2, 0)))
+    if len(times) < 2:
+        return pos, quats[0] / np.linalg.norm(quats[0])
+    return pos, slerp(quats[k], quats[k + 1], (t - times[k]) / (times[k + 1] - times[k]))
+
+
+def slerp(q0: np.ndarray, q1: np.ndarray, fraction: float) -> np.ndarray:
+    """The unit quaternion `fraction` of the way from q0 to q1 along the shorter arc."""
+    q0, q1 = q0 / np.linalg.norm(q0), q1 / np.linalg.norm(q1)
+    cos = float(np.dot(q0, q1))
+    if cos < 0.0:
+        q1, cos = -q1, -cos
+    if cos > 1.0 - 1e-12:
+        q = q0 + fraction * (q1 - q0)
+        return q / np.linalg.norm(q)
+    angle = np.arccos(min(cos, 1.0))
+    return (np.sin((1.0 - fraction) * angle) * q0 + np.sin(fraction * angle) * q1) / np.sin(angle)
 
 
 def build_events(rec: Recording, t0: float, t_end: float | None = None) -> np.ndarray:

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 FRAME = "world"                   # the motion-capture frame every position is in
 ANCHOR_SIZE_M = 0.12              # the cube drawn at an anchor
 LOG_LEVEL = {"info": 2, "warning": 3, "error": 4}     # foxglove.LogLevel
@@ -65,7 +67,7 @@ def anchors_scene(t: float, anchors) -> dict:
     """Each anchor (`survey.Anchor`) as a cube at its pose with its id above it, for ever."""
     entities = []
     for a in anchors:
-        quaternion = a.rotation.as_quat()
+        quaternion = np.asarray(a.quaternion, float) / np.linalg.norm(a.quaternion)
         label = (a.position[0], a.position[1], a.position[2] + 1.5 * ANCHOR_SIZE_M)
         entities.append({
             "timestamp": time(t), "frame_id": FRAME, "id": f"anchor{a.id}", "lifetime": {"sec": 0, "nsec": 0},

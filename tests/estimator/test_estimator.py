@@ -177,3 +177,17 @@ def _both_configs(flight: Path) -> tuple[str, dict]:
                          "plain": evaluate(rec, robust=False, use_nn=False),
                          "robust+nn": evaluate(rec, robust=True, use_nn=True),
                          "plain+nn": evaluate(rec, robust=False, use_nn=True)}
+
+
+def test_the_truth_orientation_between_samples_is_scipys_slerp() -> None:
+    """The reset pose's orientation (numpy, so a replay does not import scipy) against
+    scipy's Slerp, inside the samples, on them and beyond either end."""
+    from scipy.spatial.transform import Rotation, Slerp
+
+    rec = read_recording(ROOT / "recordings" / "default.mcap")
+    times, keep = np.unique(rec.truth.t, return_index=True)
+    reference = Slerp(times, Rotation.from_quat(rec.truth.quaternion[keep]))
+    for t in np.concatenate([np.linspace(times[0] - 1, times[-1] + 1, 997), times[::50]]):
+        quat = truth_pose_at(rec, t)[1]
+        expected = reference(np.clip(t, times[0], times[-1])).as_quat()
+        assert np.abs(quat - expected).max() < 1e-12 or np.abs(quat + expected).max() < 1e-12
