@@ -24,6 +24,7 @@ from rig.hil.links.base import BoardLink, LinkError
 # would block in the write for ever, deaf even to Ctrl-C when the signal lands on
 # another of its threads.
 WRITE_TIMEOUT_S = 10.0
+READ_CHUNK = 65536
 
 
 class SocketPort(protocol_socket.Serial):
@@ -37,6 +38,15 @@ class SocketPort(protocol_socket.Serial):
         return struct.unpack("I", fcntl.ioctl(self._socket, termios.FIONREAD, b"\0\0\0\0"))[0]
 
 
+def _read_fd(fd: int) -> bytes | None:
+    """Everything waiting on a non-blocking descriptor in one system call (pyserial's read
+    costs two more and a select); None or b"" when nothing is (a raw tty reads b"")."""
+    try:
+        return os.read(fd, READ_CHUNK)
+    except BlockingIOError:
+        return None
+
+
 class PipePort:
     """The part of a pyserial port that `Link` uses, on two pipes: what is written goes to
     `write_fd`, what is read comes from `read_fd` (a child's standard input and output)."""
@@ -46,6 +56,7 @@ class PipePort:
         self.write_fd, self.read_fd = write_fd, read_fd
         self.timeout, self.write_timeout = timeout, write_timeout
         os.set_blocking(write_fd, False)
+        os.set_blocking(read_fd, False)
         self.is_open = True
 
     def fileno(self) -> int:
@@ -121,13 +132,19 @@ class Link(BoardLink):
     def _read(self, deadline: float) -> bytes:
         """What is waiting, else wait until `deadline` at most (real-time pacing needs
         millisecond waits, not the port's read timeout) for the first byte."""
-        waiting = self.port.in_waiting
-        if not waiting and hasattr(self.port, "fileno"):
-            wait = min(self.port.timeout or 0.05, max(0.0, deadline - time.monotonic()))
-            if not select.select([self.port.fileno()], [], [], wait)[0]:
-                return b""
-        # readable with nothing waiting means the other end closed: read() raises then
-        return self.port.read(max(1, self.port.in_waiting))
+        fd = self.port.fileno() if hasattr(self.port, "fileno") else None
+        if fd is None:
+            return self.port.read(max(1, self.port.in_waiting))
+        data = _read_fd(fd)
+        if data:
+            return data
+        wait = min(self.port.timeout or 0.05, max(0.0, deadline - time.monotonic()))
+        if not select.select([fd], [], [], wait)[0]:
+            return b""
+        data = _read_fd(fd)
+        if not data:       # readable with nothing to read: the other end closed
+            raise serial.SerialException("the board closed its end of the link")
+        return data
 
     def _close_channel(self) -> None:
         self.port.close()
