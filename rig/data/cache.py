@@ -1,8 +1,9 @@
-"""A binary cache of recordings read from MCAP: decoding 130 000 JSON messages takes
-seconds, loading their arrays back takes milliseconds. An entry is keyed by the
-file's resolved path, size and modification time, so a changed or damaged file is
-read afresh; only files read whole (not salvaged) are cached. The cache is an
-optimisation only: any failure to read or write it falls back to the MCAP file.
+"""A binary cache of recordings read from MCAP or imported from flight logs: decoding
+130 000 JSON messages, or a log's binary events, takes a second or more, loading their
+arrays back takes milliseconds. An entry is keyed by the resolved path, size and
+modification time of every file it was made from (a log and its survey), so a changed
+or damaged file is read afresh; only files read whole (not salvaged) are cached. The
+cache is an optimisation only: any failure to read or write it falls back to the files.
 
 Location: `$UWB_RIG_CACHE`, else `$XDG_CACHE_HOME/uwb-rig`, else `~/.cache/uwb-rig`;
 `UWB_RIG_CACHE=off` turns it off."""
@@ -39,12 +40,14 @@ def cache_dir() -> Path | None:
     return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "uwb-rig"
 
 
-def _entry(path: Path) -> Path | None:
+def _entry(sources: list[Path]) -> Path | None:
     root = cache_dir()
     if root is None:
         return None
-    stat = path.stat()
-    key = f"{FORMAT}:{path.resolve()}:{stat.st_size}:{stat.st_mtime_ns}"
+    key = str(FORMAT)
+    for path in sources:
+        stat = path.stat()
+        key += f":{path.resolve()}:{stat.st_size}:{stat.st_mtime_ns}"
     return root / "recordings" / (hashlib.sha256(key.encode()).hexdigest()[:32] + ".npz")
 
 
@@ -56,16 +59,29 @@ def read_cached(path: Path, strict: bool = False) -> Recording:
     if rec is None:
         rec, whole = read_recording_checked(path)
         if whole:
-            store(path, rec)
+            store(path, rec=rec)
         elif strict:
             raise RecordingError(f"{path} is damaged or unfinished (--strict: not used in part)")
     return rec
 
 
-def load(path: Path) -> Recording | None:
-    """The cached recording of `path`, or None."""
+def imported_cached(log_path: Path, survey_path: Path) -> Recording:
+    """A flight log imported with `survey_path` (rig.data.importer.import_log, which
+    fails on a damaged log): from the cache if it holds these very two files."""
+    from rig.data.importer import import_log
+
+    sources = [Path(log_path), Path(survey_path)]
+    rec = load(*sources)
+    if rec is None:
+        rec = import_log(*sources)
+        store(*sources, rec=rec)
+    return rec
+
+
+def load(*sources: Path) -> Recording | None:
+    """The cached recording made from `sources`, or None."""
     try:
-        entry = _entry(path)
+        entry = _entry(list(sources))
         if entry is None or not entry.is_file():
             return None
         with np.load(entry) as data:
@@ -73,17 +89,17 @@ def load(path: Path) -> Recording | None:
             extra = json.loads(str(data["extra"]))
         anchors = [Anchor(a["id"], tuple(a["position"]), tuple(a["quaternion"])) for a in extra["anchors"]]
         return Recording(**series, anchors=anchors, metadata=extra["metadata"])
-    except Exception as exc:  # a damaged entry: the MCAP file is the truth
-        log.debug("recording cache for %s unusable: %s", path, exc)
+    except Exception as exc:  # a damaged entry: the files are the truth
+        log.debug("recording cache for %s unusable: %s", sources[0], exc)
         return None
 
 
-def store(path: Path, rec: Recording) -> None:
-    """Cache `rec`, read whole from `path` (atomically; failures only logged: a full
+def store(*sources: Path, rec: Recording) -> None:
+    """Cache `rec`, read whole from `sources` (atomically; failures only logged: a full
     disk or a read-only home must not fail the job)."""
     tmp = None
     try:
-        entry = _entry(path)
+        entry = _entry(list(sources))
         if entry is None:
             return
         entry.parent.mkdir(parents=True, exist_ok=True)
@@ -96,7 +112,7 @@ def store(path: Path, rec: Recording) -> None:
         os.replace(tmp, entry)
         tmp = None
     except Exception as exc:
-        log.debug("could not cache %s: %s", path, exc)
+        log.debug("could not cache %s: %s", sources[0], exc)
     finally:
         if tmp is not None:
             with contextlib.suppress(OSError):

@@ -96,7 +96,7 @@ def load_any(path: Path, survey: Path | None = None, strict: bool = False) -> Re
     """An MCAP recording, or a flight log imported with `survey` (by default its day's,
     see `paths.survey_for`). An MCAP recording carries its own anchors. `strict`: a
     damaged recording is an error (a damaged log always is, without `--salvage`)."""
-    from rig.data.cache import read_cached
+    from rig.data.cache import imported_cached, read_cached
     from rig.data.paths import survey_for
 
     path = Path(path)
@@ -104,4 +104,4 @@ def load_any(path: Path, survey: Path | None = None, strict: bool = False) -> Re
         if survey is not None:
             raise LogFormatError(f"{path}: an MCAP recording carries its own anchors; --survey is for flight logs")
         return read_cached(path, strict)
-    return import_log(path, survey or survey_for(path))
+    return imported_cached(path, survey or survey_for(path))
