@@ -6,7 +6,7 @@ Topics (JSON, with JSON schemas, readable in Foxglove; documented in recordings/
                         message a window at its first sample's time (records written before
                         2026-11-27 hold one message a sample, uwb_rig.RunImu)
     /run/input/tdoa     TDOA measurements as sent
-    /run/truth          ground truth over the replayed span
+    /run/truth          ground truth over the replayed span, at most one pose every 10 ms
     /run/estimate       the board's estimates (position, velocity, attitude, covariance diagonal)
     /run/timing         cost of each window and call, in the target's unit, with the budget
     /run/counters       the estimator's cumulative counters after each window
@@ -21,8 +21,10 @@ complete chunks of an unfinished file).
 
 from __future__ import annotations
 
+import bisect
 import functools
 import json
+import math
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -105,6 +107,26 @@ def _xyz_dict(v) -> dict:
     return {"x": float(v[0]), "y": float(v[1]), "z": float(v[2])}
 
 
+# The messages written once a window or more often are formatted directly (the same text
+# as json.dumps of their dict): the generic encoder was a third of the record's time.
+_n = foxglove.number
+
+
+def _xyz_json(v) -> str:
+    return f'{{"x": {_n(v[0])}, "y": {_n(v[1])}, "z": {_n(v[2])}}}'
+
+
+def _quat_json(q) -> str:
+    return f'{{"x": {_n(q[0])}, "y": {_n(q[1])}, "z": {_n(q[2])}, "w": {_n(q[3])}}}'
+
+
+def _fields_json(fields: dict) -> str:
+    return ", ".join(f'"{k}": {v}' for k, v in fields.items())
+
+
+TRUTH_STEP_S = 0.010          # the ground truth in the record: at most one pose a window
+
+
 MAX_PENDING = 20_000           # windows held at most (200 s of flight), then written as they come
 
 
@@ -149,13 +171,15 @@ class RunRecorder:
         truth = rec.truth
         end = np.inf if t_end is None else t_end
         span = np.flatnonzero((truth.t >= t0 - 0.5) & (truth.t <= end + 0.5))
-        self._truth = (truth.t[span], truth.position[span])
-        for k in span:
-            q, t = truth.quaternion[k], float(truth.t[k])
-            self._write(TOPIC_TRUTH, "uwb_rig.Pose", t, {
-                "t": t, "position": _xyz_dict(truth.position[k]),
-                "orientation": {"x": float(q[0]), "y": float(q[1]), "z": float(q[2]), "w": float(q[3])}})
-            self._write(TOPIC_FOXGLOVE_TRUTH, "foxglove.PoseInFrame", t, foxglove.pose_in_frame(t, truth.position[k], q))
+        self._truth = (truth.t[span].tolist(), truth.position[span].tolist())   # whole, for the position error
+        slots = np.floor((truth.t[span] - t0) / TRUTH_STEP_S)
+        for k in span[np.concatenate([[True], np.diff(slots) > 0])] if len(span) else span:
+            q, p, t = truth.quaternion[k].tolist(), truth.position[k].tolist(), float(truth.t[k])
+            pose = {"t": t, "position": _xyz_dict(p), "orientation": dict(zip("xyzw", q))}
+            self._write(TOPIC_TRUTH, "uwb_rig.Pose", t, pose,
+                        text=f'{{"t": {_n(t)}, "position": {_xyz_json(p)}, "orientation": {_quat_json(q)}}}')
+            self._write(TOPIC_FOXGLOVE_TRUTH, "foxglove.PoseInFrame", t, None,
+                        text=foxglove.pose_in_frame_json(t, p, q))
 
     def inputs(self, t0: float, t_prev_us: int, imu: list, counts: np.ndarray, tdoa: list) -> None:
         """One window's inputs (the Window fields: dt since the previous STEP), the IMU as
@@ -190,29 +214,39 @@ class RunRecorder:
             # one message a window: a tenth of the messages of one a sample, which made up
             # half of the record's writing time
             acc, gyro = protocol.imu_values(counts)
-            samples = [{"t": t0 + (t_prev_us + dt) * 1e-6, "accel": _xyz_dict(a), "gyro": _xyz_dict(g)}
-                       for (dt, _, _), a, g in zip(imu, acc, gyro)]
-            self._write(TOPIC_IMU, "uwb_rig.RunImuWindow", samples[0]["t"], {"t": samples[0]["t"], "samples": samples})
+            times = [t0 + (t_prev_us + dt) * 1e-6 for dt, _, _ in imu]
+            samples = ", ".join(f'{{"t": {_n(t)}, "accel": {_xyz_json(a)}, "gyro": {_xyz_json(g)}}}'
+                                for t, a, g in zip(times, acc.tolist(), gyro.tolist()))
+            self._write(TOPIC_IMU, "uwb_rig.RunImuWindow", times[0], None,
+                        text=f'{{"t": {_n(times[0])}, "samples": [{samples}]}}')
         for dt, a, b, v in tdoa:
             t = t0 + (t_prev_us + dt) * 1e-6
-            self._write(TOPIC_TDOA, "uwb_rig.Tdoa", t, {"t": t, "id_a": a, "id_b": b,
-                                                         "distance_diff": float(v) if np.isfinite(v) else None})
+            value = float(v) if math.isfinite(v) else None
+            self._write(TOPIC_TDOA, "uwb_rig.Tdoa", t, {"t": t, "id_a": a, "id_b": b, "distance_diff": value},
+                        text=f'{{"t": {_n(t)}, "id_a": {a}, "id_b": {b}, "distance_diff": '
+                             f'{"null" if value is None else _n(value)}}}')
 
     def _write_answer(self, t0: float, est: protocol.Estimate, att: protocol.Attitude, counters: protocol.Counters,
                       timing: protocol.Timing, unit: str, budget: float, latency_s: float | None = None) -> None:
         t = t0 + est.t_us * 1e-6
         q = att.quat
-        self._write(TOPIC_ESTIMATE, "uwb_rig.Estimate", t, {
-            "t": t, "position": _xyz_dict(est.pos), "velocity": _xyz_dict(est.vel),
-            "orientation": {"x": q[0], "y": q[1], "z": q[2], "w": q[3]},
-            "cov_diag": [float(c) if np.isfinite(c) else None for c in att.cov_diag]})
-        self._write(TOPIC_FOXGLOVE_ESTIMATE, "foxglove.PoseInFrame", t, foxglove.pose_in_frame(t, est.pos, q))
+        cov = [float(c) if math.isfinite(c) else None for c in att.cov_diag]
+        estimate = {"t": t, "position": _xyz_dict(est.pos), "velocity": _xyz_dict(est.vel),
+                    "orientation": {"x": q[0], "y": q[1], "z": q[2], "w": q[3]}, "cov_diag": cov}
+        self._write(TOPIC_ESTIMATE, "uwb_rig.Estimate", t, estimate, text=(
+            f'{{"t": {_n(t)}, "position": {_xyz_json(est.pos)}, "velocity": {_xyz_json(est.vel)}, '
+            f'"orientation": {_quat_json(q)}, "cov_diag": [{", ".join("null" if c is None else _n(c) for c in cov)}]}}'))
+        self._write(TOPIC_FOXGLOVE_ESTIMATE, "foxglove.PoseInFrame", t, None,
+                    text=foxglove.pose_in_frame_json(t, est.pos, q))
         self._position_error(t, est.pos)
-        self._write(TOPIC_TIMING, "uwb_rig.Timing", t, {
-            "t": t, "unit": unit, "budget": budget, "window": timing.window, "predict": timing.predict,
-            "tdoa_total": timing.tdoa_total, "tdoa_max": timing.tdoa_max, "n_tdoa": timing.n_tdoa,
-            **({} if latency_s is None else {"latency_ms": latency_s * 1e3})})
-        self._write(TOPIC_COUNTERS, "uwb_rig.Counters", t, {"t": t, **counters.__dict__})
+        figures = {"t": t, "unit": unit, "budget": budget, "window": timing.window, "predict": timing.predict,
+                   "tdoa_total": timing.tdoa_total, "tdoa_max": timing.tdoa_max, "n_tdoa": timing.n_tdoa,
+                   **({} if latency_s is None else {"latency_ms": latency_s * 1e3})}
+        self._write(TOPIC_TIMING, "uwb_rig.Timing", t, figures, text="{" + _fields_json(
+            {k: json.dumps(v) if isinstance(v, str) else _n(v) if isinstance(v, float) else str(v)
+             for k, v in figures.items()}) + "}")
+        self._write(TOPIC_COUNTERS, "uwb_rig.Counters", t, None,
+                    text=f'{{"t": {_n(t)}, {_fields_json(counters.__dict__)}}}')
 
     @_one_section
     def status(self, t: float, source: str, code: int, message: str) -> None:
@@ -226,11 +260,14 @@ class RunRecorder:
         if self._truth is None or len(self._truth[0]) < 2 or not self._truth[0][0] <= t <= self._truth[0][-1]:
             return
         times, positions = self._truth
-        truth = [np.interp(t, times, positions[:, i]) for i in range(3)]
-        error = [float(p) - q for p, q in zip(position, truth)]
-        self._write(TOPIC_POSITION_ERROR, "uwb_rig.PositionError", t, {
-            "t": t, "error_m": foxglove.finite(float(np.linalg.norm(error))),
-            **{k: foxglove.finite(v) for k, v in zip("xyz", error)}})
+        k = min(bisect.bisect_right(times, t), len(times) - 1)      # np.interp, for one instant
+        t_a, t_b = times[k - 1], times[k]
+        f = (t - t_a) / (t_b - t_a) if t_b > t_a else 0.0
+        truth = [a + f * (b - a) for a, b in zip(positions[k - 1], positions[k])]
+        error = [float(p) - float(q) for p, q in zip(position, truth)]
+        values = [foxglove.finite(math.sqrt(sum(e * e for e in error)))] + [foxglove.finite(e) for e in error]
+        self._write(TOPIC_POSITION_ERROR, "uwb_rig.PositionError", t, None, text=f'{{"t": {_n(t)}, ' + _fields_json(
+            {k: "null" if v is None else _n(v) for k, v in zip(("error_m", "x", "y", "z"), values)}) + "}")
 
     def close(self) -> None:
         self.flush()
@@ -242,8 +279,9 @@ class RunRecorder:
     def _ready(self) -> bool:
         return self._out is not None and self.failed is None
 
-    def _write(self, topic: str, schema: str, t: float, obj, raw: bool = False) -> None:
-        """One message (inside a caller's `_one_section`)."""
+    def _write(self, topic: str, schema: str, t: float, obj, raw: bool = False, text: str | None = None) -> None:
+        """One message (inside a caller's `_one_section`): `obj` as JSON, or its `text`
+        already written (`raw`: `obj` is that text)."""
         if topic in REPORTED:
             self.kept.setdefault(topic, []).append(json.loads(obj) if raw else obj)
         if not self._ready():
@@ -251,7 +289,7 @@ class RunRecorder:
         try:
             if topic not in self._channels:
                 self._channels[topic] = self._out.channel(topic, schema, RUN_SCHEMAS.get(schema))
-            self._out.write(self._channels[topic], t, obj if raw else json.dumps(obj))
+            self._out.write(self._channels[topic], t, obj if raw else text if text is not None else json.dumps(obj))
             self.messages += 1
         except OSError as exc:
             self._fail(exc)

@@ -22,6 +22,7 @@ from rig.hil.runrecord import (
     TOPIC_FOXGLOVE_TRUTH,
     TOPIC_IMU,
     TOPIC_POSITION_ERROR,
+    TOPIC_TRUTH,
     read_run,
 )
 
@@ -75,6 +76,24 @@ def test_the_run_record_opens_in_foxglove_as_a_3d_scene(tmp_path: Path) -> None:
     assert sorted(e["id"] for e in scene["entities"]) == [f"anchor{k}" for k in range(8)]
     errors = [m["error_m"] for m in messages[TOPIC_POSITION_ERROR]]
     assert len(errors) >= result["n_estimates"] - 2 and max(errors) < 1.0
+    truth = [m["t"] for m in messages[TOPIC_TRUTH]]
+    assert len(truth) == len(messages[TOPIC_FOXGLOVE_TRUTH]) and min(np.diff(truth)) > 0.0095   # one a window
+
+
+def test_formatted_messages_are_what_json_dumps_writes() -> None:
+    """The record's high-rate messages are written without the generic encoder: the same
+    text as json.dumps, NaN spelt its way (a board that diverged) and strict JSON otherwise."""
+    import math
+
+    from rig.hil import foxglove
+
+    for position, orientation in [((1.5, -0.25, 3e-7), (0.0, 0.1, -0.2, 0.97)),
+                                  ((float("nan"), 1e300, -0.0), (1, 0, 0, 0))]:
+        for t in (0.0, 12.345678901, 1e-9):
+            assert foxglove.pose_in_frame_json(t, position, orientation) == \
+                json.dumps(foxglove.pose_in_frame(t, position, orientation))
+    assert foxglove.number(float("inf")) == "Infinity" and foxglove.number(2) == "2.0"
+    assert math.isnan(json.loads(foxglove.number(float("nan"))))
 
 
 def test_a_board_that_cannot_be_reached_fails_the_job_and_keeps_its_outputs(tmp_path: Path) -> None:
