@@ -7,6 +7,7 @@ from __future__ import annotations
 import subprocess
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -90,6 +91,34 @@ def test_the_parser_counts_as_the_byte_by_byte_reference_in_any_cut_of_the_strea
     assert out_fast == out_reference
     counters = ("frames_ok", "frames_bad", "bytes_dropped", "_overflow", "_buf")
     assert [getattr(fast, c) for c in counters] == [getattr(reference, c) for c in counters]
+
+
+def reference_cobs_decode(data: bytes) -> bytes | None:
+    """COBS decoded block by block, the plain way (None: not COBS)."""
+    out, i = bytearray(), 0
+    while i < len(data):
+        code = data[i]
+        block = data[i + 1:i + code]
+        if code == 0 or len(block) != code - 1 or 0 in block:
+            return None
+        out += block
+        i += code
+        if code < 0xFF and i < len(data):
+            out.append(0)
+    return bytes(out)
+
+
+@settings(max_examples=500)
+@given(st.one_of(st.binary(max_size=300).map(protocol.cobs_encode), st.binary(max_size=300)))
+def test_cobs_decoding_is_the_plain_block_walk(data: bytes) -> None:
+    """Encoded data of any length (0xFF blocks included) and garbage alike: the same bytes,
+    or the same refusal, as the block-by-block reference."""
+    expected = reference_cobs_decode(data)
+    if expected is None:
+        with pytest.raises(protocol.ProtocolError):
+            protocol.cobs_decode(data)
+    else:
+        assert protocol.cobs_decode(data) == expected
 
 
 @given(payloads)
