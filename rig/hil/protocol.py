@@ -148,7 +148,8 @@ class Parser:
 
 def quantize(value, lsb) -> np.ndarray:
     """The int16 the board receives (round half away from zero, saturating), as C's proto_quantize."""
-    q = np.asarray(value, np.float32) / np.float32(lsb)
+    with np.errstate(over="ignore", invalid="ignore"):     # beyond int16 saturates, as on the board
+        q = np.asarray(value, np.float32) / np.float32(lsb)
     q = np.where(np.isnan(q), 0, q)
     q = np.clip(q, -32767, 32767)
     return np.where(q >= 0, np.floor(q + np.float32(0.5)), np.ceil(q - np.float32(0.5))).astype(np.int16)
