@@ -65,19 +65,6 @@ def read_cached(path: Path, strict: bool = False) -> Recording:
     return rec
 
 
-def imported_cached(log_path: Path, survey_path: Path) -> Recording:
-    """A flight log imported with `survey_path` (rig.data.importer.import_log, which
-    fails on a damaged log): from the cache if it holds these very two files."""
-    from rig.data.importer import import_log
-
-    sources = [Path(log_path), Path(survey_path)]
-    rec = load(*sources)
-    if rec is None:
-        rec = import_log(*sources)
-        store(*sources, rec=rec)
-    return rec
-
-
 def load(*sources: Path) -> Recording | None:
     """The cached recording made from `sources`, or None."""
     try:

@@ -96,12 +96,18 @@ def load_any(path: Path, survey: Path | None = None, strict: bool = False) -> Re
     """An MCAP recording, or a flight log imported with `survey` (by default its day's,
     see `paths.survey_for`). An MCAP recording carries its own anchors. `strict`: a
     damaged recording is an error (a damaged log always is, without `--salvage`)."""
-    from rig.data.cache import imported_cached, read_cached
+    from rig.data import cache
     from rig.data.paths import survey_for
 
     path = Path(path)
     if path.suffix == ".mcap":
         if survey is not None:
             raise LogFormatError(f"{path}: an MCAP recording carries its own anchors; --survey is for flight logs")
-        return read_cached(path, strict)
-    return imported_cached(path, survey or survey_for(path))
+        return cache.read_cached(path, strict)
+    # a log is imported once for a given log and survey (the cache's key is both files)
+    sources = [path, Path(survey or survey_for(path))]
+    rec = cache.load(*sources)
+    if rec is None:
+        rec = import_log(*sources)
+        cache.store(*sources, rec=rec)
+    return rec

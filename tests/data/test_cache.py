@@ -89,18 +89,17 @@ def test_a_flight_log_is_imported_once_and_again_when_its_survey_changes(
         data_dir: Path, tmp_path: Path, private_cache: Path) -> None:
     """A flight log and its survey are both the entry's key: the same import back from the
     cache, and a changed survey (another anchor layout) imported afresh."""
-    from rig.data.cache import imported_cached
-    from rig.data.importer import import_log
+    from rig.data.importer import import_log, load_any
 
     log_path, survey = data_dir / "flights" / "0425-traj1", tmp_path / "anchors.txt"
     survey.write_text((data_dir / "surveys" / "anchor_0425.txt").read_text())
-    first = imported_cached(log_path, survey)
+    first = load_any(log_path, survey)
     assert_same(first, import_log(log_path, survey))
     assert len(list(private_cache.rglob("*.npz"))) == 1
-    assert_same(imported_cached(log_path, survey), first)
+    assert_same(load_any(log_path, survey), first)
     lines = survey.read_text().splitlines()
     moved = [f"anchorAnt0,{float(line.split(',')[1]) + 0.5}," + ",".join(line.split(",")[2:])
              if line.startswith("anchorAnt0,") else line for line in lines]
     survey.write_text("\n".join(moved) + "\n")
-    assert imported_cached(log_path, survey).anchors != first.anchors
+    assert load_any(log_path, survey).anchors != first.anchors
     assert len(list(private_cache.rglob("*.npz"))) == 2
