@@ -270,10 +270,14 @@ class RunRecorder:
             {k: "null" if v is None else _n(v) for k, v in zip(("error_m", "x", "y", "z"), values)}) + "}")
 
     def close(self) -> None:
-        self.flush()
-        if self._out is not None:
-            self._guard(self._out.close)
-            self._out = None
+        """Write what is held and finish the file, as one section: a signal that lands
+        meanwhile takes effect once the file is whole (taken between the two, it left
+        the held messages written and the summary never)."""
+        with critical():
+            self.flush()
+            if self._out is not None:
+                self._guard(self._out.close)
+                self._out = None
 
     # -------------------------------------------------------------------- internals
     def _ready(self) -> bool:

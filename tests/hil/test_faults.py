@@ -140,6 +140,36 @@ def test_a_signal_inside_a_critical_section_waits_for_its_end() -> None:
             signal.signal(s, handler)
 
 
+def test_a_signal_while_the_record_is_closed_leaves_it_whole(tmp_path: Path) -> None:
+    """A Ctrl-C that lands between writing the held messages and finishing the file (a
+    replay through QEMU's bulk link is often there when the user gives up waiting)
+    takes effect once the file is finished."""
+    from rigtest import finished_mcap
+
+    from rig.hil.interrupt import Interrupted, stop_on_signals
+    from rig.hil.runrecord import RunRecorder, read_run
+
+    handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
+    stop_on_signals()
+    try:
+        recorder = RunRecorder(tmp_path / "run.mcap")
+        recorder.status(1.0, "rig", 0, "a note")
+        flush = recorder.flush
+
+        def flush_then_ctrl_c() -> None:
+            flush()
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.05)                               # the handler has run
+        recorder.flush = flush_then_ctrl_c
+        with pytest.raises(Interrupted):
+            recorder.close()
+    finally:
+        for s, handler in handlers.items():
+            signal.signal(s, handler)
+    assert finished_mcap(tmp_path / "run.mcap")
+    assert [m["message"] for m in read_run(tmp_path / "run.mcap")["/run/status"]] == ["a note"]
+
+
 def test_an_output_directory_that_cannot_be_written_is_refused_before_a_board_starts(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     from rig.data import paths
