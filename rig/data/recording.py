@@ -244,9 +244,11 @@ class McapJsonWriter:
         self._sequence[channel_id] = 0
         return channel_id
 
-    def write(self, channel_id: int, t: float, text: str) -> None:
+    def write(self, channel_id: int, t: float, text: str | bytes) -> None:
+        """One message: its JSON text, or those bytes already encoded."""
         stamp = _nanoseconds(t)
-        self._writer.add_message(channel_id, log_time=stamp, data=text.encode(), publish_time=stamp,
+        data = text if isinstance(text, bytes) else text.encode()
+        self._writer.add_message(channel_id, log_time=stamp, data=data, publish_time=stamp,
                                  sequence=self._sequence[channel_id])
         self._sequence[channel_id] += 1
 

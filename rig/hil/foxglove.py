@@ -6,9 +6,6 @@ fields written (foxglove-sdk's `schemas/jsonschema` define them in full)."""
 
 from __future__ import annotations
 
-import json
-import math
-
 import numpy as np
 
 FRAME = "world"                   # the motion-capture frame every position is in
@@ -55,22 +52,6 @@ def time(t: float) -> dict:
     return {"sec": nanoseconds // 1_000_000_000, "nsec": nanoseconds % 1_000_000_000}
 
 
-def number(value) -> str:
-    """A number as json.dumps writes it (a float's repr; NaN and Infinity spelt its way)."""
-    value = float(value)
-    return repr(value) if math.isfinite(value) else json.dumps(value)
-
-
-def pose_in_frame_json(t: float, position, orientation) -> str:
-    """json.dumps(pose_in_frame(...)), written directly: a run record holds one for every
-    estimate and ground-truth sample, and the generic encoder took most of its time."""
-    nanoseconds = max(0, round(t * 1e9))
-    p, q = [number(v) for v in position], [number(v) for v in orientation]
-    return (f'{{"timestamp": {{"sec": {nanoseconds // 1_000_000_000}, "nsec": {nanoseconds % 1_000_000_000}}}, '
-            f'"frame_id": "{FRAME}", "pose": {{"position": {{"x": {p[0]}, "y": {p[1]}, "z": {p[2]}}}, '
-            f'"orientation": {{"x": {q[0]}, "y": {q[1]}, "z": {q[2]}, "w": {q[3]}}}}}}}')
-
-
 def pose(position, orientation) -> dict:
     return {"position": {k: float(v) for k, v in zip("xyz", position)},
             "orientation": {k: float(v) for k, v in zip("xyzw", orientation)}}
@@ -98,8 +79,3 @@ def anchors_scene(t: float, anchors) -> dict:
 
 def log(t: float, level: str, name: str, message: str) -> dict:
     return {"timestamp": time(t), "level": LOG_LEVEL[level], "message": message, "name": name, "file": "", "line": 0}
-
-
-def finite(value: float) -> float | None:
-    """A number JSON can carry (NaN and infinities are not JSON)."""
-    return float(value) if math.isfinite(value) else None

@@ -80,20 +80,35 @@ def test_the_run_record_opens_in_foxglove_as_a_3d_scene(tmp_path: Path) -> None:
     assert len(truth) == len(messages[TOPIC_FOXGLOVE_TRUTH]) and min(np.diff(truth)) > 0.0095   # one a window
 
 
-def test_formatted_messages_are_what_json_dumps_writes() -> None:
-    """The record's high-rate messages are written without the generic encoder: the same
-    text as json.dumps, NaN spelt its way (a board that diverged) and strict JSON otherwise."""
-    import math
+def test_a_board_that_diverged_leaves_a_record_of_strict_json(tmp_path: Path) -> None:
+    """NaN and infinities from a board that diverged are written null: every message
+    parses as strict JSON (Foxglove's parser refuses `NaN`) and reads back as missing."""
+    from rig.data.survey import Anchor
+    from rig.hil import protocol
+    from rig.hil.runrecord import TOPIC_COUNTERS, RunRecorder
 
-    from rig.hil import foxglove
+    nan, inf = float("nan"), float("inf")
+    rec = type("Rec", (), {"anchors": [Anchor(0, (0.0, 0.0, 2.0), (0.0, 0.0, 0.0, 1.0))],
+                           "truth": type("Truth", (), {"t": np.array([0.0, 1.0]), "position": np.zeros((2, 3)),
+                                                       "quaternion": np.tile([0.0, 0.0, 0.0, 1.0], (2, 1))})()})()
+    recorder = RunRecorder(tmp_path / "run.mcap")
+    recorder.start(rec, 0.0, 1.0, {"target": "test"})
+    recorder.inputs(0.0, 0, [], np.zeros((0, 6), np.int16), [(100, 0, 1, nan)])
+    recorder.answer(0.0, protocol.Estimate(500_000, (nan, 1.0, inf), (0.0, -inf, 0.0)),
+                    protocol.Attitude((0.0, 0.0, 0.0, nan), (nan,) * 9), protocol.Counters(*range(8)),
+                    protocol.Timing(500_000, 10, 4, 6, 6, 1), "ns", 1e7)
+    recorder.close()
 
-    for position, orientation in [((1.5, -0.25, 3e-7), (0.0, 0.1, -0.2, 0.97)),
-                                  ((float("nan"), 1e300, -0.0), (1, 0, 0, 0))]:
-        for t in (0.0, 12.345678901, 1e-9):
-            assert foxglove.pose_in_frame_json(t, position, orientation) == \
-                json.dumps(foxglove.pose_in_frame(t, position, orientation))
-    assert foxglove.number(float("inf")) == "Infinity" and foxglove.number(2) == "2.0"
-    assert math.isnan(json.loads(foxglove.number(float("nan"))))
+    def refuse(constant: str):
+        raise ValueError(f"{constant} is not JSON")
+
+    with open(tmp_path / "run.mcap", "rb") as stream:
+        texts = {channel.topic: json.loads(message.data, parse_constant=refuse)
+                 for _, channel, message in make_reader(stream).iter_messages()}
+    assert texts[TOPIC_ESTIMATE]["position"] == {"x": None, "y": 1.0, "z": None}
+    assert texts[TOPIC_FOXGLOVE_ESTIMATE]["pose"]["orientation"]["w"] is None
+    assert texts[TOPIC_POSITION_ERROR]["error_m"] is None and texts["/run/input/tdoa"]["distance_diff"] is None
+    assert texts[TOPIC_COUNTERS]["imu_lost"] == 7 and texts[TOPIC_ESTIMATE]["t"] == 0.5
 
 
 def test_a_board_that_cannot_be_reached_fails_the_job_and_keeps_its_outputs(tmp_path: Path) -> None:
