@@ -205,18 +205,32 @@ class ImuStream:
     since_key: int = 0
 
     def encode(self, counts: np.ndarray) -> list[bytes]:
-        # Each sample's delta from the one before (the first's from the stream's last) and
-        # whether it fits int8, computed once for the window; the messages are then cut on
-        # Python ints (a window holds about ten samples, too few for numpy to pay per step).
-        counts = np.asarray(counts, np.int32).reshape(-1, IMU_AXES)
-        if not len(counts):
-            return []
+        """One window's samples (n x 6 counts) as the stream's next messages."""
+        return self.encode_windows([counts])[0]
+
+    def encode_windows(self, windows: list[np.ndarray]) -> list[list[bytes]]:
+        """encode() of each window in turn. Each sample's delta from the one before (the
+        first's from the stream's last) and whether it fits int8 are computed in one
+        pass over all windows; the messages are then cut on Python ints (a window holds
+        about ten samples, too few for numpy to pay per window)."""
+        sizes = [len(c) for c in windows]
+        if not sum(sizes):
+            return [[] for _ in windows]
+        counts = np.concatenate([np.asarray(c, np.int32).reshape(-1, IMU_AXES) for c in windows])
         previous = counts[:1] if self.last is None else np.asarray(self.last, np.int32)[None]
         deltas = np.diff(np.vstack([previous, counts]), axis=0)
         fits = np.all(np.abs(deltas) <= 127, axis=1).tolist()
         if self.last is None:
             fits[0] = False
-        rows, deltas = [tuple(r) for r in counts.tolist()], [tuple(d) for d in deltas.tolist()]
+        rows, deltas = list(map(tuple, counts.tolist())), list(map(tuple, deltas.tolist()))
+        out, first = [], 0
+        for n in sizes:
+            window = slice(first, first + n)
+            out.append(self._messages(rows[window], deltas[window], fits[window]))
+            first += n
+        return out
+
+    def _messages(self, rows: list[tuple], deltas: list[tuple], fits: list[bool]) -> list[bytes]:
         msgs, i = [], 0
         while i < len(rows):
             if self.since_key >= self.key_every or not fits[i]:
@@ -242,17 +256,17 @@ def _leading(flags: list[bool]) -> int:
     return len(flags)
 
 
-def _width(rows: list[tuple]) -> list[int]:
-    """Two's-complement bits needed per column (1..8)."""
-    return [max(1, max(max(column), -min(column) - 1).bit_length() + 1) for column in zip(*rows)]
-
-
 def _packed_deltas(deltas: list[tuple]) -> tuple[int, bytes]:
-    """The longest prefix of `deltas` (at least one) whose packed form fits one message."""
-    for n in range(len(deltas), 0, -1):
-        width = _width(deltas[:n])
-        if IMU_DELTA_HEADER + (n * sum(width) + 7) // 8 <= MAX_PAYLOAD:
+    """The longest prefix of `deltas` (at least one) whose packed form fits one message.
+    Each column's width is the two's-complement bits (1..8) of its largest magnitude so
+    far; a longer prefix never needs fewer bits, so the first that does not fit ends it."""
+    need, n, width = [0] * IMU_AXES, 0, None
+    for row in deltas:
+        need = [max(m, v if v >= 0 else -v - 1) for m, v in zip(need, row)]
+        wider = [m.bit_length() + 1 for m in need]
+        if n and IMU_DELTA_HEADER + ((n + 1) * sum(wider) + 7) // 8 > MAX_PAYLOAD:
             break
+        n, width = n + 1, wider
     layout = sum((w - 1) << (3 * i) for i, w in enumerate(width)) | (n - 1) << 18
     bits, nbits = 0, 0
     for row in deltas[:n]:
@@ -290,11 +304,13 @@ def step(t_us: int, items: list[bytes] = ()) -> bytes:
     return struct.pack("<BI", STEP, t_us) + b"".join(items)
 
 
-def tdoa_messages(tdoas: list[tuple[int, int, int, float]], t_step_us: int) -> list[bytes]:
+def tdoa_messages(tdoas: list[tuple[int, int, int, float]], t_step_us: int,
+                  counts: list[int] | None = None) -> list[bytes]:
     """A window's TDOAs and its STEP: unpackable ones as TDOA, the rest packed, the last
-    five of them riding on the STEP."""
+    five of them riding on the STEP. `counts`: the values already quantised."""
     items, full = [], []
-    counts = quantize([v for _, _, _, v in tdoas], TDOA_LSB).tolist() if tdoas else []
+    if counts is None:
+        counts = quantize([v for _, _, _, v in tdoas], TDOA_LSB).tolist() if tdoas else []
     for (dt, a, b, v), q in zip(tdoas, counts):
         item = tdoa_item(dt, a, b, v, q)
         items.append(item) if item is not None else full.append(tdoa(dt, a, b, v))

@@ -91,7 +91,13 @@ def encode_windows(ws: list[Window], imu: protocol.ImuStream | None = None,
     window as it goes out."""
     imu = imu or protocol.ImuStream()
     counts = imu_counts(ws) if counts is None else counts
-    return [(imu.encode(c) if len(c) else []) + protocol.tdoa_messages(w.tdoa, w.t_us) for w, c in zip(ws, counts)]
+    values = [v for w in ws for _, _, _, v in w.tdoa]        # quantised in one pass too
+    tdoa_counts = protocol.quantize(values, protocol.TDOA_LSB).tolist() if values else []
+    out, first = [], 0
+    for w, imu_messages in zip(ws, imu.encode_windows(counts)):
+        out.append(imu_messages + protocol.tdoa_messages(w.tdoa, w.t_us, tdoa_counts[first:first + len(w.tdoa)]))
+        first += len(w.tdoa)
+    return out
 
 
 _EVENT_KINDS = {"accel": native.EV_ACCEL, "gyro": native.EV_GYRO, "tdoa": native.EV_TDOA, "step": native.EV_STEP}
