@@ -187,6 +187,18 @@ def test_imu_stream_round_trips_any_samples(jumps: list, steps: list) -> None:
     assert board.lost == 0
 
 
+@given(st.lists(st.tuples(*[st.integers(-128, 127)] * 6), min_size=1, max_size=protocol.IMU_DELTA_MAX))
+def test_a_packed_delta_message_holds_the_longest_prefix_that_fits(deltas: list) -> None:
+    """As many samples as fit one message: each column as wide as its widest value in it."""
+    def size(n: int) -> int:
+        widths = [max(v if v >= 0 else -v - 1 for v in column).bit_length() + 1 for column in zip(*deltas[:n])]
+        return protocol.IMU_DELTA_HEADER + (n * sum(widths) + 7) // 8
+
+    n, payload = protocol._packed_deltas(deltas)
+    assert n == max(k for k in range(1, len(deltas) + 1) if k == 1 or size(k) <= protocol.MAX_PAYLOAD)
+    assert 2 + len(payload) == size(n)
+
+
 def test_a_lost_imu_frame_costs_only_until_the_next_key() -> None:
     counts = np.cumsum(np.ones((200, 6), int), axis=0)
     msgs = protocol.ImuStream(key_every=10).encode(counts)
