@@ -50,6 +50,34 @@ static void write_all(const uint8_t *data, size_t n)
     }
 }
 
+/* What the service says while it handles one read's worth of input, written in one
+ * system call after it: the host then wakes once a window, not once a frame. */
+#define OUTPUT_BYTES 4096
+
+typedef struct {
+    uint8_t data[OUTPUT_BYTES];
+    size_t n;
+} output_t;
+
+static output_t output;
+
+static void flush_output(void)
+{
+    write_all(output.data, output.n);
+    output.n = 0;
+}
+
+static void write_buffered(const uint8_t *data, size_t n)
+{
+    if (output.n + n > sizeof output.data) flush_output();
+    if (n > sizeof output.data) {
+        write_all(data, n);
+        return;
+    }
+    memcpy(&output.data[output.n], data, n);
+    output.n += n;
+}
+
 static uint32_t now_ns(void)
 {
     struct timespec ts;
@@ -126,13 +154,14 @@ static int serve_stream(service_t *service, int in_fd)
         const ssize_t n = read(in_fd, buf, sizeof buf);
         if (n <= 0) return 0;
         service_feed(service, buf, (size_t)n);
+        flush_output();
     }
 }
 
 int main(int argc, char **argv)
 {
     int in_fd = STDIN_FILENO;
-    service_io_t io = {.write = write_all, .clock = now_ns, .timer_unit = PROTO_UNIT_NANOSECONDS,
+    service_io_t io = {.write = write_buffered, .clock = now_ns, .timer_unit = PROTO_UNIT_NANOSECONDS,
                        .timer_hz = 1000000000u};
     if (argc == 2 && strcmp(argv[1], "--pty") == 0) {
         in_fd = out_fd = open_pty();
@@ -153,5 +182,6 @@ int main(int argc, char **argv)
     static service_t service;
     service_init(&service, &io);
     service_boot(&service);
+    flush_output();
     return udp.fd >= 0 ? serve_udp(&service) : serve_stream(&service, in_fd);
 }
