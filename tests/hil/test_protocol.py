@@ -246,3 +246,10 @@ def test_windows_encoded_before_the_replay_are_the_bytes_of_encoding_each_as_it_
         one_by_one.append((stream.encode(counts) if len(counts) else []) + protocol.tdoa_messages(w.tdoa, w.t_us))
     assert replay.encode_windows(ws) == one_by_one
     assert sum(len(w.imu) for w in ws) > 2000 and sum(map(len, one_by_one)) > 3 * len(ws)
+
+
+def test_an_attitude_is_scaled_as_the_board_scales_it_in_float32() -> None:
+    """Every int16 quaternion count, decoded without numpy, is numpy's float32 product."""
+    counts = np.arange(-32768, 32768).reshape(-1, 4)
+    decoded = [q for row in counts.tolist() for q in protocol._quaternion(row)]
+    assert decoded == (counts.astype(np.float32) * protocol.QUAT_LSB).ravel().tolist()

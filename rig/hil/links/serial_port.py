@@ -47,6 +47,21 @@ def _read_fd(fd: int) -> bytes | None:
         return None
 
 
+def _write_fd(port, data: bytes) -> int:
+    """Write what the port's descriptor takes at once, in one system call (pyserial's
+    write adds a select and a loop to every window); what is left goes through the
+    port's own write, which waits for the board within its write timeout."""
+    fd = getattr(port, "write_fd", None)
+    if fd is None and type(port) is serial.Serial:     # a POSIX tty or pty, which pyserial opens non-blocking
+        fd = port.fileno()
+    if fd is None:
+        return 0
+    try:
+        return os.write(fd, data)
+    except BlockingIOError:
+        return 0
+
+
 class PipePort:
     """The part of a pyserial port that `Link` uses, on two pipes: what is written goes to
     `write_fd`, what is read comes from `read_fd` (a child's standard input and output)."""
@@ -109,7 +124,9 @@ class Link(BoardLink):
     def send(self, payloads: list[bytes], framed: bytes | None = None) -> None:
         data = protocol.frames(payloads) if framed is None else framed
         try:
-            self.port.write(data)
+            written = _write_fd(self.port, data)
+            if written < len(data):
+                self.port.write(data[written:])
         except serial.SerialTimeoutException as exc:
             raise LinkError(f"{self.name}: the board stopped reading (a write waited "
                             f"{self.port.write_timeout:g} s)") from exc
@@ -120,13 +137,18 @@ class Link(BoardLink):
     def receive_payloads(self, timeout: float) -> list[bytes]:
         deadline = time.monotonic() + timeout
         while True:
-            self._check_alive()
             try:
                 chunk = self._read(deadline)
             except (serial.SerialException, OSError) as exc:
+                self._check_alive()          # a board process that exited says so
                 raise LinkError(f"{self.name}: read failed (board gone?): {exc}") from exc
             payloads = self.parser.feed(chunk) if chunk else []
-            if payloads or time.monotonic() > deadline:
+            if payloads:
+                return payloads
+            # nothing whole came: has the board's process gone? (asked only now: a
+            # waitpid for every answer was a tenth of a native replay's loop)
+            self._check_alive()
+            if time.monotonic() > deadline:
                 return payloads
 
     def _read(self, deadline: float) -> bytes:
