@@ -9,6 +9,8 @@
 
 #include "protocol.h"
 
+#include <string.h>
+
 #define REG(addr) (*(volatile uint32_t *)(addr))
 
 #define RCC_BASE 0x40023800u
@@ -244,8 +246,15 @@ static uint32_t semihost(uint32_t op, const uint32_t *block)
     return r0;
 }
 
+/* What the service says while it handles one read's worth of input goes out in one
+ * SYS_WRITE after it (board_bulk_flush): every semihosting call stops the emulated core
+ * and wakes the host once, and a window's answer is four frames. */
+#define BULK_OUT_BYTES 256u
+
 static struct {
     uint32_t in, out;   /* semihosting handles of the console (":tt") */
+    uint8_t pending[BULK_OUT_BYTES];
+    size_t n_pending;
 } bulk;
 
 static uint32_t console(uint32_t mode)
@@ -269,8 +278,25 @@ size_t board_bulk_read(uint8_t *dst, size_t max)
     return missing <= max ? max - missing : 0;
 }
 
-void board_bulk_write(const uint8_t *data, size_t n)
+static void bulk_write_now(const uint8_t *data, size_t n)
 {
     const uint32_t block[3] = {bulk.out, (uint32_t)data, n};
     semihost(SYS_WRITE, block);
+}
+
+void board_bulk_flush(void)
+{
+    if (bulk.n_pending) bulk_write_now(bulk.pending, bulk.n_pending);
+    bulk.n_pending = 0;
+}
+
+void board_bulk_write(const uint8_t *data, size_t n)
+{
+    if (bulk.n_pending + n > BULK_OUT_BYTES) board_bulk_flush();
+    if (n > BULK_OUT_BYTES) {
+        bulk_write_now(data, n);
+        return;
+    }
+    memcpy(&bulk.pending[bulk.n_pending], data, n);
+    bulk.n_pending += n;
 }

@@ -32,6 +32,7 @@ void board_write(const uint8_t *data, size_t n);
 int board_bulk_selected(void);
 int board_bulk_open(void);             /* 0 on success */
 size_t board_bulk_read(uint8_t *dst, size_t max);  /* blocks until at least one byte */
-void board_bulk_write(const uint8_t *data, size_t n);
+void board_bulk_write(const uint8_t *data, size_t n);   /* held until board_bulk_flush */
+void board_bulk_flush(void);
 
 #endif

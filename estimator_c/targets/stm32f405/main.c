@@ -14,6 +14,7 @@ int main(void)
                              .timer_unit = board_clock_unit(), .timer_hz = BOARD_CPU_HZ};
     service_init(&service, &io);
     service_boot(&service);
+    if (bulk) board_bulk_flush();
     uint8_t buf[256];
     /* Poll rather than sleep (wfi): under QEMU a sleeping core delays the next received
      * byte by a host round trip, which halves the replay speed; a bench board has power.
@@ -23,6 +24,7 @@ int main(void)
         if (n) {
             board_defer_tick(1);
             service_feed(&service, buf, n);
+            if (bulk) board_bulk_flush();
             board_defer_tick(0);
         }
     }
