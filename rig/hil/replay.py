@@ -19,6 +19,8 @@ board to float32 precision.
 
 from __future__ import annotations
 
+import contextlib
+import gc
 import logging
 import time
 from dataclasses import dataclass, field
@@ -245,17 +247,32 @@ def run(link: BoardLink, rec: Recording, params: native.EstimatorParams, model: 
                            {"target": link.name, "start": t0, "windows": len(wire), "unit": hello.unit})
         began = time.perf_counter()
         try:
-            if speed is None:
-                _lock_step(link, wire, session, lookahead, progress)
-            else:
-                session.realtime = RealTime(speed)
-                _real_time(link, wire, session, progress)
+            with collector_paused():
+                if speed is None:
+                    _lock_step(link, wire, session, lookahead, progress)
+                else:
+                    session.realtime = RealTime(speed)
+                    _real_time(link, wire, session, progress)
         finally:
             session.loop_seconds = time.perf_counter() - began
     except (LinkError, KeyboardInterrupt) as exc:
         exc.session = session
         raise
     return session
+
+
+@contextlib.contextmanager
+def collector_paused():
+    """Python's cycle collector off while windows are exchanged: a full collection over
+    the replay's data stopped the rig for 50 ms, long enough to make a real-time window
+    late. The loop makes no reference cycles; what it allocates goes by reference count."""
+    was_enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if was_enabled:
+            gc.enable()
 
 
 class Wire:
