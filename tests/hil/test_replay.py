@@ -288,3 +288,21 @@ def test_a_run_too_short_to_score_still_reports_and_fails_its_accuracy_assertion
     result = json.loads((tmp_path / "metrics.json").read_text())
     assert result["n_estimates"] == 299 and "scored segment" in result["score_error"]   # windows in 3 s
     assert result["timing"]["windows"] == 299 and (tmp_path / "report.html").exists()
+
+
+def test_the_cycle_collector_is_paused_only_while_windows_are_exchanged() -> None:
+    import gc
+
+    assert gc.isenabled()
+    with pytest.raises(LinkError):
+        with replay.collector_paused():
+            assert not gc.isenabled()
+            raise LinkError("board gone")
+    assert gc.isenabled()
+    gc.disable()                   # a caller that keeps it off keeps it off
+    try:
+        with replay.collector_paused():
+            pass
+        assert not gc.isenabled()
+    finally:
+        gc.enable()
