@@ -67,8 +67,16 @@ typedef struct {
     float anchor_offset[BN_ANCHORS];
 } bn_link_t;
 
+/* bias_net_t.anchors of a model that corrects every anchor (one saved before models
+ * carried the anchors they were trained on). */
+#define BN_EVERY_ANCHOR 0xFFFFFFFFu
+
 typedef struct {
     uint32_t form;                /* BN_FORM_PAIR or BN_FORM_LINK */
+    /* Bit k set: the model was trained on measurements of anchor id k. A measurement
+     * with an anchor it never saw is not corrected: a network that tells anchors apart
+     * by their position only extrapolates to a new one, and widened the error there. */
+    uint32_t anchors;
     union {
         bn_pair_t pair;
         bn_link_t link;
@@ -82,7 +90,7 @@ void bn_features(const float tag_pos[3], const float tag_rot[3][3],
                  float features[BN_INPUTS]);
 
 /* Predicted TDOA bias (m) of the measurement between anchors id_a and id_b, for raw
- * (unnormalised) features, in either form (the pair form ignores the ids). */
+ * (unnormalised) features, in either form; 0 when the model never saw one of them. */
 float bn_predict(const bias_net_t *net, const float features[BN_INPUTS], unsigned id_a, unsigned id_b);
 
 /* The link form's range bias (m) of one link, from its raw link features. */

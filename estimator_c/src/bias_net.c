@@ -67,8 +67,14 @@ static float link_predict(const bn_link_t *net, const float features[BN_INPUTS],
     return bn_link_bias(net, b) + anchor_offset(net, id_b) - bn_link_bias(net, a) - anchor_offset(net, id_a);
 }
 
+static int trained_on(const bias_net_t *net, unsigned id)
+{
+    return net->anchors == BN_EVERY_ANCHOR || (id < 32u && ((net->anchors >> id) & 1u));
+}
+
 float bn_predict(const bias_net_t *net, const float features[BN_INPUTS], unsigned id_a, unsigned id_b)
 {
+    if (!trained_on(net, id_a) || !trained_on(net, id_b)) return 0.0f;
     return net->form == BN_FORM_LINK ? link_predict(&net->u.link, features, id_a, id_b)
                                      : pair_predict(&net->u.pair, features);
 }

@@ -17,7 +17,7 @@ import json
 import logging
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -279,7 +279,9 @@ def fit(samples: Samples, split: Split, config: TrainConfig = TrainConfig(), exc
         recordings = [load_any(flight_dir / name) for name in split.validation]
         score = lambda net: closed_loop_rmse(recordings, net)  # noqa: E731
     net, info = train(train_set, validation_set, config, progress, score)
-    report = {"split": asdict(split), "exclude_anchors": exclude_anchors,
+    # it corrects only the anchors it learnt (the C estimator leaves the others alone)
+    net = replace(net, anchors=np.union1d(train_set.id_a, train_set.id_b).astype(int).tolist())
+    report = {"split": asdict(split), "exclude_anchors": exclude_anchors, "anchors": net.anchors,
               "samples": {"train": len(train_set), "validation": len(validation_set), "test": len(test_set)},
               "validation": residual_stats(net, validation_set), "test": residual_stats(net, test_set),
               "training": {k: v for k, v in info.items() if k != "history"}, "history": info["history"]}

@@ -13,6 +13,11 @@ standardised as (x - in_mean) * in_scale (a scale of 0 keeps a feature out); the
 in metres is out_scale * y + out_offset (the link form's offset cancels in the
 difference: 0). A link model may add each anchor's own range offset (`anchor_offset`,
 zero for an anchor it never saw): TDOA bias = g(B) + d[B] − g(A) − d[A].
+
+A model knows the anchors it was trained on (`anchors`) and does not correct a
+measurement with another one: a network that tells anchors apart by their position
+only extrapolates to a new anchor, and widened the error there
+(docs/notebook/bias-validation.md, leave-anchor-out).
 """
 
 from __future__ import annotations
@@ -35,6 +40,7 @@ LINK_B = [3, 4, 5, 7, 9, 11, 13]
 DEFAULT_NETWORK = paths.SHIPPED_BIAS_NET
 LANES = 32  # C storage width of a pair layer (BN_LANES): two zero neurons of padding
 ANCHORS = 16  # anchor ids with an offset (BN_ANCHORS)
+EVERY_ANCHOR = 0xFFFFFFFF  # bias_net_t.anchors of a model that corrects every anchor (BN_EVERY_ANCHOR)
 
 
 def _layer_dtype(n_in: int, hidden: int, lanes: int, offset: bool, anchors: int = 0) -> np.dtype:
@@ -51,9 +57,10 @@ def _layer_dtype(n_in: int, hidden: int, lanes: int, offset: bool, anchors: int 
 
 PAIR_DTYPE = _layer_dtype(INPUTS, HIDDEN, LANES, offset=True)
 LINK_DTYPE = _layer_dtype(LINK_INPUTS, LINK_HIDDEN, LANES, offset=False, anchors=ANCHORS)
-# bias_net_t: the form, then a union of the two layouts.
-NET_DTYPE = np.dtype({"names": ["form", "pair", "link"], "formats": ["<u4", PAIR_DTYPE, LINK_DTYPE],
-                      "offsets": [0, 4, 4], "itemsize": 4 + max(PAIR_DTYPE.itemsize, LINK_DTYPE.itemsize)})
+# bias_net_t: the form, the anchors it was trained on (a bit per id), then a union of
+# the two layouts.
+NET_DTYPE = np.dtype({"names": ["form", "anchors", "pair", "link"], "formats": ["<u4", "<u4", PAIR_DTYPE, LINK_DTYPE],
+                      "offsets": [0, 4, 8, 8], "itemsize": 8 + max(PAIR_DTYPE.itemsize, LINK_DTYPE.itemsize)})
 
 
 def shape(form: str) -> tuple[int, int]:
@@ -79,10 +86,15 @@ class BiasNet:
     out_offset: float = 0.0
     form: str = "pair"
     anchor_offset: np.ndarray | None = None   # link form: (ANCHORS,) range offset per anchor id (m)
+    anchors: list[int] | None = None          # the anchor ids it was trained on (None: it corrects every one)
 
     def __post_init__(self) -> None:
         if self.form not in FORMS:
             raise ValueError(f"form must be one of {FORMS}, not {self.form!r}")
+        if self.anchors is not None:
+            self.anchors = sorted({int(k) for k in self.anchors})
+            if any(not 0 <= k < ANCHORS for k in self.anchors):
+                raise ValueError(f"the anchors a model was trained on are ids 0..{ANCHORS - 1}, not {self.anchors}")
         if self.anchor_offset is not None:
             self.anchor_offset = np.asarray(self.anchor_offset, float)
             if self.form != "link" or self.anchor_offset.shape != (ANCHORS,):
@@ -99,6 +111,16 @@ class BiasNet:
             out[inside] = self.anchor_offset[ids[inside]]
         return out
 
+    @property
+    def anchor_mask(self) -> int:
+        """bias_net_t.anchors: bit k for anchor id k."""
+        return EVERY_ANCHOR if self.anchors is None else sum(1 << k for k in self.anchors)
+
+    def trained_on(self, ids) -> np.ndarray:
+        """Whether each anchor id is one the model was trained on."""
+        ids = np.asarray(ids, int)
+        return np.ones(ids.shape, bool) if self.anchors is None else np.isin(ids, self.anchors)
+
     def _network(self, x: np.ndarray) -> np.ndarray:
         x = (np.atleast_2d(x) - self.in_mean) * self.in_scale
         for k, (w, b) in enumerate(zip(self.weights, self.biases)):
@@ -113,16 +135,21 @@ class BiasNet:
 
     def predict(self, features: np.ndarray, id_a=None, id_b=None) -> np.ndarray:
         """Float reference inference on rows of raw measurement features and their anchor
-        ids: the TDOA bias (m). The ids may be left out of a model without anchor offsets."""
+        ids: the TDOA bias (m), 0 where the model never saw one of the two anchors. The
+        ids may be left out of a model without anchor offsets that corrects every anchor."""
+        needs_ids = self.anchor_offset is not None or self.anchors is not None
+        if needs_ids and (id_a is None or id_b is None):
+            raise ValueError("this model has per-anchor offsets or knows its anchors: predict needs the anchor ids")
         if self.form == "pair":
-            return self._network(features) + self.out_offset
-        a, b = link_features(features)
-        bias = self.link_bias(b) - self.link_bias(a)
-        if self.anchor_offset is None:
+            bias = self._network(features) + self.out_offset
+        else:
+            a, b = link_features(features)
+            bias = self.link_bias(b) - self.link_bias(a)
+            if self.anchor_offset is not None:
+                bias = bias + self.offsets(id_b) - self.offsets(id_a)
+        if self.anchors is None:
             return bias
-        if id_a is None or id_b is None:
-            raise ValueError("this model has per-anchor offsets: predict needs the anchor ids")
-        return bias + self.offsets(id_b) - self.offsets(id_a)
+        return np.where(self.trained_on(id_a) & self.trained_on(id_b), bias, 0.0)
 
     def quantized(self) -> "BiasNet":
         """The same network with weights rounded exactly as `pack` stores them."""
@@ -132,12 +159,13 @@ class BiasNet:
             weights.append(q.astype(np.float64) * scale[:, None])
         offsets = None if self.anchor_offset is None else self.anchor_offset.astype(np.float32).astype(float)
         return BiasNet(weights, [b.copy() for b in self.biases], self.in_mean, self.in_scale,
-                       self.out_scale, self.out_offset, self.form, offsets)
+                       self.out_scale, self.out_offset, self.form, offsets, self.anchors)
 
     def pack(self) -> np.ndarray:
         """One NET_DTYPE record, laid out like the C bias_net_t."""
         rec = np.zeros((), NET_DTYPE)
         rec["form"] = FORM_CODE[self.form]
+        rec["anchors"] = self.anchor_mask
         layout = rec[self.form]
         hidden = shape(self.form)[1]
         layout["in_mean"], layout["in_scale"], layout["out_scale"] = self.in_mean, self.in_scale, self.out_scale
@@ -164,6 +192,7 @@ class BiasNet:
             "out_scale": self.out_scale, "out_offset": self.out_offset,
             "weights": [w.tolist() for w in self.weights], "biases": [b.tolist() for b in self.biases],
             **({"anchor_offset": self.anchor_offset.tolist()} if self.anchor_offset is not None else {}),
+            **({"anchors": self.anchors} if self.anchors is not None else {}),
         }
 
     @classmethod
@@ -171,7 +200,7 @@ class BiasNet:
         return cls([np.array(w, float) for w in obj["weights"]], [np.array(b, float) for b in obj["biases"]],
                    np.array(obj["in_mean"], float), np.array(obj["in_scale"], float),
                    float(obj["out_scale"]), float(obj["out_offset"]), obj.get("form", "pair"),
-                   obj.get("anchor_offset"))
+                   obj.get("anchor_offset"), obj.get("anchors"))
 
     def save(self, path: Path) -> None:
         Path(path).write_text(json.dumps(self.to_json()) + "\n")

@@ -193,8 +193,12 @@ def test_restarts_are_chosen_by_the_estimator_replaying_the_validation_flights(t
     replayed = evaluate(load_any(data_dir / "flights" / names[1]), model_path=tmp_path / "kept.json")
     assert kept["validation_rmse_3d"] == pytest.approx(replayed["rmse_3d"], rel=1e-9)
     assert kept["validation_rmse_3d"] == min(r["validation_rmse_3d"] for r in kept["restarts"])
-    without = fit(samples, split, TrainConfig(max_epochs=2, restarts=2), exclude_anchors=[0])[1]["training"]
-    assert without["selected_by"] == "validation_mse"  # the replays would correct anchor 0 too
+    assert net.anchors == list(range(8))
+    left_out, report = fit(samples, split, TrainConfig(max_epochs=2, restarts=2), exclude_anchors=[0])
+    assert report["training"]["selected_by"] == "validation_mse"  # the replays would correct anchor 0 too
+    # it never corrects anchor 0: its test measurements (all with anchor 0) keep their error
+    assert left_out.anchors == report["anchors"] == list(range(1, 8))
+    assert report["test"]["after"] == report["test"]["before"]
 
 
 # A fresh training's validation error against the recorded one's (m). A retraining

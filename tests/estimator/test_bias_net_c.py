@@ -105,6 +105,30 @@ def test_each_anchors_offset_enters_the_link_bias_and_an_unknown_id_has_none() -
 
 
 @pytest.mark.parametrize("form", ["pair", "link"])
+def test_a_measurement_with_an_anchor_the_model_never_saw_is_not_corrected(form: str) -> None:
+    """In C and in Python, through the saved form: a pair of anchors it was trained on is
+    corrected, a pair with another anchor (or an id beyond the table) is left alone."""
+    net = identity_probe_net(feature=2, gain=1.0, form=form)     # link form: link feature 2 of A and of B
+    net.anchors = [0, 1, 2, 3, 5]
+    saved = BiasNet.from_json(net.to_json())
+    assert saved.anchors == [0, 1, 2, 3, 5] and saved.anchor_mask == 0b101111
+    packed = saved.pack()
+    features = np.zeros(INPUTS)
+    features[LINK_B[2] if form == "link" else 2] = 0.5
+    pairs = [(0, 5), (3, 1), (0, 4), (7, 2), (6, 6), (1, 200)]
+    expected = [0.5, 0.5, 0.0, 0.0, 0.0, 0.0]
+    assert [native.predict_bias(packed, features, a, b) for a, b in pairs] == pytest.approx(expected, abs=1e-6)
+    ids_a, ids_b = zip(*pairs)
+    assert saved.predict(np.tile(features, (len(pairs), 1)), ids_a, ids_b) == pytest.approx(expected)
+    with pytest.raises(ValueError, match="anchor ids"):
+        saved.predict(features)
+    with pytest.raises(ValueError, match="ids 0..15"):
+        BiasNet.from_json({**net.to_json(), "anchors": [3, 16]})
+    assert BiasNet.from_json({k: v for k, v in net.to_json().items() if k != "anchors"}).pack()["anchors"] == \
+        0xFFFFFFFF                                   # a model saved before: every anchor
+
+
+@pytest.mark.parametrize("form", ["pair", "link"])
 def test_c_and_python_inference_agree_to_float32_precision(form: str) -> None:
     rng = np.random.default_rng(0)
     n_in, hidden = shape(form)

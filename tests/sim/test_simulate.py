@@ -399,7 +399,8 @@ def test_the_learned_bias_is_the_networks_prediction_at_the_true_pose(data_dir: 
     batch, world = predictor.tdoa([]), predictor.world([])
     unit = LearnedBias(1.0).bias(batch, world)
     rows = np.flatnonzero(np.isfinite(rec.tdoa.distance_diff))[::50]
-    expected = BiasNet.load(DEFAULT_NETWORK).predict(measurement_features(rec, rows, 0.0, "truth")[0])
+    expected = BiasNet.load(DEFAULT_NETWORK).predict(measurement_features(rec, rows, 0.0, "truth")[0],
+                                                     rec.tdoa.id_a[rows], rec.tdoa.id_b[rows])
     # within 5 %: the simulator's ground truth is smoothed (RecordedTrajectory), the training data's is not
     assert np.sqrt(np.mean((unit[rows] - expected) ** 2)) < 0.05 * np.sqrt(np.mean(expected ** 2))
     before = batch.value.copy()

@@ -24,5 +24,5 @@ int main(void)
 
 #ifdef ESTIMATOR
 /* Weights live in flash (const): the footprint counts a full-size model. */
-const bias_net_t g_bias_net = {.form = BN_FORM_LINK, .u.link = {.out_scale = 1.0f}};
+const bias_net_t g_bias_net = {.form = BN_FORM_LINK, .anchors = BN_EVERY_ANCHOR, .u.link = {.out_scale = 1.0f}};
 #endif
