@@ -124,7 +124,8 @@ def register_train(sub) -> None:
     p.add_argument("--all-flights", action="store_true",
                    help="hold no flight out for testing: every flight but the validation ones trains (how the "
                         "shipped model is made; its transfer is measured by benchmarks/bias_validation.py)")
-    p.add_argument("--exclude-anchors", metavar="K,K", help="leave these anchors out of training; test on them")
+    p.add_argument("--exclude-anchors", metavar="K,K", help="leave these anchors out of training; test on them "
+                   "(the model leaves measurements with an anchor it was not trained on uncorrected)")
     p.add_argument("--form", choices=FORMS, default=TrainConfig().form,
                    help="link (default): one network of a tag-anchor link's 7 features, TDOA bias = g(B) - g(A); "
                         "pair: a network of the measurement's 14 features (the paper's form)")
