@@ -114,8 +114,9 @@ def _quat(q) -> dict:
 
 # Messages are encoded with orjson: a tenth of the json module's time on a run record's
 # 60 000 messages, and strict JSON (NaN and infinities, from a board that diverged, are
-# written null, which any reader and Foxglove parse; `NaN` is not JSON).
-_dumps = orjson.dumps
+# written null, which any reader and Foxglove parse; `NaN` is not JSON). numpy's
+# scalars and arrays are numbers and lists, as the json module's callers made them.
+_dumps = functools.partial(orjson.dumps, option=orjson.OPT_SERIALIZE_NUMPY)
 
 
 TRUTH_STEP_S = 0.010          # the ground truth in the record: at most one pose a window

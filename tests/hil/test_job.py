@@ -92,9 +92,10 @@ def test_a_board_that_diverged_leaves_a_record_of_strict_json(tmp_path: Path) ->
                            "truth": type("Truth", (), {"t": np.array([0.0, 1.0]), "position": np.zeros((2, 3)),
                                                        "quaternion": np.tile([0.0, 0.0, 0.0, 1.0], (2, 1))})()})()
     recorder = RunRecorder(tmp_path / "run.mcap")
-    recorder.start(rec, 0.0, 1.0, {"target": "test"})
-    recorder.inputs(0.0, 0, [], np.zeros((0, 6), np.int16), [(100, 0, 1, nan)])
-    recorder.answer(0.0, protocol.Estimate(500_000, (nan, 1.0, inf), (0.0, -inf, 0.0)),
+    t0 = np.float64(0.0)                # numpy's numbers are numbers too
+    recorder.start(rec, t0, 1.0, {"target": "test"})
+    recorder.inputs(t0, 0, [], np.zeros((0, 6), np.int16), [(100, np.int64(0), 1, np.float32(nan))])
+    recorder.answer(t0, protocol.Estimate(500_000, (nan, np.float32(1.0), inf), (0.0, -inf, 0.0)),
                     protocol.Attitude((0.0, 0.0, 0.0, nan), (nan,) * 9), protocol.Counters(*range(8)),
                     protocol.Timing(500_000, 10, 4, 6, 6, 1), "ns", 1e7)
     recorder.close()
