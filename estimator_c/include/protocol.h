@@ -52,6 +52,8 @@ typedef enum {
                                 samples minus 1), then the deltas from the previous sample, sample
                                 by sample and axis by axis, two's complement, packed LSB first */
     MSG_TDOA_PACK = 0x0B,    /* 1..5 packed TDOA items (u16 dt_us, u8 ids, i16 value / PROTO_TDOA_LSB) */
+    MSG_STEP_BRIEF = 0x0C,   /* as MSG_STEP, answered by ESTIMATE and ATTITUDE only: a link with few packets
+                                a second asks for the counters and timing every N windows */
     /* board -> host */
     MSG_HELLO_REPLY = 0x81,  /* u8 proto version, u8 api version, u8 timer unit, u8 max anchors,
                                 u32 timer hz, u16 sizeof(bias_net_t), u8 capabilities */
@@ -61,9 +63,14 @@ typedef enum {
     MSG_COUNTERS = 0x85,     /* u32 steps, u32 accepted, u32 downweighted, u32 rejected, u16 resets,
                                 u16 imu_gaps, u16 gated, u16 imu messages lost (delta without reference) */
     MSG_TIMING = 0x86,       /* u32 t_us, u32 window, u32 predict, u32 tdoa_total, u32 tdoa_max, u8 n_tdoa
-                                (costs in the timer unit of the hello reply); ends a STEP's answer */
+                                (costs in the timer unit of the hello reply) of the most expensive window
+                                since the last TIMING (after brief STEPs, one of them); ends a STEP's answer */
     MSG_STATUS = 0x87        /* u8 code, u32 frames_ok, u32 frames_bad, u32 bytes_dropped */
 } proto_msg_t;
+
+/* Capability bits of the hello reply. */
+#define PROTO_CAP_BIAS_NET 0x01u     /* takes a bias network (NET_CHUNK, NET_COMMIT) */
+#define PROTO_CAP_BRIEF_STEP 0x02u   /* answers MSG_STEP_BRIEF */
 
 typedef enum {
     PROTO_UNIT_NANOSECONDS = 0,

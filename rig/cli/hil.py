@@ -55,18 +55,28 @@ def print_score(result: dict) -> None:
         return
     print(f"{result['recording']} -> {result['target']}: {result['n_estimates']} estimates in "
           f"{result['loop_seconds']:.2f} s ({result['speed']:.2f}x real time, "
-          f"{result['bytes_sent'] / max(1, result['n_estimates']):.0f} B a window; {result['wall_seconds']:.1f} s "
-          f"with start-up and the run record)")
+          f"{result['bytes_sent'] / max(1, result['n_estimates']):.0f} B up and "
+          f"{result.get('bytes_received', 0) / max(1, result['n_estimates']):.0f} B down a window; "
+          f"{result['wall_seconds']:.1f} s with start-up and the run record)")
     print_accuracy(result)
-    print(f"timing ({timing['unit']}): window p50 {timing['window_p50']:.0f}, p99 {timing['window_p99']:.0f}, "
-          f"max {timing['window_max']:.0f} = {timing['window_max_fraction_of_budget']:.1%} of the "
-          f"{timing['budget']:.0f} budget; overruns {timing['overruns']}")
+    print_timing(timing)
     if "realtime" in result:
         rt = result["realtime"]
         lat = rt["latency_ms"] or {"p50": math.nan, "p99": math.nan, "max": math.nan}
         print(f"real time x{rt['speed']:g}: latency p50 {lat['p50']:.1f} ms, p99 {lat['p99']:.1f} ms, max "
               f"{lat['max']:.1f} ms; late windows {rt['late_windows']} (deadline {rt['deadline_ms']:.1f} ms), "
               f"missed windows {rt['missed_windows']}")
+
+
+def print_timing(timing: dict) -> None:
+    if not timing.get("windows"):          # compact answers cut short before the first full one
+        print("timing: no full answer came")
+        return
+    every = timing.get("full_answer_every", 1)
+    print(f"timing ({timing['unit']}{f', the worst of every {every} windows' if every > 1 else ''}): window p50 "
+          f"{timing['window_p50']:.0f}, p99 {timing['window_p99']:.0f}, max {timing['window_max']:.0f} = "
+          f"{timing['window_max_fraction_of_budget']:.1%} of the {timing['budget']:.0f} budget; overruns "
+          f"{timing['overruns']}")
 
 
 def print_written(result: dict, report: bool = True) -> None:
@@ -89,11 +99,13 @@ def cmd_replay(args: argparse.Namespace) -> int:
     from rig.hil.job import check_options
     from rig.hil.zenoh import open_session
 
-    check_options(args.target, args.board, args.start, args.duration, args.lookahead, args.speed)
+    check_options(args.target, args.board, args.start, args.duration, args.lookahead, args.speed,
+                  args.full_answer_every)
     session = open_session(None, args.zenoh_listen, args.zenoh_connect)
     try:
         result = replay_into(args.recording, args.target, args.out, estimator_choice(args), start=args.start,
                              duration=args.duration, lookahead=args.lookahead,
+                             full_answer_every=args.full_answer_every,
                              speed=args.speed if args.mode == "realtime" else None, session=session,
                              board=args.board, survey=args.survey, junit=args.junit_xml, strict=args.strict)
     finally:
@@ -271,6 +283,12 @@ def register(sub) -> None:
                    help="windows kept in flight ahead of the one awaited, with the same answers (default: "
                         "2 on the native program, else 0: strict lock-step). The link's idle time shrinks, but "
                         "a board's receive interrupts then land inside measured calls")
+    p.add_argument("--full-answer-every", type=int, default=1, metavar="N",
+                   help="compact answers: the board's counters and timing with every N-th window's estimate "
+                        "(and the last one's), the timing then of the most expensive window since the last; the "
+                        "other windows get the estimate and attitude only, half the bytes down (for links "
+                        "with few packets a second, as a Crazyflie radio). Same estimates; default 1, "
+                        "every answer full")
     p.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep",
                    help="lockstep (default): send a window, wait for its estimate, so results do not depend on "
                         "link or host speed. realtime: send each window when the recording's clock says it is "

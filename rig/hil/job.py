@@ -93,7 +93,7 @@ def writable_directory(out: Path) -> None:
 
 
 def check_options(target: str, board: str = "local", start: float | None = None, duration: float | None = None,
-                  lookahead: int | None = None, speed: float | None = None) -> None:
+                  lookahead: int | None = None, speed: float | None = None, full_answer_every: int = 1) -> None:
     """Refuse option values a replay cannot use, before anything starts or is written
     (ValueError, saying the rule)."""
     if not TARGET.fullmatch(target):
@@ -110,6 +110,8 @@ def check_options(target: str, board: str = "local", start: float | None = None,
         raise ValueError(f"--lookahead must be 0 (strict lock-step) or more windows, not {lookahead}")
     if speed is not None and not speed > 0:
         raise ValueError(f"--speed must be a positive number, not {speed}")
+    if full_answer_every < 1:
+        raise ValueError(f"--full-answer-every must be 1 (every answer full) or more windows, not {full_answer_every}")
 
 
 def board_link(target: str, session, board: str):
@@ -125,7 +127,8 @@ def board_link(target: str, session, board: str):
 
 def replay_job(recording: Path, target: str, out: Path, estimator: EstimatorChoice = EstimatorChoice(), *,
                start: float | None = None, duration: float | None = None, lookahead: int | None = None,
-               speed: float | None = None, report: bool = True, session=None, board: str = "local",
+               speed: float | None = None, full_answer_every: int = 1, report: bool = True, session=None,
+               board: str = "local",
                survey: Path | None = None, progress=None, strict: bool = False,
                loaded: Recording | None = None, on_scored: Callable[[dict], None] | None = None) -> dict:
     """Replay `recording` into `target` (through zenoh `session`, or a private one) and
@@ -134,7 +137,8 @@ def replay_job(recording: Path, target: str, out: Path, estimator: EstimatorChoi
     or its link failed. Interrupted (a signal) it finishes both files, marked
     `ended: interrupted`, and raises the interruption on. `loaded`: the recording
     already read (a farm replays one recording into many boards). `on_scored` sees the
-    result before any file of it is written (a full disk must not hide the score)."""
+    result before any file of it is written (a full disk must not hide the score).
+    `full_answer_every`: compact answers, the counters and timing every N windows."""
     from rig.data.errors import InputError
     from rig.data.importer import load_any
     from rig.estimator.evaluate import estimator_config, start_time
@@ -142,7 +146,7 @@ def replay_job(recording: Path, target: str, out: Path, estimator: EstimatorChoi
     from rig.hil.runrecord import RUN_FILE, RunRecorder
     from rig.hil.zenoh import open_session
 
-    check_options(target, board, start, duration, lookahead, speed)
+    check_options(target, board, start, duration, lookahead, speed, full_answer_every)
     lookahead = default_lookahead(target) if lookahead is None else lookahead
     rec = load_any(recording, survey, strict=strict) if loaded is None else loaded
     first, last = start_time(rec) if start is None else start, float(rec.time_span()[1])
@@ -152,13 +156,14 @@ def replay_job(recording: Path, target: str, out: Path, estimator: EstimatorChoi
     writable_directory(out)
     recorder = RunRecorder(out / RUN_FILE)
     info = {"recording": str(recording), "target": target, "bias_net": model is not None,
-            "robust": estimator.robust, "lookahead": lookahead, "mode": "lockstep" if speed is None else "realtime"}
+            "robust": estimator.robust, "lookahead": lookahead, "mode": "lockstep" if speed is None else "realtime",
+            "full_answer_every": full_answer_every}
     began, run, error, own, link, ended, stop = time.monotonic(), None, None, session is None, None, ENDED[0], None
     try:
         session = session or open_session()
         link = board_link(target, session, board)
         run = replay.run(link, rec, params, model, start=start, duration=duration, lookahead=lookahead,
-                         speed=speed, progress=progress, recorder=recorder)
+                         speed=speed, full_every=full_answer_every, progress=progress, recorder=recorder)
     except LinkError as exc:
         error, run, ended = str(exc), getattr(exc, "session", None), "board_lost"
         recorder.status(run.t0 if run else 0.0, "rig", -1, error)
@@ -173,7 +178,7 @@ def replay_job(recording: Path, target: str, out: Path, estimator: EstimatorChoi
         recorder.close()         # first: the record is whole whatever the link's teardown does
         try:
             if link is not None:
-                info["bytes_sent"] = link.bytes_sent
+                info["bytes_sent"], info["bytes_received"] = link.bytes_sent, link.bytes_received
                 link.close()
         finally:
             if own and session is not None:
@@ -181,6 +186,7 @@ def replay_job(recording: Path, target: str, out: Path, estimator: EstimatorChoi
     wall = time.monotonic() - began
     result = score_run(run, rec)
     info.setdefault("bytes_sent", 0)       # the link never opened
+    info.setdefault("bytes_received", 0)
     result.update(info)
     loop = run.loop_seconds if run is not None and run.loop_seconds else wall
     result.update({"wall_seconds": wall, "loop_seconds": loop,

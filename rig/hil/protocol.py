@@ -20,7 +20,7 @@ GYRO_LSB = np.float32(0.001)
 QUAT_LSB = np.float32(1.0 / 32767.0)
 TDOA_LSB = np.float32(0.001)
 
-HELLO, PARAM, ANCHOR, NET_CHUNK, NET_COMMIT, RESET, IMU, TDOA, STEP, IMU_DELTA, TDOA_PACK = range(0x01, 0x0C)
+HELLO, PARAM, ANCHOR, NET_CHUNK, NET_COMMIT, RESET, IMU, TDOA, STEP, IMU_DELTA, TDOA_PACK, STEP_BRIEF = range(0x01, 0x0D)
 HELLO_REPLY, ACK, ESTIMATE, ATTITUDE, COUNTERS, TIMING, STATUS = range(0x81, 0x88)
 NET_CHUNK_BYTES = MAX_PAYLOAD - 3
 IMU_AXES = 6
@@ -31,6 +31,7 @@ TDOA_PACK_MAX = 5
 PACKED_ID_LIMIT = 16          # anchor ids that fit a nibble
 UNITS = {0: "ns", 1: "cycles", 2: "instructions"}
 STATUS_BOOT, STATUS_BAD_FRAME, STATUS_BAD_MESSAGE = 1, 2, 3
+CAP_BIAS_NET, CAP_BRIEF_STEP = 0x01, 0x02      # capability bits of the hello reply
 
 
 class ProtocolError(Exception):
@@ -304,6 +305,15 @@ def step(t_us: int, items: list[bytes] = ()) -> bytes:
     return struct.pack("<BI", STEP, t_us) + b"".join(items)
 
 
+def brief(step_payload: bytes) -> bytes:
+    """The same STEP, answered by the estimate and attitude only (STEP_BRIEF): the
+    counters and the timing come with the next full STEP, the timing then of the most
+    expensive window since the last one reported."""
+    if step_payload[:1] != bytes((STEP,)):
+        raise ProtocolError("only a STEP can be made brief")
+    return bytes((STEP_BRIEF,)) + step_payload[1:]
+
+
 def tdoa_messages(tdoas: list[tuple[int, int, int, float]], t_step_us: int,
                   counts: list[int] | None = None) -> list[bytes]:
     """A window's TDOAs and its STEP: unpackable ones as TDOA, the rest packed, the last
@@ -348,7 +358,7 @@ class BoardView:
             return [(self.t_step + dt, "tdoa", a, b, (v, 0.0, 0.0))]
         if kind == TDOA_PACK:
             return self._packed(payload[1:])
-        if kind == STEP:
+        if kind in (STEP, STEP_BRIEF):
             out = self._packed(payload[5:])
             self.t_step = struct.unpack_from("<I", payload, 1)[0]
             return out + [(self.t_step, "step", 0, 0, (0.0, 0.0, 0.0))]

@@ -24,8 +24,8 @@ from pathlib import Path
 import pytest
 
 DEFAULT_TARGET = "native"
-REPLAY_OPTIONS = {"start", "duration", "mode", "speed", "lookahead", "no_nn", "no_robust", "model", "survey", "report",
-                  "strict"}
+REPLAY_OPTIONS = {"start", "duration", "mode", "speed", "lookahead", "full_answer_every", "no_nn", "no_robust", "model",
+                  "survey", "report", "strict"}
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:

@@ -4,7 +4,10 @@ The recording is cut into 10 ms windows exactly as `rig evaluate` does (same sta
 same initial pose, same events). Each window goes out as delta-coded IMU messages
 (accelerometer and gyroscope samples paired), packed TDOA items and a STEP; the host
 then waits for the board's estimate, attitude, counters and timing before sending the
-next window, so results do not depend on link speed.
+next window, so results do not depend on link speed. With compact answers
+(`full_every` N > 1) only every N-th window and the last are answered in full; the
+others (brief STEPs) get the estimate and attitude, and the next timing is that of the
+most expensive window since the last one reported.
 
 Real-time mode sends each window when the recording's clock (scaled by `speed`) says
 it is due, whatever the board is doing, and matches answers to windows as they come:
@@ -40,6 +43,7 @@ BUDGET_SECONDS = 0.010        # one 10 ms window
 CPU_HZ = 168_000_000          # STM32F405
 REPLY_TIMEOUT_S = 5.0
 LOOKAHEAD = 0                 # strict lock-step; more windows in flight need the board RX ring (1 kB)
+FULL_EVERY = 1                # every window answered with its counters and timing
 
 
 @dataclass
@@ -129,6 +133,7 @@ class Session:
     counters: protocol.Counters | None = None
     statuses: list = field(default_factory=list)
     windows_sent: int = 0
+    full_every: int = FULL_EVERY                    # counters and timing with every N-th window's answer
     loop_seconds: float | None = None               # the windows' exchange, from the first sent to the last answer
     recorder: object | None = None                  # a runrecord.RunRecorder, if recording
     realtime: RealTime | None = None                # real-time mode only
@@ -225,23 +230,28 @@ def configure(link: BoardLink, rec: Recording, params: native.EstimatorParams, m
 
 def run(link: BoardLink, rec: Recording, params: native.EstimatorParams, model: BiasNet | None = None,
         start: float | None = None, duration: float | None = None, progress=None,
-        lookahead: int = LOOKAHEAD, recorder=None, speed: float | None = None) -> Session:
+        lookahead: int = LOOKAHEAD, recorder=None, speed: float | None = None,
+        full_every: int = FULL_EVERY) -> Session:
     """Handshake, configure, reset at the start pose, then lock-step every window (with
     `lookahead` further windows already on the wire; 0 is strict send-and-wait), or, with
-    a `speed`, send them in real time at that multiple of the recording's clock. With a
+    a `speed`, send them in real time at that multiple of the recording's clock; every
+    `full_every`-th window (and the last) is answered in full, the others briefly. With a
     `recorder` (runrecord.RunRecorder) every input and answer is recorded as it happens.
     A LinkError, or an interruption (KeyboardInterrupt: SIGINT, SIGTERM, SIGHUP), carries
     the partial session as `.session`."""
     t0 = start_time(rec) if start is None else start
     t_end = None if duration is None else t0 + duration
-    session = Session(t0, recorder=recorder)
+    session = Session(t0, recorder=recorder, full_every=full_every)
     try:
         hello = handshake(link)
         session.unit, session.timer_hz = hello.unit, hello.timer_hz
+        if full_every > 1 and not hello.capabilities & protocol.CAP_BRIEF_STEP:
+            raise LinkError(f"{link.name}: the board does not answer brief STEPs (compact answers); "
+                            "replay it with every answer full")
         configure(link, rec, params, model, hello)
         pos, quat = truth_pose_at(rec, t0)
         _acked(link, [protocol.reset(0, pos, quat)], "reset")
-        wire = Wire(windows(build_events(rec, t0, t_end)))
+        wire = Wire(windows(build_events(rec, t0, t_end)), full_every)
         if recorder is not None:            # the record starts when the first window is ready to go
             recorder.start(rec, t0, t_end if t_end is not None else t0 + len(wire) * BUDGET_SECONDS,
                            {"target": link.name, "start": t0, "windows": len(wire), "unit": hello.unit})
@@ -278,11 +288,16 @@ def collector_paused():
 class Wire:
     """The windows of a replay, encoded (and framed, for byte-stream links) once before it
     starts, and what sending window k means: its payloads on the link and its inputs in
-    the run record."""
+    the run record. `full[k]`: window k is answered in full (every `full_every`-th
+    window and the last), else its STEP is brief."""
 
-    def __init__(self, ws: list[Window]) -> None:
+    def __init__(self, ws: list[Window], full_every: int = FULL_EVERY) -> None:
         self.windows, self.counts = ws, imu_counts(ws)
         self.payloads = encode_windows(ws, counts=self.counts)
+        self.full = [(k + 1) % full_every == 0 or k == len(ws) - 1 for k in range(len(ws))]
+        for payloads, full in zip(self.payloads, self.full):
+            if not full:
+                payloads[-1] = protocol.brief(payloads[-1])
         self.framed = [protocol.frames(p) for p in self.payloads]
 
     def __len__(self) -> int:
@@ -307,18 +322,21 @@ def _lock_step(link: BoardLink, wire: Wire, session: Session, lookahead: int, pr
         session.windows_sent = sent
         est = _expect(link, protocol.Estimate, f"window at {ws[k].t_us} us", session=session)
         att = _expect(link, protocol.Attitude, "attitude", session=session)
-        session.counters = _expect(link, protocol.Counters, "counters", session=session)
-        timing = _expect(link, protocol.Timing, "timing", session=session)
-        session.timing.append(timing)
+        counters = timing = None
+        if wire.full[k]:
+            counters = session.counters = _expect(link, protocol.Counters, "counters", session=session)
+            timing = _expect(link, protocol.Timing, "timing", session=session)
+            session.timing.append(timing)
         session.estimates.append((est.t_us, est.pos, est.vel, att.quat, att.cov_diag))
         if session.recorder is not None:
-            session.recorder.answer(session.t0, est, att, session.counters, timing, session.unit, limit)
+            session.recorder.answer(session.t0, est, att, counters, timing, session.unit, limit)
 
 
 def _real_time(link: BoardLink, wire: Wire, session: Session, progress) -> None:
     """Send window k at start + k * period whatever the board does; take answers as
     they come; after the last window wait for the stragglers."""
-    rt, collector, ws = session.realtime, _AnswerCollector(link, session), wire.windows
+    rt, ws = session.realtime, wire.windows
+    collector = _AnswerCollector(link, session, {w.t_us for w, full in zip(ws, wire.full) if not full})
     begin = time.monotonic()
     for k in progress(range(len(ws))) if progress else range(len(ws)):
         due = begin + k * rt.period
@@ -340,17 +358,22 @@ def _real_time(link: BoardLink, wire: Wire, session: Session, progress) -> None:
 
 
 class _AnswerCollector:
-    """Assembles a window's answer (estimate, attitude, counters, timing, in that order)
-    from messages taken one at a time, and stamps its latency."""
+    """Assembles a window's answer (estimate, attitude, counters, timing, in that order;
+    estimate and attitude for a window in `brief`) from messages taken one at a time,
+    and stamps its latency."""
 
-    def __init__(self, link: BoardLink, session: Session) -> None:
+    def __init__(self, link: BoardLink, session: Session, brief: set[int] = frozenset()) -> None:
         self.link, self.session, self.estimate, self.arrived, self.parts = link, session, None, 0.0, {}
+        self.brief = brief
 
     def take(self, msg) -> None:
         if msg is None:
             return
         if isinstance(msg, protocol.Estimate):
             self.estimate, self.arrived, self.parts = msg, time.monotonic(), {}
+        elif isinstance(msg, protocol.Attitude) and self.estimate is not None and self.estimate.t_us in self.brief:
+            self.parts[type(msg)] = msg
+            self._complete(None)
         elif isinstance(msg, (protocol.Attitude, protocol.Counters)) and self.estimate is not None:
             self.parts[type(msg)] = msg
         elif isinstance(msg, protocol.Timing) and self.estimate is not None:
@@ -358,17 +381,20 @@ class _AnswerCollector:
         else:
             _note(self.link, msg, self.session)
 
-    def _complete(self, timing: protocol.Timing) -> None:
+    def _complete(self, timing: protocol.Timing | None) -> None:
+        """The answer is whole: a brief one at its attitude (`timing` None), a full one
+        at its timing."""
         s, est, rt = self.session, self.estimate, self.session.realtime
         att, counters = self.parts.get(protocol.Attitude), self.parts.get(protocol.Counters)
         self.estimate = None
-        if att is None or counters is None or est.t_us not in rt.sent_at:
+        if att is None or (timing is not None and counters is None) or est.t_us not in rt.sent_at:
             log.warning("incomplete or unknown answer for window %d us dropped", est.t_us)
             return
         latency = self.arrived - rt.sent_at[est.t_us]
         rt.latency[est.t_us] = latency
-        s.counters = counters
-        s.timing.append(timing)
+        if timing is not None:
+            s.counters = counters
+            s.timing.append(timing)
         s.estimates.append((est.t_us, est.pos, est.vel, att.quat, att.cov_diag))
         if s.recorder is not None:
             s.recorder.answer(s.t0, est, att, counters, timing, s.unit, budget(s.unit, s.timer_hz), latency)
@@ -391,10 +417,12 @@ def timing_summary(session: Session) -> dict:
     tdoa_max = np.array([t.tdoa_max for t in session.timing], float)
     limit = budget(session.unit, session.timer_hz)
     if not len(window):
-        return {"unit": session.unit, "budget": limit, "windows": 0}
+        return {"unit": session.unit, "budget": limit, "windows": 0, "full_answer_every": session.full_every}
     per_tdoa = total[n_tdoa > 0] / n_tdoa[n_tdoa > 0]
+    # With compact answers each timing is the worst of up to N windows: the maximum and
+    # the overruns' presence are exact, the percentiles are of those maxima.
     return {
-        "unit": session.unit, "budget": limit, "windows": int(len(window)),
+        "unit": session.unit, "budget": limit, "windows": int(len(window)), "full_answer_every": session.full_every,
         "window_p50": float(np.percentile(window, 50)), "window_p99": float(np.percentile(window, 99)),
         "window_max": float(window.max()), "window_max_fraction_of_budget": float(window.max() / limit),
         "overruns": int((window > limit).sum()),

@@ -9,7 +9,9 @@ Topics (JSON, with JSON schemas, readable in Foxglove; documented in recordings/
     /run/truth          ground truth over the replayed span, at most one pose every 10 ms
     /run/estimate       the board's estimates (position, velocity, attitude, covariance diagonal)
     /run/timing         cost of each window and call, in the target's unit, with the budget
-    /run/counters       the estimator's cumulative counters after each window
+                        (with compact answers, of the worst window since the last, every N windows)
+    /run/counters       the estimator's cumulative counters after each window (with compact
+                        answers, every N windows)
     /run/status         status messages and the rig's own notes (board reset, link errors)
     /uwb/anchors        the anchor set
 
@@ -178,9 +180,9 @@ class RunRecorder:
         the board reads its `counts`."""
         self._hold(self._write_inputs, (t0, t_prev_us, imu, counts, tdoa))
 
-    def answer(self, t0: float, est: protocol.Estimate, att: protocol.Attitude, counters: protocol.Counters,
-               timing: protocol.Timing, unit: str, budget: float, latency_s: float | None = None) -> None:
-        """One window's answer."""
+    def answer(self, t0: float, est: protocol.Estimate, att: protocol.Attitude, counters: protocol.Counters | None,
+               timing: protocol.Timing | None, unit: str, budget: float, latency_s: float | None = None) -> None:
+        """One window's answer (a brief one has no counters and no timing)."""
         self._hold(self._write_answer, (t0, est, att, counters, timing, unit, budget, latency_s))
 
     def _hold(self, write, args: tuple) -> None:
@@ -214,8 +216,9 @@ class RunRecorder:
             self._write(TOPIC_TDOA, "uwb_rig.Tdoa", t,
                         {"t": t, "id_a": a, "id_b": b, "distance_diff": float(v) if math.isfinite(v) else None})
 
-    def _write_answer(self, t0: float, est: protocol.Estimate, att: protocol.Attitude, counters: protocol.Counters,
-                      timing: protocol.Timing, unit: str, budget: float, latency_s: float | None = None) -> None:
+    def _write_answer(self, t0: float, est: protocol.Estimate, att: protocol.Attitude,
+                      counters: protocol.Counters | None, timing: protocol.Timing | None, unit: str, budget: float,
+                      latency_s: float | None = None) -> None:
         t = t0 + est.t_us * 1e-6
         q = att.quat
         cov = [float(c) if math.isfinite(c) else None for c in att.cov_diag]
@@ -223,6 +226,8 @@ class RunRecorder:
         self._write(TOPIC_ESTIMATE, "uwb_rig.Estimate", t, estimate)
         self._write(TOPIC_FOXGLOVE_ESTIMATE, "foxglove.PoseInFrame", t, foxglove.pose_in_frame(t, est.pos, q))
         self._position_error(t, est.pos)
+        if timing is None:
+            return
         figures = {"t": t, "unit": unit, "budget": budget, "window": timing.window, "predict": timing.predict,
                    "tdoa_total": timing.tdoa_total, "tdoa_max": timing.tdoa_max, "n_tdoa": timing.n_tdoa,
                    **({} if latency_s is None else {"latency_ms": latency_s * 1e3})}

@@ -249,6 +249,7 @@ class TapLink(BoardLink):
     name: str = ""
     process: object | None = None
     bytes_sent: int = 0
+    bytes_received: int = 0
     pending: deque = field(default_factory=deque)
     _publishers: BoardPublishers | None = None
     _token: object | None = None
@@ -264,6 +265,7 @@ class TapLink(BoardLink):
 
     def receive_payloads(self, timeout: float) -> list[bytes]:
         payloads = self.link.receive_payloads(timeout)
+        self.bytes_received = self.link.bytes_received
         self._publishers.publish(payloads)
         return payloads
 
@@ -286,6 +288,7 @@ class ZenohLink(BoardLink):
     name: str
     process: object | None = None
     bytes_sent: int = 0
+    bytes_received: int = 0
     pending: deque = field(default_factory=deque)
     _inbox: queue.Queue = field(default_factory=queue.Queue)
     _gone: threading.Event = field(default_factory=threading.Event)
@@ -308,8 +311,10 @@ class ZenohLink(BoardLink):
         return self
 
     def _on_rx(self, sample: zenoh.Sample) -> None:
+        data = sample.payload.to_bytes()
+        self.bytes_received += len(data)          # only this callback's thread adds to it
         try:
-            payloads = unpack_batch(sample.payload.to_bytes())
+            payloads = unpack_batch(data)
         except protocol.ProtocolError as exc:
             log.warning("zenoh board %s: %s", self.name, exc)
             return

@@ -24,6 +24,11 @@ def test_default_recording_on_every_board(board):
 def test_a_replay_in_real_time(board):
     metrics = board.replay(start=12.0, duration=2.0, mode="realtime", speed=4.0, no_nn=True)
     assert metrics["mode"] == "realtime" and metrics["realtime"]["speed"] == 4.0 and not metrics["bias_net"]
+
+
+def test_compact_answers(board):
+    metrics = board.replay(duration=3.0, full_answer_every=10)
+    assert metrics["full_answer_every"] == 10 and metrics["timing"]["windows"] == 30
 '''
 
 
@@ -33,7 +38,7 @@ def test_a_users_test_file_with_the_board_fixture_passes_on_the_native_target(tm
                            "--junitxml", str(tmp_path / "junit.xml"), str(tmp_path / "test_hil.py")],
                           cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stdout + proc.stderr
-    assert "2 passed" in proc.stdout
+    assert "3 passed" in proc.stdout
     assert 'test_default_recording_on_every_board[native]' in (tmp_path / "junit.xml").read_text()
 
 

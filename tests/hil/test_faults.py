@@ -52,6 +52,7 @@ def test_a_signal_mid_replay_finishes_the_record_says_how_it_ended_and_leaves_no
     (["--duration", "0"], "--duration must be a positive number"),
     (["--duration", "-3"], "--duration must be a positive number"),
     (["--lookahead", "-1"], "--lookahead must be 0"),
+    (["--full-answer-every", "0"], "--full-answer-every must be 1"),
     (["--start", "1e9"], "is past the end of"),
 ])
 def test_an_option_value_a_replay_cannot_use_is_refused_before_anything_starts(tmp_path: Path, option: list[str],

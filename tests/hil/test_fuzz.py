@@ -31,6 +31,8 @@ def seed_sessions(rec: Recording, n: int = 4) -> list[bytes]:
     for k in range(n):
         imu = protocol.ImuStream(key_every=3 + k)
         msgs = setup + [m for window in replay.encode_windows(ws[k:k + 5], imu) for m in window]
+        if k % 2:           # brief STEPs (compact answers) too
+            msgs = [protocol.brief(m) if m[0] == protocol.STEP else m for m in msgs]
         sessions.append(b"".join(protocol.frame(m) for m in msgs))
     return sessions
 

@@ -61,16 +61,69 @@ def test_native_program_under_sanitizers_equals_the_library(default_rec) -> None
 
 def test_cflib_udp_link_to_the_native_program_equals_the_library(default_rec) -> None:
     """The Crazyflie path: cflib's real udp:// link driver, CRTP app-channel packets, the
-    native program's UDP endpoint (under sanitizers)."""
+    native program's UDP endpoint (under sanitizers); with compact answers the same
+    estimates come in about half the packets down."""
     native.make("program-asan")
     params, model = native.params_with(), load_model()
-    link = targets.open_native_udp(native.ESTIMATOR_DIR / "build" / "estimator_native-asan")
-    assert isinstance(link, CrtpLink) and link.name.startswith("crazyflie udp://127.0.0.1:")
-    session = run_target(link, default_rec, params, model, duration=4.0)
     lib = library_estimates(default_rec, params, model, 4.0)
-    assert len(session.estimates) == len(lib) >= 399
-    np.testing.assert_array_equal(positions(session), lib["pos"])
-    assert session.counters.imu_lost == 0
+    received = {}
+    for full_every in (1, 10):
+        link = targets.open_native_udp(native.ESTIMATOR_DIR / "build" / "estimator_native-asan")
+        assert isinstance(link, CrtpLink) and link.name.startswith("crazyflie udp://127.0.0.1:")
+        try:
+            session = replay.run(link, default_rec, params, model, duration=4.0, full_every=full_every)
+        finally:
+            link.close()
+        assert len(session.estimates) == len(lib) >= 399
+        np.testing.assert_array_equal(positions(session), lib["pos"])
+        assert session.counters.imu_lost == 0 and session.counters.steps >= len(lib)
+        received[full_every] = link.bytes_received
+    assert received[10] < 0.65 * received[1]
+
+
+def test_compact_answers_report_the_worst_window_of_each_group(real_rec) -> None:
+    """Brief STEPs into the firmware in QEMU (deterministic instruction counts): the same
+    estimates; every 7th window and the last answered in full, each timing that of the
+    most expensive window since the one before, so a budget check misses nothing."""
+    params, model = native.params_with(), load_model()
+    full = run_target(targets.open_qemu(), real_rec, params, model, duration=3.0)
+    compact_link = targets.open_qemu()
+    try:
+        compact = replay.run(compact_link, real_rec, params, model, duration=3.0, full_every=7)
+    finally:
+        compact_link.close()
+    np.testing.assert_array_equal(positions(compact), positions(full))
+    n = len(full.timing)
+    groups = [full.timing[k:k + 7] for k in range(0, n, 7)]
+    assert len(compact.timing) == len(groups) == -(-n // 7)
+    for got, group in zip(compact.timing, groups):
+        worst = max(group, key=lambda t: t.window)
+        assert (got.t_us, got.window, got.predict, got.tdoa_total) == (worst.t_us, worst.window, worst.predict,
+                                                                       worst.tdoa_total)
+    assert compact.counters == full.counters
+    summary = replay.timing_summary(compact)
+    assert summary["full_answer_every"] == 7 and summary["window_max"] == replay.timing_summary(full)["window_max"]
+
+
+def test_a_board_without_brief_steps_is_refused_compact_answers(default_rec) -> None:
+    """A board built before brief STEPs says so in its hello reply (the capability bit
+    cleared here, as such a board would send it): the rig refuses instead of waiting for
+    answers that never come."""
+    link = targets.open_native()
+    original = link.receive_payloads
+
+    def older_board(timeout):
+        return [bytes([*p[:11], p[11] & ~protocol.CAP_BRIEF_STEP]) if p[0] == protocol.HELLO_REPLY else p
+                for p in original(timeout)]
+
+    link.receive_payloads = older_board
+    try:
+        with pytest.raises(LinkError, match="does not answer brief STEPs"):
+            replay.run(link, default_rec, native.params_with(use_bias_net=0), None, duration=1.0, full_every=2)
+        session = replay.run(link, default_rec, native.params_with(use_bias_net=0), None, duration=1.0)
+    finally:
+        link.close()
+    assert len(session.estimates) == len(session.timing) >= 99        # full answers it gives
 
 
 @pytest.mark.parametrize("channel", targets.QEMU_CHANNELS)
@@ -241,6 +294,24 @@ def test_real_time_mode_gives_the_lock_step_estimates_and_counts_a_lost_window(d
     lost = summary["first_missed_t_us"][0]
     same = [e for e in lock.estimates if e[0] < lost]
     np.testing.assert_array_equal(positions(rt)[:len(same)], np.array([e[1] for e in same], np.float32))
+
+
+@pytest.mark.serial
+def test_real_time_mode_with_compact_answers_times_every_window(default_rec) -> None:
+    """Real time at 2x with compact answers: a brief window's answer ends at its
+    attitude, so every window still has its latency and its estimate."""
+    params = native.params_with(use_bias_net=0)
+    lock = run_target(targets.open_native(), default_rec, params, None, duration=3.0)
+    link = targets.open_native()
+    try:
+        rt = replay.run(link, default_rec, params, None, duration=3.0, speed=2.0, full_every=5)
+    finally:
+        link.close()
+    summary = rt.realtime.summary()
+    assert summary["windows_sent"] == len(rt.estimates) == len(lock.estimates) == len(rt.realtime.latency)
+    assert summary["missed_windows"] == 0 and len(rt.timing) == -(-len(lock.estimates) // 5)
+    np.testing.assert_array_equal(positions(rt), positions(lock))
+    assert rt.counters == lock.counters
 
 
 @pytest.mark.serial

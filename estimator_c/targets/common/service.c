@@ -34,7 +34,7 @@ static void send_hello(service_t *s)
     uint8_t m[12] = {MSG_HELLO_REPLY, PROTO_VERSION, EST_API_VERSION, s->io.timer_unit, EST_MAX_ANCHORS};
     proto_put_u32(&m[5], s->io.timer_hz);
     proto_put_u16(&m[9], (uint16_t)sizeof(bias_net_t));
-    m[11] = 1; /* capabilities: bit 0 = bias network */
+    m[11] = PROTO_CAP_BIAS_NET | PROTO_CAP_BRIEF_STEP;
     send(s, m, sizeof m);
 }
 
@@ -52,6 +52,10 @@ static void send_estimate(service_t *s, const est_output_t *out)
     for (int i = 0; i < 4; i++) proto_put_u16(&c[1 + 2 * i], (uint16_t)proto_quantize(out->quat[i], PROTO_QUAT_LSB));
     for (int i = 0; i < EST_STATE_DIM; i++) proto_put_u16(&c[9 + 2 * i], proto_f16(out->cov_diag[i]));
     send(s, c, sizeof c);
+}
+
+static void send_counters(service_t *s, const est_output_t *out)
+{
     uint8_t k[25] = {MSG_COUNTERS};
     proto_put_u32(&k[1], out->counters.steps);
     proto_put_u32(&k[5], out->counters.tdoa_accepted);
@@ -64,17 +68,28 @@ static void send_estimate(service_t *s, const est_output_t *out)
     send(s, k, 25);
 }
 
-static void send_timing(service_t *s, uint32_t t_us)
+static void send_timing(service_t *s, const window_timing_t *w)
+{
+    uint8_t m[22] = {MSG_TIMING};
+    proto_put_u32(&m[1], w->t_us);
+    proto_put_u32(&m[5], w->window);
+    proto_put_u32(&m[9], w->predict);
+    proto_put_u32(&m[13], w->tdoa_total);
+    proto_put_u32(&m[17], w->tdoa_max);
+    m[21] = w->n_tdoa;
+    send(s, m, sizeof m);
+}
+
+/* Keep the window just ended if it is the most expensive one the host has not seen:
+ * after brief STEPs the next TIMING still shows the worst window, so a budget check
+ * misses nothing. */
+static void note_window_cost(service_t *s, uint32_t t_us)
 {
     const est_step_cost_t *c = &s->est.cost;
-    uint8_t m[22] = {MSG_TIMING};
-    proto_put_u32(&m[1], t_us);
-    proto_put_u32(&m[5], s->window_cost);
-    proto_put_u32(&m[9], c->predict);
-    proto_put_u32(&m[13], c->tdoa_total);
-    proto_put_u32(&m[17], c->tdoa_max);
-    m[21] = c->n_tdoa;
-    send(s, m, sizeof m);
+    if (s->worst_pending && s->window_cost <= s->worst.window) return;
+    s->worst = (window_timing_t){.t_us = t_us, .window = s->window_cost, .predict = c->predict,
+                                 .tdoa_total = c->tdoa_total, .tdoa_max = c->tdoa_max, .n_tdoa = c->n_tdoa};
+    s->worst_pending = 1;
 }
 
 /* Every estimator call goes through here, so the window's cost is the sum of them all. */
@@ -180,16 +195,23 @@ static void packed_tdoa(service_t *s, const uint8_t *item, int n_items)
     }
 }
 
-static void on_step(service_t *s, const uint8_t *m, int n)
+/* A full STEP is answered by ESTIMATE, ATTITUDE, COUNTERS and TIMING; a brief one by
+ * ESTIMATE and ATTITUDE. */
+static void on_step(service_t *s, const uint8_t *m, int n, int full)
 {
     packed_tdoa(s, &m[5], (n - 5) / PROTO_TDOA_ITEM);
     est_event_t ev = {.t_us = proto_get_u32(&m[1]), .kind = EST_EV_STEP};
     est_output_t out;
     if (handle(s, &ev, &out) == EST_OUTPUT) {
+        note_window_cost(s, out.t_us);
         send_estimate(s, &out);
-        send_timing(s, out.t_us);
+        if (full) {
+            send_counters(s, &out);
+            send_timing(s, &s->worst);
+            s->worst_pending = 0;
+        }
     } else {
-        send_ack(s, MSG_STEP, PROTO_ERR_STATE); /* a STEP back in time: rejected and counted */
+        send_ack(s, m[0], PROTO_ERR_STATE); /* a STEP back in time: rejected and counted */
     }
     s->window_cost = 0;
 }
@@ -231,6 +253,7 @@ static int8_t on_reset(service_t *s, const uint8_t *m)
     for (int i = 0; i < 4; i++) quat[i] = (float)(int16_t)proto_get_u16(&m[17 + 2 * i]) * PROTO_QUAT_LSB;
     est_reset(&s->est, proto_get_u32(&m[1]), pos, quat);
     s->window_cost = 0;
+    s->worst_pending = 0;
     s->imu.valid = 0;   /* a new session starts with a key message */
     return 0;
 }
@@ -255,7 +278,8 @@ static int length_ok(uint8_t type, int n)
     case MSG_IMU_DELTA: return n > PROTO_IMU_DELTA_HEADER; /* exact length checked against its header */
     case MSG_TDOA: return n == 9;
     case MSG_TDOA_PACK: return whole(n, 1, PROTO_TDOA_ITEM, 1, PROTO_TDOA_PACK_MAX);
-    case MSG_STEP: return whole(n, 5, PROTO_TDOA_ITEM, 0, PROTO_TDOA_PACK_MAX);
+    case MSG_STEP:
+    case MSG_STEP_BRIEF: return whole(n, 5, PROTO_TDOA_ITEM, 0, PROTO_TDOA_PACK_MAX);
     default: return 0;
     }
 }
@@ -289,7 +313,8 @@ static void dispatch(service_t *s, const uint8_t *m, int n)
     case MSG_IMU_DELTA: on_imu_delta(s, m, n); break;
     case MSG_TDOA: on_tdoa(s, m); break;
     case MSG_TDOA_PACK: packed_tdoa(s, &m[1], (n - 1) / PROTO_TDOA_ITEM); break;
-    case MSG_STEP: on_step(s, m, n); break;
+    case MSG_STEP: on_step(s, m, n, 1); break;
+    case MSG_STEP_BRIEF: on_step(s, m, n, 0); break;
     default: break;
     }
 }

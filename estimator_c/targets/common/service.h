@@ -28,6 +28,12 @@ typedef struct {
     uint16_t lost;                  /* delta messages dropped for a missing reference */
 } imu_stream_t;
 
+/* The cost of one window as TIMING reports it, in the timer unit of the hello reply. */
+typedef struct {
+    uint32_t t_us, window, predict, tdoa_total, tdoa_max;
+    uint8_t n_tdoa;
+} window_timing_t;
+
 typedef struct {
     estimator_t est;
     bias_net_t net;                 /* image received in chunks, installed on commit */
@@ -35,6 +41,8 @@ typedef struct {
     imu_stream_t imu;
     service_io_t io;
     uint32_t window_cost;           /* ticks spent in the estimator since the last STEP */
+    window_timing_t worst;          /* the most expensive window not yet reported in a TIMING */
+    uint8_t worst_pending;          /* 0: no window since the last TIMING (or RESET) */
     uint32_t frames_bad_reported;
 } service_t;
 

@@ -23,6 +23,7 @@ class BoardLink:
     name: str
     process: subprocess.Popen | None
     bytes_sent: int
+    bytes_received: int          # what the board sent, as the link carries it (frames, packets)
     pending: deque
 
     def send(self, payloads: list[bytes], framed: bytes | None = None) -> None:

@@ -23,6 +23,7 @@ class CrtpLink(BoardLink):
     name: str
     process: subprocess.Popen | None = None
     bytes_sent: int = 0
+    bytes_received: int = 0
     pending: deque = field(default_factory=deque)
     errors: list = field(default_factory=list)
 
@@ -44,6 +45,7 @@ class CrtpLink(BoardLink):
             self._raise_link_error()
             packet = self.driver.receive_packet(max(0.001, min(0.05, deadline - time.monotonic())))
             if packet is not None and packet.port == CRTP_APP_PORT and packet.channel == CRTP_APP_CHANNEL:
+                self.bytes_received += len(packet.data) + 1          # with the CRTP header byte
                 return [bytes(packet.data)]
             if time.monotonic() > deadline:
                 return []

@@ -119,6 +119,7 @@ class Link(BoardLink):
     monitor_port: int | None = None          # QEMU's monitor, for a hardware reset
     parser: protocol.Parser = field(default_factory=protocol.Parser)
     bytes_sent: int = 0
+    bytes_received: int = 0
     pending: deque = field(default_factory=deque)
 
     def send(self, payloads: list[bytes], framed: bytes | None = None) -> None:
@@ -142,6 +143,7 @@ class Link(BoardLink):
             except (serial.SerialException, OSError) as exc:
                 self._check_alive()          # a board process that exited says so
                 raise LinkError(f"{self.name}: read failed (board gone?): {exc}") from exc
+            self.bytes_received += len(chunk)
             payloads = self.parser.feed(chunk) if chunk else []
             if payloads:
                 return payloads
