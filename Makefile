@@ -3,7 +3,7 @@ VENV := .venv
 RIG := $(VENV)/bin/rig
 PYTEST := $(VENV)/bin/pytest
 
-.PHONY: setup demo test test-fast default-recording room-bias-net clean
+.PHONY: setup demo test test-fast default-recording room-bias-net link-bias clean
 
 setup:
 	./scripts/setup.sh
@@ -34,6 +34,11 @@ default-recording: setup
 # (docs/notebook/diagnosis.md).
 room-bias-net: setup
 	$(RIG) train --form pair --apart-from recordings/pair_bias_net.json --out recordings/room_bias_net.json
+
+# The link bias every tag-anchor link shares, fitted to the 35 shared flights: the shape
+# the diagnosis names as `link_bias` (docs/reference/diagnosis.md).
+link-bias: setup
+	$(RIG) calibrate --out rig/sim/effects/link_bias.json
 
 clean:
 	rm -rf out build estimator_c/build

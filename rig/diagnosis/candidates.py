@@ -125,6 +125,21 @@ def candidates(problem: Problem) -> list[Candidate]:
     return out
 
 
+def link_bias_candidate(problem: Problem) -> Candidate:
+    """The link bias as calibrated on the shared flights, its gain fitted: one flight
+    cannot tell the six coefficients apart (on a level circle the anchor's zonal term
+    is a delay, the tag's sin(elevation) a vertical lever arm), but it can tell how
+    strongly it shows their pattern. Bounded where a coefficient reaches its physical
+    bound. Not in `candidates`: it is judged after them (rig.diagnosis.diagnose,
+    docs/notebook/diagnosis-experiments.md)."""
+    coeffs = fx.calibrated_link_bias()
+    c = Candidate("link_bias", "tdoa", "gain", 1, {"coeffs_m": list(coeffs)}, step=0.1, prior=1.0,
+                  bound=fx.LINK_BOUND_M / max(abs(v) for v in coeffs))
+    c.key = "link_bias"
+    c.columns = design_columns(problem, c)
+    return c
+
+
 def gyro_scale_candidate(problem: Problem) -> Candidate:
     """Named axis by axis (rig.diagnosis.selection): a flight turns about z and only
     wobbles about x and y, so its three axes carry very different signal, and a z scale

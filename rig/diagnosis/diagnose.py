@@ -63,7 +63,7 @@ from rig.data.recording import Recording, Vec3Series
 from rig.diagnosis import identifiability as ident
 from rig.diagnosis import imu_spectrum, nlos_mixture
 from rig.diagnosis.alternatives import Alternative, axis_alternatives, in_place_estimates
-from rig.diagnosis.candidates import MIN_EVIDENCE, PENALTY_PER_PARAMETER, Candidate, candidates
+from rig.diagnosis.candidates import MIN_EVIDENCE, PENALTY_PER_PARAMETER, Candidate, candidates, link_bias_candidate
 from rig.diagnosis.channels import AXES, GROSS_Z, Channel, Problem
 from rig.diagnosis.confined import nlos_candidate, nlos_shape
 from rig.diagnosis.floor_error import ON_GROUND_PRIOR, ON_GROUND_SHAPES, floor_multipath, local_noise, on_ground_fits
@@ -72,6 +72,7 @@ from rig.diagnosis.robust import delay_centre, huber_loss, irls, mad_scale, robu
 from rig.diagnosis.selection import LOOK_ALIKES, fresh_terms, select, unnamed_simplest_terms
 from rig.diagnosis.terms import (
     ORDER,
+    Design,
     Term,
     estimate_terms,
     free_offset_terms,
@@ -268,6 +269,29 @@ def unnamed_estimates(problem: Problem, channel: Channel, as_recorded: Channel, 
     return out
 
 
+def shared_link_bias(problem: Problem, channel: Channel, as_recorded: Channel, named: list[Term],
+                     pool: list[Candidate]) -> tuple[Term, np.ndarray] | None:
+    """The link bias every tag–anchor link shares (its shape calibrated on the shared
+    flights, one gain), if the recording supports it: judged and estimated given the
+    simplest effects named (timing, delays, lever arm), like a richer effect, but
+    after the catalog's effects are named, so it takes no signal from their
+    selection (ranked among them it cost concealed time offsets and antenna
+    patterns: docs/notebook/diagnosis-experiments.md). The displacements and patterns
+    named beside it are each anchor's deviation from the shared shape. Returns the
+    term and what its fit leaves of the channel."""
+    candidate = link_bias_candidate(problem)
+    term = Term(candidate, candidate.columns)
+    simplest = [Term(t.candidate, t.columns, t.extra) for t in named if rank_of(t) == 0]
+    fresh = fresh_terms(pool, "tdoa")
+    judged = simplest + [term]
+    term.evidence = Design(channel.z, judged).gain(term)
+    if not term.supported:
+        return None
+    estimate_terms(channel.z, judged, as_recorded.z, free_offset_terms(judged, fresh),
+                   unnamed_simplest_terms(fresh, simplest, "tdoa"))
+    return term, refit(channel.z, judged)
+
+
 def imu_noise_sizes(series: Vec3Series, corner_hz: float,
                     peak: imu_spectrum.Resonance | None) -> tuple[np.ndarray, np.ndarray]:
     """Per axis, the white and the resonant noise before the low-pass that come out
@@ -307,15 +331,21 @@ def diagnose(rec: Recording, progress=None) -> Diagnosis:
     findings, model, names, unnamed, in_place, tdoa_left = [], [], list(before), [], [], None
     for name in progress(names) if progress else names:
         as_recorded = problem.channel(name)
-        terms, channel, shapes = select(problem, as_recorded, pool)     # fitted jointly
-        unnamed += unnamed_estimates(problem, channel, as_recorded, terms, pool)
+        selected, channel, shapes = select(problem, as_recorded, pool)     # fitted jointly
+        unnamed += unnamed_estimates(problem, channel, as_recorded, selected, pool)
         if name == "tdoa":
-            tdoa_left = remainder(as_recorded.z, [t for t in terms if t.candidate.effect != "nlos"])
+            tdoa_left = remainder(as_recorded.z, [t for t in selected if t.candidate.effect != "nlos"])
         for fit in shapes:
             findings.append(_shape_finding(problem, fit))
             model.append(fit.effect())
-        z_named = remainder(channel.z, terms)
-        named_theta = {id(t): t.theta for t in terms}
+        z_named, z_own = remainder(channel.z, selected), {}
+        named_theta = {id(t): t.theta for t in selected}
+        terms = list(selected)
+        link = shared_link_bias(problem, channel, as_recorded, selected, pool) if name == "tdoa" else None
+        if link is not None:            # judged in a fit of its own, then re-simulated with the rest
+            link_term, z_own[id(link_term)] = link
+            named_theta[id(link_term)] = link_term.theta
+            terms.append(link_term)
         in_model = _model_terms(channel.z, terms)
         floor = _on_ground_term(problem, remainder(channel.z, in_model)) if name == "tdoa" else None
         if floor is not None:        # the model's effects fitted with it: the floor's error is not theirs
@@ -332,14 +362,15 @@ def diagnose(rec: Recording, progress=None) -> Diagnosis:
                 z_with, theta = z_model, term.theta
                 peers = simpler_than(term, [t for t in terms if id(t) in simulated])
             else:
-                z_with, theta, peers = z_named, named_theta[id(term)], simpler_than(term, terms)
+                z_with, theta = z_own.get(id(term), z_named), named_theta[id(term)]
+                peers = simpler_than(term, terms)
             findings.append(_finding(problem, channel, term, _effect_of(problem, channel, term, term.estimate),
                                      z_with, theta, peers, id(term) in simulated))
         fresh = fresh_terms(pool, name)
-        findings += [_alternative_finding(problem, channel, alt, terms)
-                     for alt in axis_alternatives(channel.z, terms, fresh, as_recorded.z)]
+        findings += [_alternative_finding(problem, channel, alt, selected)
+                     for alt in axis_alternatives(channel.z, selected, fresh, as_recorded.z)]
         in_place += [_estimated(problem, channel, alt.term, _replaced(channel, alt))
-                     for alt in in_place_estimates(channel.z, terms, fresh, as_recorded.z)]
+                     for alt in in_place_estimates(channel.z, selected, fresh, as_recorded.z)]
     after = {name: problem.recorded(name) - pred for name, pred in problem.predict(model).items()}
     if "tdoa" in after:
         floor = _floor_finding(problem, after["tdoa"])
@@ -447,7 +478,7 @@ def _finding(problem: Problem, channel: Channel, term: Term, effect: fx.Effect, 
     return Finding(effect.name, channel.name, term.candidate.anchors, rounded_floats(effect.params()),
                    round(float(term.evidence), 2),
                    robust_rms(z_without[rows] * scale, scale), robust_rms(z_with[rows] * scale, scale),
-                   _where(problem, channel, term, rows, z_with, theta, peers),
+                   _where(problem, channel, term, effect, rows, z_with, theta, peers),
                    [{"candidate": key, "evidence": gain} for key, gain in term.look_alikes],
                    not simulated or bool(np.abs(term.param_map() @ term.estimate).max() > term.candidate.bound),
                    std_err, not_identified, not_named_axes=[AXES[j] for j in sorted(term.dropped)])
@@ -580,8 +611,8 @@ def _span(t: np.ndarray) -> list[float]:
     return [round(float(t.min()), 3), round(float(t.max()), 3)] if len(t) else []
 
 
-def _where(problem: Problem, channel: Channel, term: Term, rows: np.ndarray, z_after: np.ndarray,
-           theta: np.ndarray, peers: list[Term]) -> dict:
+def _where(problem: Problem, channel: Channel, term: Term, effect: fx.Effect, rows: np.ndarray,
+           z_after: np.ndarray, theta: np.ndarray, peers: list[Term]) -> dict:
     where: dict = {"time": term.extra.get("during") or _span(channel.t[rows])}
     if channel.name == "tdoa":
         positions = problem.tag_positions()[rows]
@@ -589,6 +620,9 @@ def _where(problem: Problem, channel: Channel, term: Term, rows: np.ndarray, z_a
                                                         "max": np.round(positions.max(axis=0), 3).tolist()}
         if "anchor" in term.candidate.fixed:
             where["anchors"] = [term.candidate.fixed["anchor"]]
+        if isinstance(effect, fx.LinkBias):      # the anchor and viewing angles where it is largest
+            where.update(effect.largest(problem.predictor.tdoa([]), problem.predictor.world([]),
+                                        problem.tdoa_rows[rows]))
         return where
     where["axes"] = [AXES[j] for j in _significant_axes(term, theta, z_after, peers)]
     return where

@@ -48,9 +48,15 @@ PLAIN = {
                                    "motors off)",
     "imu_gyro_scale": "the gyroscope's scale factors are {scale}",
     "lever_arm": "the UWB antenna sits at {offset_m} m from the body origin (body frame)",
+    "link_bias": "every tag–anchor link's range carries the link bias calibrated on the shared flights (the "
+                 "antennas' patterns, the airframe, the received power) at {gain:.2f} × its calibrated size",
 }
 UNITS = {"tdoa": "m", "accel": "m/s²", "gyro": "rad/s"}
 WHERE_SHOWN = 3                  # "Where they differ": the largest of each kind in report.md
+
+
+def _angles(span: list[float]) -> str:
+    return f"{span[0]:.0f}…{span[1]:.0f}°"
 
 
 def describe(finding: Finding) -> str:
@@ -67,6 +73,13 @@ def describe(finding: Finding) -> str:
         params["region"] = ", ".join(f"{axis} {low:.2f}…{high:.2f}" for axis, low, high
                                      in zip("xyz", box["min"], box["max"])) + " m"
     text = PLAIN.get(finding.effect, finding.effect + " {}").format(**params)
+    largest = finding.where.get("largest") if finding.effect == "link_bias" else None
+    if largest:
+        k = largest["anchor"]
+        text += (f"; it varies most on anchor {k}'s links ({finding.where['spread_m'][str(k)]:.3f} m), reading "
+                 f"{largest['sign']}est with the tag at azimuth {_angles(largest['tag_azimuth_deg'])} and elevation "
+                 f"{_angles(largest['tag_elevation_deg'])} in the anchor's frame (the anchor at elevation "
+                 f"{_angles(largest['anchor_elevation_in_body_deg'])} from the tag)")
     if "during" in finding.params:
         start, end = finding.params["during"]
         elsewhere = finding.params.get("outside_m")

@@ -148,8 +148,11 @@ def _centre_gauge(terms: list[Term], attribute: str = "theta") -> None:
 # hover reads as a bias unless the thrust varies enough to tell them apart).
 # Vibration rectification is richer than an accelerometer bias: over steady shaking
 # it is one, so it takes only what follows the vibration around the bias's mean.
+# The link bias every link shares is judged and estimated given the simplest effects
+# alone, after the others are named (rig.diagnosis.diagnose).
 ORDER = {"time_offset": ("tdoa", 0), "clock_drift": ("tdoa", 0),
-         "anchor_delay": ("tdoa", 0), "lever_arm": ("tdoa", 0), "anchor_position": ("tdoa", 1),
+         "anchor_delay": ("tdoa", 0), "lever_arm": ("tdoa", 0), "link_bias": ("tdoa", 1),
+         "anchor_position": ("tdoa", 1),
          "antenna_pattern": ("tdoa", 2), "nlos": ("tdoa", 3),
          "imu_accel_bias": ("accel", 0), "imu_accel_scale": ("accel", 0), "imu_vibration_rectification": ("accel", 1),
          "imu_gyro_bias": ("gyro", 0), "imu_gyro_scale": ("gyro", 0)}

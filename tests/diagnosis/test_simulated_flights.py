@@ -124,6 +124,21 @@ def test_two_effects_at_once_are_both_found(survey) -> None:
     assert abs(found[("time_offset", ())]["params"]["seconds"] - 0.05) < 0.015
 
 
+def test_the_link_bias_is_named_with_its_gain_and_where_it_is_largest(survey) -> None:
+    """The link bias calibrated on the shared flights, half as strong again: named as
+    that effect (one gain; the coefficients' ratios are the calibration's), measured,
+    and located on the anchor whose links it moves most."""
+    coeffs = list(fx.calibrated_link_bias())
+    effect = {"effect": "link_bias", "params": {"coeffs_m": coeffs, "gain": 1.5}}
+    rec = simulate(sim_config(survey, [effect]))
+    found = findings(diagnose(rec))[("link_bias", ())]
+    assert abs(found["params"]["gain"] - 1.5) < 0.3 and found["params"]["coeffs_m"] == coeffs
+    predictor = Predictor(rec)
+    rows = Problem(rec).tdoa_rows
+    expected = fx.make_effect("link_bias", found["params"]).largest(predictor.tdoa([]), predictor.world([]), rows)
+    assert found["where"]["anchors"] == expected["anchors"]
+
+
 def test_an_effect_in_part_of_the_flight_is_confined_in_time(survey) -> None:
     partial = {"effect": "anchor_delay", "params": {"anchor": 4, "meters": 0.15, "during": [15.0, 30.0]}}
     found = findings(diagnose(simulate(sim_config(survey, [partial]))))

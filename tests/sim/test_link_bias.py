@@ -11,8 +11,8 @@ import pytest
 from rigtest import FULL_PRECISION, tdoa_poses
 from scipy.spatial.transform import Rotation
 
-from rig.sim.effects import LINK_TERMS, make_effect
-from rig.sim.simulate import SimConfig, simulate
+from rig.sim.effects import LINK_BOUND_M, LINK_TERMS, calibrated_link_bias, make_effect
+from rig.sim.simulate import Predictor, SimConfig, simulate
 
 COEFFS = np.array([-0.45, 0.05, 0.2, -0.2, -0.4, 0.1])
 
@@ -59,3 +59,42 @@ def test_the_link_bias_refuses_a_wrong_number_of_coefficients_or_nan() -> None:
         make_effect("link_bias", {"coeffs_m": [0.1, 0.2]})
     with pytest.raises(ValueError, match=r"coeffs_m\[2\] must be a finite number"):
         make_effect("link_bias", {"coeffs_m": [0.0, 0.0, float("nan"), 0.0, 0.0, 0.0]})
+    with pytest.raises(ValueError, match="gain must be a finite number"):
+        make_effect("link_bias", {"coeffs_m": COEFFS.tolist(), "gain": float("inf")})
+
+
+def test_a_gain_scales_every_link_and_the_calibration_is_within_the_bounds(survey_0425: Path) -> None:
+    cfg = SimConfig(trajectory="circle-sine", duration=8.0, survey=str(survey_0425), resolution=dict(FULL_PRECISION),
+                    effects=[])
+    clean = simulate(cfg)
+    inside = tdoa_poses(clean)[0]
+    added = {gain: (simulate(replace(cfg, effects=[{"effect": "link_bias", "params": {
+        "coeffs_m": COEFFS.tolist(), "gain": gain}}])).tdoa.distance_diff - clean.tdoa.distance_diff)[inside]
+        for gain in (1.0, -2.5)}
+    np.testing.assert_allclose(added[-2.5], -2.5 * added[1.0], atol=5e-3)
+    assert np.std(added[1.0]) > 0.05
+    calibrated = calibrated_link_bias()
+    assert len(calibrated) == len(LINK_TERMS) and 0.1 < max(map(abs, calibrated)) <= LINK_BOUND_M
+
+
+def test_where_the_link_bias_is_largest_is_the_anchor_whose_links_vary_most(survey_0425: Path) -> None:
+    """Each anchor's spread is the standard deviation of its links' β over the rows;
+    the viewing angles are those of its most extreme tenth."""
+    rec = simulate(SimConfig(trajectory="circle-sine", duration=8.0, survey=str(survey_0425),
+                             resolution=dict(FULL_PRECISION), effects=[]))
+    predictor = Predictor(rec)
+    tdoa, world = predictor.tdoa([]), predictor.world([])
+    effect = make_effect("link_bias", {"coeffs_m": COEFFS.tolist(), "gain": 1.5})
+    where = effect.largest(tdoa, world, np.arange(len(tdoa.t)))
+    spreads = {}
+    for k in world.anchor_positions:
+        rows = (tdoa.id_a == k) | (tdoa.id_b == k)
+        position, rotation = world.anchor_poses(np.full(rows.sum(), k))
+        beta = 1.5 * expected_link_bias(position[0], Rotation.from_matrix(rotation[0]), tdoa.tag_position[rows],
+                                        tdoa.tag_rotation[rows])
+        spreads[str(k)] = np.std(beta)
+    assert where["spread_m"] == pytest.approx(spreads, abs=1e-3)
+    top = max(spreads, key=spreads.get)
+    assert where["anchors"] == [int(top)] and where["largest"]["anchor"] == int(top)
+    low, high = where["largest"]["tag_elevation_deg"]
+    assert -90 <= low <= high <= 90

@@ -60,7 +60,15 @@ from rig.sim.effects.tdoa import (
     on_ground_weight,
     viewing_angles,
 )
-from rig.sim.effects.link import LINK_BOUND_M, LINK_TERMS, LinkBias, link_basis, pattern_basis, tdoa_basis
+from rig.sim.effects.link import (
+    LINK_BOUND_M,
+    LINK_TERMS,
+    LinkBias,
+    calibrated_link_bias,
+    link_basis,
+    pattern_basis,
+    tdoa_basis,
+)
 from rig.sim.effects.timing import ClockDrift, TimeOffset
 from rig.sim.effects.world import AnchorPosition, LeverArm
 
@@ -69,7 +77,7 @@ __all__ = ["CORRUPTION", "FILTERED", "NOISE", "RECTIFIED", "SCALE", "SIGNAL", "T
            "anchor_sign", "ranges", "staged", "apply_imu", "sample_rate", "vibration_level", "lowpass",
            "lowpass_design", "LOWPASS_MAX_SHARE", "resonance_design", "resonance_gain", "resonant_noise",
            "filter_noise_gain", "on_ground_weight", "pattern_basis", "viewing_angles", "link_basis", "tdoa_basis",
-           "LINK_TERMS", "LINK_BOUND_M",
+           "LINK_TERMS", "LINK_BOUND_M", "calibrated_link_bias",
            "ImuAccelBias", "ImuGyroBias", "ImuAccelScale", "ImuGyroScale", "ImuVibrationRectification", "ImuNoise",
            "ImuVibration", "ImuResonance", "ImuLowpass", "TdoaNoise", "Outliers", "TimeOffset", "ClockDrift",
            "AnchorPosition", "LeverArm", "AnchorDelay", "AntennaPattern", "TagAntennaPattern", "Nlos",

@@ -17,10 +17,16 @@ the link's geometry:
 
 Per-anchor parts stay in their own effects: the delay (`anchor_delay`) and a pattern
 deviating from the shared one (`antenna_pattern`). `rig calibrate` fits all of them
-to flights with ground truth.
+to flights with ground truth; the coefficients it fitted to the 35 shared flights
+ship as `calibrated_link_bias()` (`gain` scales them: one flight cannot tell the six
+apart, but it can tell how strongly it shows their calibrated pattern).
 """
 
 from __future__ import annotations
+
+import json
+from functools import cache
+from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -33,6 +39,15 @@ REFERENCE_DISTANCE_M = 3.0
 # most about one unit over the elevations and distances of a room, so a coefficient
 # is about the largest bias difference it makes between two links.
 LINK_BOUND_M = 1.5
+CALIBRATION_FILE = Path(__file__).resolve().parent / "link_bias.json"     # `rig calibrate` on the shared flights
+
+
+@cache
+def calibrated_link_bias() -> tuple[float, ...]:
+    """The `LINK_TERMS` coefficients fitted to the 35 shared flights (CALIBRATION_FILE,
+    written by `make link-bias`)."""
+    effects = json.loads(CALIBRATION_FILE.read_text())["effects"]
+    return tuple(float(v) for v in next(e for e in effects if e["effect"] == "link_bias")["params"]["coeffs_m"])
 
 
 def direction_angles(local: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -69,23 +84,62 @@ def tdoa_basis(tdoa: TdoaBatch, world: World, rows: np.ndarray) -> np.ndarray:
 
 
 class LinkBias(Effect):
-    """Every link's range bias from its geometry, shared by all links: `coeffs_m` weigh
-    the `LINK_TERMS` functions (see the module); a TDOA's bias is link B's minus
+    """Every link's range bias from its geometry, shared by all links: `gain` × `coeffs_m`
+    weigh the `LINK_TERMS` functions (see the module); a TDOA's bias is link B's minus
     link A's."""
 
     name, stage = "link_bias", SIGNAL
 
-    def __init__(self, coeffs_m=(0.0,) * len(LINK_TERMS)):
+    def __init__(self, coeffs_m=(0.0,) * len(LINK_TERMS), gain: float = 1.0):
         values = np.asarray(coeffs_m, dtype=float).reshape(-1)
         if values.shape != (len(LINK_TERMS),):
             raise ValueError(f"coeffs_m must hold {len(LINK_TERMS)} numbers ({', '.join(LINK_TERMS)}), "
                              f"got {coeffs_m!r}")
         self.coeffs = np.array([_finite(v, f"coeffs_m[{k}]") for k, v in enumerate(values)])
+        self.gain = _finite(gain, "gain")
 
     def params(self) -> dict:
-        return {"coeffs_m": self.coeffs.tolist()}
+        return {"coeffs_m": self.coeffs.tolist(), "gain": self.gain}
+
+    def link_values(self, tag_position: np.ndarray, tag_rotation: Rotation, anchor_position: np.ndarray,
+                    anchor_rotation: np.ndarray) -> np.ndarray:
+        """β of n links (metres)."""
+        return link_basis(tag_position, tag_rotation, anchor_position, anchor_rotation) @ (self.gain * self.coeffs)
+
+    def largest(self, tdoa: TdoaBatch, world: World, rows: np.ndarray) -> dict:
+        """Where this bias varies most over a flight's TDOA `rows`: each anchor's spread
+        (standard deviation of β over its links; the mean is a delay, which TDOA reads
+        as one), and for the anchor of the largest, the viewing angles at its most
+        extreme tenth: the tag seen from the anchor (azimuth, elevation in the
+        anchor's frame) and the anchor seen from the tag (elevation, body frame)."""
+        spread, extreme = {}, {}
+        for k in sorted(world.anchor_positions):
+            on = rows[(tdoa.id_a[rows] == k) | (tdoa.id_b[rows] == k)]
+            if len(on) < 10:
+                continue
+            position, rotation = world.anchor_poses(np.full(len(on), k))
+            beta = self.link_values(tdoa.tag_position[on], tdoa.tag_rotation[on], position, rotation)
+            spread[k] = float(np.std(beta))
+            far = np.abs(beta - beta.mean()) >= np.quantile(np.abs(beta - beta.mean()), 0.9)
+            to_anchor = position[far] - tdoa.tag_position[on][far]
+            az, el = direction_angles(np.einsum("nji,nj->ni", rotation[far], -to_anchor))
+            _, tag_el = direction_angles(tdoa.tag_rotation[on][far].inv().apply(to_anchor))
+            extreme[k] = {"tag_azimuth_deg": _degrees(az), "tag_elevation_deg": _degrees(el),
+                          "anchor_elevation_in_body_deg": _degrees(tag_el),
+                          "sign": "long" if np.mean(beta[far] - beta.mean()) > 0 else "short"}
+        if not spread:
+            return {}
+        top = max(spread, key=spread.get)
+        return {"anchors": [top], "spread_m": {str(k): round(v, 4) for k, v in spread.items()},
+                "largest": {"anchor": top, **extreme[top]}}
 
     def apply_tdoa(self, tdoa: TdoaBatch, world: World, rng: np.random.Generator | None) -> None:
         known = np.flatnonzero(world.known_pairs(tdoa.id_a, tdoa.id_b))
         if len(known):
-            tdoa.value[known] += tdoa_basis(tdoa, world, known) @ self.coeffs
+            tdoa.value[known] += tdoa_basis(tdoa, world, known) @ (self.gain * self.coeffs)
+
+
+def _degrees(angles: np.ndarray) -> list[float]:
+    """The 10th and 90th percentiles of `angles` (rad), in degrees: a range of angles,
+    not one (azimuths near ±180° are rare here: anchors face the room)."""
+    return np.round(np.degrees(np.percentile(angles, [10, 90])), 1).tolist()
