@@ -43,7 +43,10 @@ Method, per channel (TDOA, accelerometer, gyroscope), each step's module in brac
    noise-level effect judged on the local TDOA noise (what a running median leaves)
    below a height, and how the ranges read with the tag on the floor is fitted on
    what the model leaves (rig.diagnosis.floor_error).
-6. The named effects, fitted jointly, re-simulate the recording (each channel's
+6. The link bias every tag–anchor link shares (its shape calibrated on the shared
+   flights, one gain: shared_link_bias) is judged after the catalog's effects are
+   named, given the simplest of them, so it takes no signal from their selection.
+   The named effects, fitted jointly, re-simulate the recording (each channel's
    mismatch before and after); each finding's `fit_before`/`fit_after` is the
    robust RMS mismatch of its affected samples under that model without and with it.
 7. What the trajectory can tell apart (rig.diagnosis.identifiability): for every candidate,

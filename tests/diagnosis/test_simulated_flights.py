@@ -30,6 +30,7 @@ from scipy.spatial.transform import Rotation
 
 from rig.data.recording import Vec3Series
 from rig.diagnosis import compare
+import rig.diagnosis.diagnose as diagnose_module
 from rig.diagnosis.alternatives import in_place_estimates
 from rig.diagnosis.candidates import Candidate, candidates
 from rig.diagnosis.channels import Channel, Problem
@@ -137,6 +138,21 @@ def test_the_link_bias_is_named_with_its_gain_and_where_it_is_largest(survey) ->
     rows = Problem(rec).tdoa_rows
     expected = fx.make_effect("link_bias", found["params"]).largest(predictor.tdoa([]), predictor.world([]), rows)
     assert found["where"]["anchors"] == expected["anchors"]
+
+
+def test_the_link_bias_leaves_the_catalogs_selection_as_it_was(survey, monkeypatch) -> None:
+    """Judged after the catalog's effects, the shared link bias changes none of their
+    names or estimates (ranked among them, it took concealed time offsets on real
+    flights); a time offset concealed with it is found at its size."""
+    both = [{"effect": "link_bias", "params": {"coeffs_m": list(fx.calibrated_link_bias()), "gain": 1.0}},
+            {"effect": "time_offset", "params": {"seconds": 0.05}}]
+    rec = simulate(sim_config(survey, both))
+    with_link = findings(diagnose(rec))
+    monkeypatch.setattr(diagnose_module, "shared_link_bias", lambda *args: None)
+    without = findings(diagnose(rec))
+    assert abs(with_link.pop(("link_bias", ()))["params"]["gain"] - 1.0) < 0.3
+    assert {k: f["params"] for k, f in with_link.items()} == {k: f["params"] for k, f in without.items()}
+    assert abs(without[("time_offset", ())]["params"]["seconds"] - 0.05) < 0.015
 
 
 def test_an_effect_in_part_of_the_flight_is_confined_in_time(survey) -> None:
