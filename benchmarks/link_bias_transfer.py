@@ -105,25 +105,29 @@ def anchor_verdict(rows: list[dict]) -> dict:
     return {"by_seed": by_seed, "corrects_unseen_anchors": passes}
 
 
+def print_table(heads: list[str], labels: list[list], rows: list[dict]) -> None:
+    """A markdown table: each row's labels, then its spreads before and after each correction."""
+    heads = heads + ["training delays", "link", "link + training delays"]
+    print("| " + " | ".join(heads) + " |")
+    print("|" + "---|" * len(heads))
+    for label, r in zip(labels, rows):
+        s = r["tdoa_std_m"]
+        spreads = [f"{s[k]:.3f}" for k in ("before", "delays", "link", "link_and_delays")]
+        print("| " + " | ".join(map(str, label + spreads)) + " |")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--json", type=Path, default=ROOT / "out" / "link_bias_transfer.json")
     args = parser.parse_args()
     flights = load_flights(paths.flights())
     results = [run_split(name, flights) for name in SPLITS]
-    print("| split | fitted coefficients (m) | TDOA std before | training delays | link | link + training delays |")
-    print("|---|---|---|---|---|---|")
-    for r in results:
-        s = r["tdoa_std_m"]
-        print(f"| {r['split']} | {np.round(r['coeffs_m'], 3).tolist()} | {s['before']:.3f} | {s['delays']:.3f} | "
-              f"{s['link']:.3f} | {s['link_and_delays']:.3f} |")
+    print_table(["split", "fitted coefficients (m)", "TDOA std before"],
+                [[r["split"], np.round(r["coeffs_m"], 3).tolist()] for r in results], results)
     anchors = [run_anchor(k, seed, flights) for seed in ANCHOR_SEEDS for k in range(8)]
-    print("\n| anchor | seed | TDOA std on its pairs: before | training delays | link | link + training delays |")
-    print("|---|---|---|---|---|---|")
-    for r in anchors:
-        s = r["tdoa_std_m"]
-        print(f"| {r['anchor']} | {r['seed']} | {s['before']:.3f} | {s['delays']:.3f} | {s['link']:.3f} | "
-              f"{s['link_and_delays']:.3f} |")
+    print()
+    print_table(["anchor", "seed", "TDOA std on its pairs: before"], [[r["anchor"], r["seed"]] for r in anchors],
+                anchors)
     verdict = anchor_verdict(anchors)
     counts = ", ".join(f"seed {seed}: {v['narrowed']} of {v['anchors']}" for seed, v in verdict["by_seed"].items())
     print(f"\nunseen anchors narrowed by link + training delays: {counts}; "
