@@ -327,7 +327,9 @@ def vibration_spread(series: Vec3Series) -> np.ndarray:
     return np.array(rms)
 
 
-def diagnose(rec: Recording, progress=None) -> Diagnosis:
+def diagnose(rec: Recording, progress=None, link_bias: bool = True) -> Diagnosis:
+    """Steps 1-7 of the module's method on `rec`; `link_bias=False` leaves out step 6's
+    shared link bias (what the catalog alone makes of the flight)."""
     problem = Problem(rec)
     pool = candidates(problem)
     before = problem.residual_before
@@ -344,7 +346,8 @@ def diagnose(rec: Recording, progress=None) -> Diagnosis:
         z_named, z_own = remainder(channel.z, selected), {}
         named_theta = {id(t): t.theta for t in selected}
         terms = list(selected)
-        link = shared_link_bias(problem, channel, as_recorded, selected, pool) if name == "tdoa" else None
+        link = (shared_link_bias(problem, channel, as_recorded, selected, pool)
+                if name == "tdoa" and link_bias else None)
         if link is not None:            # judged in a fit of its own, then re-simulated with the rest
             link_term, z_own[id(link_term)] = link
             named_theta[id(link_term)] = link_term.theta
