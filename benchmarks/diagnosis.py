@@ -72,8 +72,8 @@ def tables(reports: dict) -> str:
     lines = []
     print = lines.append      # noqa: A001 - the table is built line by line
     print("| flight | TDOA mismatch [m] | accel [m/s²] | gyro [rad/s] | time offset [ms] | anchor delays [m] | "
-          "NLOS anchors | floor multipath | accel bias [m/s²] |")
-    print("|---|---|---|---|---|---|---|---|---|")
+          "NLOS anchors | floor multipath | accel bias [m/s²] | link bias (gain) | not explained |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     counts: Counter = Counter()
     for name, r in reports.items():
         by = {}
@@ -91,8 +91,11 @@ def tables(reports: dict) -> str:
                              if "upper_height_m" in f["params"] else "")
                           for f in by.get("multipath_floor", [])) or "—"
         bias = ", ".join(str([round(v, 2) for v in f["params"]["bias_mps2"]]) for f in by.get("imu_accel_bias", [])) or "—"
+        link = ", ".join(f"{f['params']['gain']:.2f}" for f in by.get("link_bias", [])) or "—"
+        unexplained = ", ".join(f"{effect} × {n}" for effect, n in
+                                Counter(f["effect"] for f in r.get("not_explained", [])).most_common()) or "—"
         print(f"| {name} | {fit.get('tdoa', '—')} | {fit.get('accel', '—')} | {fit.get('gyro', '—')} | {offset} | "
-              f"{delays} | {nlos} | {floor} | {bias} |")
+              f"{delays} | {nlos} | {floor} | {bias} | {link} | {unexplained} |")
     gross = []
     for name, r in reports.items():
         left_out = left_out_text({chan: c["gross_errors_left_out"] for chan, c in r["channels"].items()})
