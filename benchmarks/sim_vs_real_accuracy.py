@@ -9,8 +9,8 @@ model and the bias network's pose-dependent bias (`learned_bias`, gain 1). If th
 named effects are the physics the simulator left out, the model's RMSE comes close
 to the real one; what the third leaves is error that is ordered in time and pose,
 not a matter of its distribution, and the fourth asks whether it is the bias the
-network learned (a fair answer on the 0426 flights only: the network never saw
-them).
+network learned (the shipped network was trained on these flights, so the answer
+flatters it).
 
     .venv/bin/python benchmarks/sim_vs_real_accuracy.py [--flights ...] [--out out/sim_vs_real_accuracy.json]
 
