@@ -14,7 +14,7 @@ flatters it).
 
     .venv/bin/python benchmarks/sim_vs_real_accuracy.py [--flights ...] [--out out/sim_vs_real_accuracy.json]
 
-Prints a line per flight and the medians, writes them to OUT (2.5–4 minutes for all 35
+Prints a line per flight and the medians, writes them to OUT (about 6 minutes for all 35
 flights on two cores)."""
 
 from __future__ import annotations
