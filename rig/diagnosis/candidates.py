@@ -48,7 +48,6 @@ class Candidate:
     step: float = 0.01                              # finite-difference step
     prior: float = 0.5                              # plausible size of the parameter (a weak ridge)
     bound: float = 1.0                              # largest physical size: a fit beyond is a misfit
-    nonnegative: bool = False                       # a negative value is no physical size either (a gain)
     penalty: float = PENALTY_PER_PARAMETER          # evidence each parameter must pay for
     by_axis: bool = False                           # named on the axes that pay for themselves (see gyro_scale_candidate)
     recorded_weight: np.ndarray | float = 0.0       # share of the regressor that is the recording (design_columns)
@@ -62,14 +61,6 @@ class Candidate:
     def anchors(self) -> list[int]:
         """The anchor it is on, as report.json lists it (none for a global effect)."""
         return [self.fixed["anchor"]] if "anchor" in self.fixed else []
-
-    def excess(self, values: np.ndarray) -> float:
-        """How far `values` lie beyond the physical range, in bounds (above 1: beyond
-        it; a negative value of a nonnegative parameter: infinitely far)."""
-        values = np.asarray(values, float)
-        if self.nonnegative and np.any(values < 0):
-            return float("inf")
-        return float(np.abs(values).max() / self.bound)
 
     @property
     def naming_bar(self) -> float:
@@ -139,15 +130,11 @@ def link_bias_candidate(problem: Problem) -> Candidate:
     cannot tell the six coefficients apart (on a level circle the anchor's zonal term
     is a delay, the tag's sin(elevation) a vertical lever arm), but it can tell how
     strongly it shows their pattern. Bounded where a coefficient reaches its physical
-    bound, and below by zero: antennas do not turn their pattern inside out, and a
-    negative gain re-simulates the opposite of the bias (in a joint refit with the
-    catalog's displacements and patterns it went to −0.65 on 0425-traj3, and the
-    estimator's error on that flight's simulation rose from 0.135 to 0.264 m against
-    a real 0.197 m). Not in `candidates`: it is judged after them (rig.diagnosis.diagnose,
+    bound. Not in `candidates`: it is judged after them (rig.diagnosis.diagnose,
     docs/notebook/diagnosis-experiments.md)."""
     coeffs = fx.calibrated_link_bias()
     c = Candidate("link_bias", "tdoa", "gain", 1, {"coeffs_m": list(coeffs)}, step=0.1, prior=1.0,
-                  bound=fx.LINK_BOUND_M / max(abs(v) for v in coeffs), nonnegative=True)
+                  bound=fx.LINK_BOUND_M / max(abs(v) for v in coeffs))
     c.key = "link_bias"
     c.columns = design_columns(problem, c)
     return c

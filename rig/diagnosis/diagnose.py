@@ -463,7 +463,7 @@ def _model_terms(z: np.ndarray, named: list[Term], floor: Term | None = None) ->
         refit(z, kept + ([floor] if floor else []))
         if not kept:
             break
-        excess = [t.candidate.excess(t.theta) for t in kept]
+        excess = [np.abs(t.theta).max() / t.candidate.bound for t in kept]
         if max(excess) <= 1.0:
             break
         kept.pop(int(np.argmax(excess)))
@@ -486,7 +486,7 @@ def _finding(problem: Problem, channel: Channel, term: Term, effect: fx.Effect, 
                    robust_rms(z_without[rows] * scale, scale), robust_rms(z_with[rows] * scale, scale),
                    _where(problem, channel, term, effect, rows, z_with, theta, peers),
                    [{"candidate": key, "evidence": gain} for key, gain in term.look_alikes],
-                   not simulated or term.candidate.excess(term.param_map() @ term.estimate) > 1.0,
+                   not simulated or bool(np.abs(term.param_map() @ term.estimate).max() > term.candidate.bound),
                    std_err, not_identified, not_named_axes=[AXES[j] for j in sorted(term.dropped)])
 
 
