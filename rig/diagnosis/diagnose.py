@@ -279,9 +279,8 @@ def shared_link_bias(problem: Problem, channel: Channel, as_recorded: Channel, n
     simplest effects named (timing, delays, lever arm), like a richer effect, but
     after the catalog's effects are named, so it takes no signal from their
     selection (ranked among them it cost concealed time offsets and antenna
-    patterns: docs/notebook/diagnosis-experiments.md). The displacements and patterns
-    named beside it are each anchor's deviation from the shared shape. Returns the
-    term and what its fit leaves of the channel."""
+    patterns: docs/notebook/diagnosis-experiments.md); the displacements and patterns
+    beside it are each anchor's deviation from it. Returns the term and its residual."""
     candidate = link_bias_candidate(problem)
     term = Term(candidate, candidate.columns)
     simplest = [Term(t.candidate, t.columns, t.extra) for t in named if rank_of(t) == 0]
@@ -328,8 +327,7 @@ def vibration_spread(series: Vec3Series) -> np.ndarray:
 
 
 def diagnose(rec: Recording, progress=None, link_bias: bool = True) -> Diagnosis:
-    """Steps 1-7 of the module's method on `rec`; `link_bias=False` leaves out step 6's
-    shared link bias (what the catalog alone makes of the flight)."""
+    """The module's method on `rec`; `link_bias=False` leaves out step 6 (the catalog alone)."""
     problem = Problem(rec)
     pool = candidates(problem)
     before = problem.residual_before
@@ -346,8 +344,7 @@ def diagnose(rec: Recording, progress=None, link_bias: bool = True) -> Diagnosis
         z_named, z_own = remainder(channel.z, selected), {}
         named_theta = {id(t): t.theta for t in selected}
         terms = list(selected)
-        link = (shared_link_bias(problem, channel, as_recorded, selected, pool)
-                if name == "tdoa" and link_bias else None)
+        link = shared_link_bias(problem, channel, as_recorded, selected, pool) if name == "tdoa" and link_bias else None
         if link is not None:            # judged in a fit of its own, then re-simulated with the rest
             link_term, z_own[id(link_term)] = link
             named_theta[id(link_term)] = link_term.theta
