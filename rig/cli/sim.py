@@ -16,6 +16,10 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from rig.sim.simulate import SimConfig, simulate
 
     cfg = SimConfig.load(args.config) if args.config else SimConfig()
+    if args.trajectory is not None and args.trajectory != cfg.trajectory and cfg.trajectory_params:
+        # the config's parameters describe its own trajectory, not the one asked for
+        print(f"--trajectory {args.trajectory}: the config's trajectory_params (for {cfg.trajectory}) are not used")
+        cfg.trajectory_params = {}
     overrides = {
         "trajectory": args.trajectory, "duration": args.duration, "recording": args.recording,
         "survey": args.survey, "imu_hz": args.imu_hz, "tdoa_hz": args.tdoa_hz,

@@ -280,7 +280,13 @@ TRAJECTORIES = {"circle", "circle-sine", "smooth-random"}
 
 def parametric(kind: str, duration: float = 30.0, seed: int = 0, **kwargs) -> Trajectory:
     """Build a parametric trajectory by name, with `duration` seconds of pattern."""
-    plan = FlightPlan(pattern=duration)
+    try:
+        return _parametric(kind, FlightPlan(pattern=duration), seed, **kwargs)
+    except TypeError as exc:        # a parameter the trajectory does not have
+        raise ValueError(f"trajectory {kind!r}: {exc}") from exc
+
+
+def _parametric(kind: str, plan: FlightPlan, seed: int, **kwargs) -> Trajectory:
     if kind == "circle":
         return CircleTrajectory(plan, **kwargs)
     if kind == "circle-sine":

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from dataclasses import replace
 from pathlib import Path
 
@@ -311,6 +312,22 @@ def test_same_seed_same_bytes_other_seed_other_data(tmp_path: Path, survey_0425:
     cfg.seed = 8
     other = simulate(cfg)
     assert not np.array_equal(other.accel.xyz, read_recording(tmp_path / "a.mcap").accel.xyz)
+
+
+def test_another_trajectory_than_the_configs_leaves_its_parameters_and_a_wrong_one_is_a_clear_error(
+        tmp_path: Path) -> None:
+    proc = run_rig("simulate", "--config", "recordings/default.sim.json", "--trajectory", "smooth-random",
+                   "--duration", "2", "-o", str(tmp_path / "random.mcap"))
+    assert proc.returncode == 0, proc.stderr
+    assert "trajectory_params (for circle-sine) are not used" in proc.stdout
+    assert read_recording(tmp_path / "random.mcap").metadata["source"] == "rig simulate"
+    config = json.loads((ROOT / "recordings" / "default.sim.json").read_text())
+    config["trajectory_params"]["wobble"] = 1.0
+    config["survey"] = str(ROOT / config["survey"])
+    (tmp_path / "bad.json").write_text(json.dumps(config))
+    proc = run_rig("simulate", "--config", str(tmp_path / "bad.json"), "-o", str(tmp_path / "bad.mcap"))
+    assert proc.returncode == 2 and "trajectory 'circle-sine'" in proc.stderr and "wobble" in proc.stderr
+    assert "internal error" not in proc.stderr and not (tmp_path / "bad.mcap").exists()
 
 
 @pytest.mark.slow
