@@ -27,6 +27,7 @@ from rig.bias.config import ANCHOR_OFFSET_BOUND_M, TrainConfig
 from rig.bias.dataset import Samples
 from rig.data import paths
 from rig.estimator.bias_net import ANCHORS, BiasNet, link_features, shape
+from rig.estimator.trained_region import TrainedRegion
 
 log = logging.getLogger(__name__)
 
@@ -279,8 +280,10 @@ def fit(samples: Samples, split: Split, config: TrainConfig = TrainConfig(), exc
         recordings = [load_any(flight_dir / name) for name in split.validation]
         score = lambda net: closed_loop_rmse(recordings, net)  # noqa: E731
     net, info = train(train_set, validation_set, config, progress, score)
-    # it corrects only the anchors it learnt (the C estimator leaves the others alone)
-    net = replace(net, anchors=np.union1d(train_set.id_a, train_set.id_b).astype(int).tolist())
+    # it corrects only the anchors it learnt (the C estimator leaves the others alone),
+    # and says where it learnt them (`rig evaluate` reports a flight's share outside)
+    net = replace(net, anchors=np.union1d(train_set.id_a, train_set.id_b).astype(int).tolist(),
+                  region=TrainedRegion.from_features(train_set.features, train_set.id_a, train_set.id_b))
     report = {"split": asdict(split), "exclude_anchors": exclude_anchors, "anchors": net.anchors,
               "samples": {"train": len(train_set), "validation": len(validation_set), "test": len(test_set)},
               "validation": residual_stats(net, validation_set), "test": residual_stats(net, test_set),

@@ -17,7 +17,9 @@ zero for an anchor it never saw): TDOA bias = g(B) + d[B] − g(A) − d[A].
 A model knows the anchors it was trained on (`anchors`) and does not correct a
 measurement with another one: a network that tells anchors apart by their position
 only extrapolates to a new anchor, and widened the error there
-(docs/notebook/bias-validation.md, leave-anchor-out).
+(docs/notebook/bias-validation.md, leave-anchor-out). It may also carry where it was
+trained (`trained_region`, rig.estimator.trained_region): the host reports it, the
+board does not use it.
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from rig.data import paths
+from rig.estimator.trained_region import TrainedRegion
 
 INPUTS, HIDDEN = 14, 30               # the measurement's features; the pair form's hidden width
 LINK_INPUTS, LINK_HIDDEN = 7, 20      # one link's features; the link form's hidden width
@@ -87,6 +90,7 @@ class BiasNet:
     form: str = "pair"
     anchor_offset: np.ndarray | None = None   # link form: (ANCHORS,) range offset per anchor id (m)
     anchors: list[int] | None = None          # the anchor ids it was trained on (None: it corrects every one)
+    region: TrainedRegion | None = None       # where it was trained (reported by `rig evaluate`, not used onboard)
 
     def __post_init__(self) -> None:
         if self.form not in FORMS:
@@ -159,7 +163,7 @@ class BiasNet:
             weights.append(q.astype(np.float64) * scale[:, None])
         offsets = None if self.anchor_offset is None else self.anchor_offset.astype(np.float32).astype(float)
         return BiasNet(weights, [b.copy() for b in self.biases], self.in_mean, self.in_scale,
-                       self.out_scale, self.out_offset, self.form, offsets, self.anchors)
+                       self.out_scale, self.out_offset, self.form, offsets, self.anchors, self.region)
 
     def pack(self) -> np.ndarray:
         """One NET_DTYPE record, laid out like the C bias_net_t."""
@@ -193,6 +197,7 @@ class BiasNet:
             "weights": [w.tolist() for w in self.weights], "biases": [b.tolist() for b in self.biases],
             **({"anchor_offset": self.anchor_offset.tolist()} if self.anchor_offset is not None else {}),
             **({"anchors": self.anchors} if self.anchors is not None else {}),
+            **({"trained_region": self.region.to_json()} if self.region is not None else {}),
         }
 
     @classmethod
@@ -200,7 +205,8 @@ class BiasNet:
         return cls([np.array(w, float) for w in obj["weights"]], [np.array(b, float) for b in obj["biases"]],
                    np.array(obj["in_mean"], float), np.array(obj["in_scale"], float),
                    float(obj["out_scale"]), float(obj["out_offset"]), obj.get("form", "pair"),
-                   obj.get("anchor_offset"), obj.get("anchors"))
+                   obj.get("anchor_offset"), obj.get("anchors"),
+                   TrainedRegion.from_json(obj["trained_region"]) if "trained_region" in obj else None)
 
     def save(self, path: Path) -> None:
         Path(path).write_text(json.dumps(self.to_json()) + "\n")

@@ -18,6 +18,7 @@ import numpy as np
 from rig.data.recording import Recording
 from rig.estimator import metrics, native
 from rig.estimator.bias_net import DEFAULT_NETWORK, BiasNet
+from rig.estimator.trained_region import outside_share
 
 log = logging.getLogger(__name__)
 
@@ -177,4 +178,21 @@ def evaluate(rec: Recording, *, robust: bool = True, use_nn: bool = True, model_
     result["flight_seconds"] = float(run.t[-1] - run.t[0]) if len(run.t) else 0.0
     result["config"] = {"robust": robust, "bias_net": model is not None, "params": params.as_dict(),
                         "start_s": run.t_start}
+    if model is not None and model.region is not None:
+        result["outside_trained_region"] = extrapolated_share(rec, run.t, position, model)
     return result
+
+
+def extrapolated_share(rec: Recording, t: np.ndarray, position: np.ndarray, model: BiasNet) -> float:
+    """The share of the scored segment's TDOA measurements that the model corrects
+    with either link outside where it was trained (its `region`), at the tag position
+    estimated at times `t` (the position the board's features use)."""
+    start, end = metrics.flight_window(rec.truth, metrics.SegmentRule())
+    anchors = rec.anchor_map()
+    known = [k for k in anchors if model.anchors is None or k in model.anchors]
+    tdoa = rec.tdoa
+    rows = (tdoa.t >= start) & (tdoa.t <= end) & np.isin(tdoa.id_a, known) & np.isin(tdoa.id_b, known)
+    tag = metrics.interpolate(tdoa.t[rows], t, position)
+    where = lambda ids: np.array([anchors[int(k)].position for k in ids], float).reshape(-1, 3)  # noqa: E731
+    return outside_share(model.region, tag, where(tdoa.id_a[rows]), where(tdoa.id_b[rows]),
+                         tdoa.id_a[rows], tdoa.id_b[rows])

@@ -184,7 +184,7 @@ def replay_job(recording: Path, target: str, out: Path, estimator: EstimatorChoi
             if own and session is not None:
                 session.close()
     wall = time.monotonic() - began
-    result = score_run(run, rec)
+    result = score_run(run, rec, model)
     info.setdefault("bytes_sent", 0)       # the link never opened
     info.setdefault("bytes_received", 0)
     result.update(info)
@@ -208,7 +208,7 @@ def replay_job(recording: Path, target: str, out: Path, estimator: EstimatorChoi
     return result
 
 
-def score_run(run, rec) -> dict:
+def score_run(run, rec, model=None) -> dict:
     """Accuracy and timing of what the board answered; a run cut short before the
     scored segment still reports its estimates and timing, without accuracy."""
     from rig.estimator.metrics import MetricsError
@@ -217,6 +217,6 @@ def score_run(run, rec) -> dict:
     if run is None or not run.estimates:
         return {"n_estimates": 0}
     try:
-        return replay.score(run, rec)
+        return replay.score(run, rec, model)
     except MetricsError as exc:
         return {"n_estimates": len(run.estimates), "timing": replay.timing_summary(run), "score_error": str(exc)}

@@ -434,10 +434,16 @@ def timing_summary(session: Session) -> dict:
     }
 
 
-def score(session: Session, rec: Recording) -> dict:
+def score(session: Session, rec: Recording, model: BiasNet | None = None) -> dict:
+    """Accuracy, timing and counters of the board's answers; with the `model` it ran,
+    the share of its corrections made outside where the model was trained."""
+    from rig.estimator.evaluate import extrapolated_share
+
     t = session.t0 + np.array([e[0] for e in session.estimates], float) * 1e-6
     pos = np.array([e[1] for e in session.estimates], float).reshape(-1, 3)
     result = metrics.score(t, pos, rec.truth)
+    if model is not None and model.region is not None:
+        result["outside_trained_region"] = extrapolated_share(rec, t, pos, model)
     result["n_estimates"] = len(session.estimates)
     result["timing"] = timing_summary(session)
     if session.realtime is not None:

@@ -167,6 +167,8 @@ def test_cli_replay_writes_metrics_and_asserts(tmp_path: Path, data_dir: Path) -
     metrics = json.loads((tmp_path / "a" / "metrics.json").read_text())
     for key in ("rmse_3d", "rmse_xyz", "n_estimates"):
         assert key in metrics
+    # a shipped-model training flight: every correction inside where the model was trained
+    assert metrics["outside_trained_region"] == 0.0 and "outside where the model was trained" in ok.stdout
     timing = metrics["timing"]
     for key in ("unit", "budget", "window_p50", "window_p99", "window_max", "overruns", "per_call"):
         assert key in timing
