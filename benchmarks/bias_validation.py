@@ -43,7 +43,9 @@ The protocol is fixed here, before any result is looked at:
   correction (mean, and how many flights the correction makes worse), and the TDOA
   error's standard deviation on the test samples before and after the correction
   (int8 weights as the board runs them); every seed is reported, then the mean and
-  the spread (min–max) over seeds.
+  the spread (min–max) over seeds. Since session 57 the region and sector splits also
+  report the share of their test samples outside the model's trained region (the
+  cells `rig evaluate` reports against): descriptive, it decides nothing.
 
 Nothing here is tuned on the test flights: a form is chosen by these figures, by a rule
 fixed before they were seen. The day and mode splits come first: the checks that matter
@@ -80,6 +82,7 @@ from rig.bias.config import TrainConfig  # noqa: E402
 from rig.bias.dataset import Samples  # noqa: E402
 from rig.bias.train import Split, fit, involves, load_or_build_dataset, split_flights  # noqa: E402
 from rig.data import paths  # noqa: E402
+from rig.estimator.trained_region import outside_share  # noqa: E402
 
 CACHE = ROOT / "out" / "cache" / "all.npz"
 TDOA3 = [f"0425-traj{k}" for k in range(13, 24)] + ["0426-traj5", "0426-traj6"]
@@ -132,8 +135,12 @@ def closed_loop(flights: list[str], net) -> list[dict]:
 
 
 def tdoa_spread(net, samples: Samples) -> dict:
+    """The test samples' TDOA error spread before and after the correction, and the share
+    of them outside where the model was trained (its trained_region)."""
     after = samples.label - net.quantized().predict(samples.features, samples.id_a, samples.id_b)
-    return {"std_before": float(np.std(samples.label)), "std_after": float(np.std(after)), "n": len(samples)}
+    f = samples.features
+    return {"std_before": float(np.std(samples.label)), "std_after": float(np.std(after)), "n": len(samples),
+            "outside_trained_region": outside_share(net.region, f[:, 0:3], f[:, 3:6], samples.id_a, samples.id_b)}
 
 
 def run_flight_split(job: tuple) -> dict:
@@ -389,11 +396,18 @@ def write_doc(rows: list[dict], doc: Path) -> None:
                   "| form | seed | before → after |", "|---|---|---|"]
         for r in sorted(region, key=lambda r: (r["form"], r["seed"])):
             lines.append(f"| {r['form']} | {r['seed']} | {r['tdoa']['std_before']:.3f} → {r['tdoa']['std_after']:.3f} m "
-                         f"({r['tdoa']['n']} samples) |")
+                         f"({r['tdoa']['n']} samples{_flagged(r['tdoa'])}) |")
     lines += sector_lines([r for r in rows if r["split"] == "sector"])
     doc.parent.mkdir(parents=True, exist_ok=True)
     doc.write_text("\n".join(lines) + "\n")
     print(f"wrote {doc}")
+
+
+def _flagged(tdoa: dict, before: str = "; ", after: str = "") -> str:
+    """The share of the test samples outside the model's trained region, if measured
+    (rows of runs before session 57 lack it)."""
+    share = tdoa.get("outside_trained_region")
+    return "" if share is None else f"{before}{share:.0%} outside its trained region{after}"
 
 
 def sector_lines(sector: list[dict]) -> list[str]:
@@ -411,7 +425,8 @@ def sector_lines(sector: list[dict]) -> list[str]:
             cells = []
             for seed in seeds:
                 hit = [r["tdoa"] for r in sector if (r["form"], r["sector"], r["seed"]) == (form, k, seed)]
-                cells.append(f"{hit[0]['std_before']:.3f} → {hit[0]['std_after']:.3f} m" if hit else "not run")
+                cells.append(f"{hit[0]['std_before']:.3f} → {hit[0]['std_after']:.3f} m{_flagged(hit[0], ' (', ')')}"
+                             if hit else "not run")
             lines.append(f"| {form} | {k} | " + " | ".join(cells) + " |")
     lines.append("")
     for form in sorted({r["form"] for r in sector}):

@@ -194,5 +194,5 @@ def extrapolated_share(rec: Recording, t: np.ndarray, position: np.ndarray, mode
     rows = (tdoa.t >= start) & (tdoa.t <= end) & np.isin(tdoa.id_a, known) & np.isin(tdoa.id_b, known)
     tag = metrics.interpolate(tdoa.t[rows], t, position)
     where = lambda ids: np.array([anchors[int(k)].position for k in ids], float).reshape(-1, 3)  # noqa: E731
-    return outside_share(model.region, tag, where(tdoa.id_a[rows]), where(tdoa.id_b[rows]),
+    return outside_share(model.region, where(tdoa.id_a[rows]) - tag, where(tdoa.id_b[rows]) - tag,
                          tdoa.id_a[rows], tdoa.id_b[rows])

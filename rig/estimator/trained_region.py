@@ -82,11 +82,12 @@ class TrainedRegion:
                              f"({exc})") from exc
 
 
-def outside_share(region: TrainedRegion, tag: np.ndarray, anchor_a: np.ndarray, anchor_b: np.ndarray,
+def outside_share(region: TrainedRegion, relative_a: np.ndarray, relative_b: np.ndarray,
                   id_a: np.ndarray, id_b: np.ndarray) -> float:
-    """The share of measurements (tag positions and both anchors' positions, rows) with
-    either link outside the region: the corrections that were extrapolations."""
-    if not len(tag):
+    """The share of measurements (rows: both anchors' positions relative to the tag, as
+    the network's features 0–2 and 3–5, and their ids) with either link outside the
+    region: the corrections that were extrapolations."""
+    if not len(relative_a):
         return 0.0
-    inside = region.inside(anchor_a - tag, id_a) & region.inside(anchor_b - tag, id_b)
+    inside = region.inside(relative_a, id_a) & region.inside(relative_b, id_b)
     return float(1.0 - inside.mean())

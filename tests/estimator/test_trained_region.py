@@ -54,9 +54,9 @@ def test_the_share_outside_counts_a_measurement_with_either_link_outside() -> No
     on, off = _circle(1.5, 50), _circle(0.1, 50)
     tag = np.vstack([on, off])
     a, b = np.tile(ANCHORS[0], (100, 1)), np.tile(ANCHORS[2], (100, 1))
-    assert outside_share(region, tag, a, b, np.zeros(100, int), np.full(100, 2)) == pytest.approx(0.5)
-    assert outside_share(region, on, a[:50], b[:50], np.zeros(50, int), np.full(50, 7)) == 1.0
-    assert outside_share(region, on[:0], a[:0], b[:0], np.zeros(0, int), np.zeros(0, int)) == 0.0
+    assert outside_share(region, a - tag, b - tag, np.zeros(100, int), np.full(100, 2)) == pytest.approx(0.5)
+    assert outside_share(region, a[:50] - on, b[:50] - on, np.zeros(50, int), np.full(50, 7)) == 1.0
+    assert outside_share(region, on[:0], on[:0], np.zeros(0, int), np.zeros(0, int)) == 0.0
 
 
 def test_the_region_travels_with_the_model_file_and_a_malformed_one_is_refused(tmp_path: Path) -> None:
