@@ -48,6 +48,7 @@ class Candidate:
     step: float = 0.01                              # finite-difference step
     prior: float = 0.5                              # plausible size of the parameter (a weak ridge)
     bound: float = 1.0                              # largest physical size: a fit beyond is a misfit
+    nonnegative: bool = False                       # a negative value is no physical size either (a gain)
     penalty: float = PENALTY_PER_PARAMETER          # evidence each parameter must pay for
     by_axis: bool = False                           # named on the axes that pay for themselves (see gyro_scale_candidate)
     recorded_weight: np.ndarray | float = 0.0       # share of the regressor that is the recording (design_columns)
@@ -130,11 +131,12 @@ def link_bias_candidate(problem: Problem) -> Candidate:
     cannot tell the six coefficients apart (on a level circle the anchor's zonal term
     is a delay, the tag's sin(elevation) a vertical lever arm), but it can tell how
     strongly it shows their pattern. Bounded where a coefficient reaches its physical
-    bound. Not in `candidates`: it is judged after them (rig.diagnosis.diagnose,
-    docs/notebook/diagnosis-experiments.md)."""
+    bound, and below by zero: antennas do not turn their pattern inside out
+    (rig.diagnosis.terms.model_terms). Not in `candidates`: it is judged after them
+    (rig.diagnosis.diagnose, docs/notebook/diagnosis-experiments.md)."""
     coeffs = fx.calibrated_link_bias()
     c = Candidate("link_bias", "tdoa", "gain", 1, {"coeffs_m": list(coeffs)}, step=0.1, prior=1.0,
-                  bound=fx.LINK_BOUND_M / max(abs(v) for v in coeffs))
+                  bound=fx.LINK_BOUND_M / max(abs(v) for v in coeffs), nonnegative=True)
     c.key = "link_bias"
     c.columns = design_columns(problem, c)
     return c

@@ -79,6 +79,7 @@ from rig.diagnosis.terms import (
     Term,
     estimate_terms,
     free_offset_terms,
+    model_terms,
     rank_of,
     refit,
     remainder,
@@ -115,6 +116,7 @@ class Finding:
     not_identified: list = field(default_factory=list)   # its components this trajectory does not identify
     alternative_to: dict | None = None   # {"effect", "axes"}: in place of those axes of that finding, as good
     not_named_axes: list = field(default_factory=list)   # a gyroscope scale's axes that did not pay: neutral there
+    not_simulated: bool = False     # within bound, but left out of the model for its sign (terms.model_terms)
 
     def to_json(self) -> dict:
         out = {"effect": self.effect, "channel": self.channel, "params": self.params, "evidence": self.evidence,
@@ -131,6 +133,8 @@ class Finding:
             out["alternative_to"] = self.alternative_to
         if self.not_named_axes:
             out["not_named_axes"] = self.not_named_axes
+        if self.not_simulated:
+            out["not_simulated"] = True
         return out
 
 
@@ -349,16 +353,16 @@ def diagnose(rec: Recording, progress=None, link_bias: bool = True) -> Diagnosis
             link_term, z_own[id(link_term)] = link
             named_theta[id(link_term)] = link_term.theta
             terms.append(link_term)
-        in_model = _model_terms(channel.z, terms)
+        in_model, wrong_sign = model_terms(channel.z, terms)
         floor = _on_ground_term(problem, remainder(channel.z, in_model)) if name == "tdoa" else None
         if floor is not None:        # the model's effects fitted with it: the floor's error is not theirs
-            in_model = _model_terms(channel.z, terms, floor)
+            in_model, wrong_sign = model_terms(channel.z, terms, floor)
         z_model = remainder(channel.z, in_model + ([floor] if floor else []))
         if floor is not None:
             on_ground = _on_ground_effect(problem, floor)
             findings.append(_on_ground_finding(channel, floor, on_ground, z_model))
             model.append(on_ground)
-        simulated = {id(t) for t in in_model}
+        simulated, for_sign = {id(t) for t in in_model}, {id(t) for t in wrong_sign}
         for term in terms:
             if id(term) in simulated:
                 model.append(_effect_of(problem, channel, term, term.theta))
@@ -368,7 +372,7 @@ def diagnose(rec: Recording, progress=None, link_bias: bool = True) -> Diagnosis
                 z_with, theta = z_own.get(id(term), z_named), named_theta[id(term)]
                 peers = simpler_than(term, terms)
             findings.append(_finding(problem, channel, term, _effect_of(problem, channel, term, term.estimate),
-                                     z_with, theta, peers, id(term) in simulated))
+                                     z_with, theta, peers, id(term) in simulated, id(term) in for_sign))
         fresh = fresh_terms(pool, name)
         findings += [_alternative_finding(problem, channel, alt, selected)
                      for alt in axis_alternatives(channel.z, selected, fresh, as_recorded.z)]
@@ -449,31 +453,14 @@ def _effect_of(problem: Problem, channel: Channel, term: Term, theta: np.ndarray
                                    "region": term.extra["region"]})
 
 
-def _model_terms(z: np.ndarray, named: list[Term], floor: Term | None = None) -> list[Term]:
-    """The named terms that re-simulate the recording, refitted jointly (with `floor`,
-    the ranges' change with the tag on the floor, if any). One fitted beyond its
-    physical bounds stands for something the catalog does not model, and its
-    linearised fit does not re-simulate (an anchor moved by metres), so it is left
-    out, the furthest out first."""
-    kept = list(named)
-    while True:
-        refit(z, kept + ([floor] if floor else []))
-        if not kept:
-            break
-        excess = [np.abs(t.theta).max() / t.candidate.bound for t in kept]
-        if max(excess) <= 1.0:
-            break
-        kept.pop(int(np.argmax(excess)))
-    return kept
-
-
 def _finding(problem: Problem, channel: Channel, term: Term, effect: fx.Effect, z_with: np.ndarray,
-             theta: np.ndarray, peers: list[Term], simulated: bool) -> Finding:
+             theta: np.ndarray, peers: list[Term], simulated: bool, for_sign: bool = False) -> Finding:
     """The effect as estimated (given the simpler explanations); fit_before/fit_after:
     the affected rows' mismatch under the re-simulating model without and with this
     effect (the whole model re-simulated is in Diagnosis.channel_fits); for an effect
     beyond its physical bounds, which the model leaves out, under all named effects
-    fitted jointly (`z_with` and `theta` are the fit it is judged in, with `peers`)."""
+    fitted jointly (`z_with` and `theta` are the fit it is judged in, with `peers`);
+    `for_sign`: left out of the model for its sign only (terms.model_terms)."""
     rows = np.any(term.columns != 0, axis=1)
     scale = channel.scale[rows]
     z_without = z_with + term.columns @ theta
@@ -483,8 +470,14 @@ def _finding(problem: Problem, channel: Channel, term: Term, effect: fx.Effect, 
                    robust_rms(z_without[rows] * scale, scale), robust_rms(z_with[rows] * scale, scale),
                    _where(problem, channel, term, effect, rows, z_with, theta, peers),
                    [{"candidate": key, "evidence": gain} for key, gain in term.look_alikes],
-                   not simulated or bool(np.abs(term.param_map() @ term.estimate).max() > term.candidate.bound),
-                   std_err, not_identified, not_named_axes=[AXES[j] for j in sorted(term.dropped)])
+                   (not simulated and not for_sign) or _beyond(term.candidate, term.param_map() @ term.estimate),
+                   std_err, not_identified, not_named_axes=[AXES[j] for j in sorted(term.dropped)],
+                   not_simulated=for_sign)
+
+
+def _beyond(c: Candidate, values: np.ndarray) -> bool:
+    """Whether `values` lie outside the effect's physical range."""
+    return bool(np.abs(values).max() > c.bound or (c.nonnegative and values.min() < 0))
 
 
 def _alternative_finding(problem: Problem, channel: Channel, alt: Alternative, named: list[Term]) -> Finding:

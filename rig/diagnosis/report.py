@@ -88,6 +88,9 @@ def describe(finding: Finding) -> str:
     if finding.beyond_bound:
         text += (" — beyond what this effect can physically be: it stands for something the catalog does not "
                  "model, and the re-simulation leaves it out")
+    if finding.not_simulated:
+        text += (" — not re-simulated: fitted jointly with the other named effects it would go below zero, "
+                 "which it cannot physically be, so they share its shape on this flight")
     if finding.alternative_to:
         named = finding.alternative_to["effect"]
         axes = f" on {', '.join(finding.alternative_to['axes'])}" if "axes" in finding.alternative_to else ""

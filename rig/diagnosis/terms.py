@@ -93,6 +93,32 @@ def refit(z: np.ndarray, terms: list[Term]) -> np.ndarray:
     return remainder(z, terms)
 
 
+def model_terms(z: np.ndarray, named: list[Term], floor: Term | None = None) -> tuple[list[Term], list[Term]]:
+    """The named terms that re-simulate the recording, refitted jointly (with `floor`,
+    the ranges' change with the tag on the floor, if any), and those left out for
+    their sign. One fitted beyond its physical bounds stands for something the catalog
+    does not model, and its linearised fit does not re-simulate (an anchor moved by
+    metres), so it is left out, the furthest out first. Only once every kept term is
+    within its bounds does a nonnegative one refitted below zero leave (the most
+    negative first): its shape is then shared with the others, and a negative gain
+    would re-simulate the bias inside out. Judged earlier, it would leave before the
+    misfits that made it negative (docs/notebook/diagnosis-experiments.md, session 56)."""
+    kept, wrong_sign = list(named), []
+    while True:
+        refit(z, kept + ([floor] if floor else []))
+        if not kept:
+            break
+        excess = [np.abs(t.theta).max() / t.candidate.bound for t in kept]
+        below = [float(t.theta.min()) / t.candidate.bound if t.candidate.nonnegative else 0.0 for t in kept]
+        if max(excess) > 1.0:
+            kept.pop(int(np.argmax(excess)))
+        elif min(below) < 0.0:
+            wrong_sign.append(kept.pop(int(np.argmin(below))))
+        else:
+            break
+    return kept, wrong_sign
+
+
 def _slices(terms: list[Term]) -> list[slice]:
     """Each term's parameters in a joint fit of `terms` (stacked in that order)."""
     ends = np.cumsum([t.columns.shape[1] for t in terms], dtype=int)
