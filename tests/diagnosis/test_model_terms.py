@@ -10,6 +10,7 @@ import numpy as np
 
 from rig.diagnosis.candidates import Candidate
 from rig.diagnosis.diagnose import Finding, _beyond
+from rig.diagnosis.report import describe
 from rig.diagnosis.terms import Term, model_terms
 
 SAMPLES = 4000
@@ -74,3 +75,4 @@ def test_a_finding_left_out_for_its_sign_is_reported_as_a_finding_marked_not_sim
     out = finding.to_json()
     assert out["not_simulated"] is True and "beyond_physical_bound" not in out
     assert "not_simulated" not in Finding("link_bias", "tdoa", [], {"gain": 1.2}, 50.0, 0.3, 0.2, {}).to_json()
+    assert "not re-simulated" in describe(finding) and "beyond what" not in describe(finding)
