@@ -4,7 +4,8 @@
 
 Prints per-flight and per-group 3D RMSE and writes the Markdown table and a JSON file.
 Configurations: plain EKF update, robust (M-estimation), robust + bias network (when a
-model is available)."""
+model is available), with the share of that run's corrections made outside where the
+model was trained (`rig evaluate`'s `outside_trained_region`)."""
 
 from __future__ import annotations
 
@@ -44,6 +45,8 @@ def run_flight(flight: Path) -> dict:
     for name, cfg in configurations().items():
         r = evaluate(rec, **cfg)
         row[name] = {"rmse_3d": r["rmse_3d"], "rmse_xyz": r["rmse_xyz"], "diverged": r["diverged"]}
+        if "outside_trained_region" in r:
+            row["outside_trained_region"] = r["outside_trained_region"]
     return {"flight": flight.name, **row}
 
 
@@ -56,9 +59,13 @@ def main() -> None:
     with ProcessPoolExecutor(max_workers=2) as pool:
         rows = list(pool.map(run_flight, flights))
     names = list(configurations())
-    lines = ["| flight | " + " | ".join(names) + " |", "|---|" + "---|" * len(names)]
+    region = any("outside_trained_region" in row for row in rows)
+    lines = ["| flight | " + " | ".join(names) + (" | corrected outside the model's trained region" if region else "")
+             + " |", "|---|" + "---|" * (len(names) + region)]
     for row in rows:
         cells = [f"{row[n]['rmse_3d']:.3f}" + (" (diverged)" if row[n]["diverged"] else "") for n in names]
+        if region:
+            cells.append(f"{row['outside_trained_region']:.1%}" if "outside_trained_region" in row else "—")
         lines.append(f"| {row['flight']} | " + " | ".join(cells) + " |")
     group_lines = ["| group | flights | " + " | ".join(names) + " |", "|---|---|" + "---|" * len(names)]
     summary = {}

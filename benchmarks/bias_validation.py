@@ -393,6 +393,7 @@ def write_doc(rows: list[dict], doc: Path) -> None:
         lines += ["", "## Leave-region-out", "", "Not run yet (the protocol's last split)."]
     if region:
         lines += ["", "## Leave-region-out: TDOA error spread where the tag flew outside the training band", "",
+                  "Samples, and the share of them outside the model's trained region, in brackets.", "",
                   "| form | seed | before → after |", "|---|---|---|"]
         for r in sorted(region, key=lambda r: (r["form"], r["seed"])):
             lines.append(f"| {r['form']} | {r['seed']} | {r['tdoa']['std_before']:.3f} → {r['tdoa']['std_after']:.3f} m "
@@ -407,7 +408,7 @@ def _flagged(tdoa: dict, before: str = "; ", after: str = "") -> str:
     """The share of the test samples outside the model's trained region, if measured
     (rows of runs before session 57 lack it)."""
     share = tdoa.get("outside_trained_region")
-    return "" if share is None else f"{before}{share:.0%} outside its trained region{after}"
+    return "" if share is None else f"{before}{share:.0%} outside{after}"
 
 
 def sector_lines(sector: list[dict]) -> list[str]:
@@ -417,7 +418,8 @@ def sector_lines(sector: list[dict]) -> list[str]:
         return []
     seeds = sorted({r["seed"] for r in sector})
     lines = ["", "## Leave-sector-out: TDOA error spread in the quarter of the circle left out of training", "",
-             "Quarters by the tag's bearing about the origin: 0 from −180°, 1 from −90°, 2 from 0°, 3 from 90°.", "",
+             "Quarters by the tag's bearing about the origin: 0 from −180°, 1 from −90°, 2 from 0°, 3 from 90°. "
+             "In brackets: the share of the quarter's test samples outside the model's trained region.", "",
              "| form | quarter | " + " | ".join(f"seed {s}: before → after" for s in seeds) + " |",
              "|---|---|" + "---|" * len(seeds)]
     for form in sorted({r["form"] for r in sector}):
