@@ -137,10 +137,18 @@ def closed_loop(flights: list[str], net) -> list[dict]:
 def tdoa_spread(net, samples: Samples) -> dict:
     """The test samples' TDOA error spread before and after the correction, and the share
     of them outside where the model was trained (its trained_region)."""
-    after = samples.label - net.quantized().predict(samples.features, samples.id_a, samples.id_b)
+    correction = net.quantized().predict(samples.features, samples.id_a, samples.id_b)
+    after = samples.label - correction
     f = samples.features
-    return {"std_before": float(np.std(samples.label)), "std_after": float(np.std(after)), "n": len(samples),
-            "outside_trained_region": outside_share(net.region, f[:, 0:3], f[:, 3:6], samples.id_a, samples.id_b)}
+    out = {"std_before": float(np.std(samples.label)), "std_after": float(np.std(after)), "n": len(samples),
+           "outside_trained_region": outside_share(net.region, f[:, 0:3], f[:, 3:6], samples.id_a, samples.id_b)}
+    if net.region is not None and len(samples):
+        inside = net.region.inside(f[:, 0:3], samples.id_a) & net.region.inside(f[:, 3:6], samples.id_b)
+        out["std_after_gated"] = float(np.std(samples.label - np.where(inside, correction, 0.0)))
+        if not inside.all():
+            out["outside"] = {"n": int(np.sum(~inside)), "std_before": float(np.std(samples.label[~inside])),
+                              "std_after": float(np.std(after[~inside]))}
+    return out
 
 
 def run_flight_split(job: tuple) -> dict:
