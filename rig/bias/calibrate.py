@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from rig.bias.dataset import MAX_ABS_ERROR_M, airborne_tdoa, tag_rotations, true_tdoa, truth_latency
+from rig.bias.dataset import MAX_ABS_ERROR_M, Samples, airborne_tdoa, tag_rotations, true_tdoa, truth_latency
 from rig.data.recording import Recording
 from rig.estimator import metrics
 from rig.sim.effects import LINK_BOUND_M, LINK_TERMS, TdoaBatch, World, tdoa_basis
@@ -46,14 +46,43 @@ def flight_rows(rec: Recording, name: str, latency: float | None = None) -> Flig
     latency = truth_latency(rec) if latency is None else latency
     sel = airborne_tdoa(rec)
     world = World.surveyed(rec.anchors)
-    t = rec.tdoa.t[sel] + latency
-    batch = TdoaBatch(t, rec.tdoa.id_a[sel], rec.tdoa.id_b[sel], metrics.interpolate_positions(rec.truth, t),
-                      Rotation.from_matrix(tag_rotations(rec.truth, t)), np.zeros(int(sel.sum())))
+    batch = _truth_batch(rec, rec.tdoa.t[sel] + latency, rec.tdoa.id_a[sel], rec.tdoa.id_b[sel])
     (a_pos, _), (b_pos, _) = world.anchor_poses(batch.id_a), world.anchor_poses(batch.id_b)
     error = rec.tdoa.distance_diff[sel] - true_tdoa(batch.tag_position, a_pos, b_pos)
     keep = np.abs(error) <= MAX_ABS_ERROR_M
     basis = tdoa_basis(batch, world, np.flatnonzero(keep))
     return FlightRows(name, error[keep], basis, batch.id_a[keep], batch.id_b[keep])
+
+
+def link_bias_of(rec: Recording, t: np.ndarray, id_a: np.ndarray, id_b: np.ndarray, latency: float,
+                 coeffs: np.ndarray) -> np.ndarray:
+    """The link bias with `coeffs` of TDOA measurements of `rec` (times on its clock,
+    anchor ids), at the true tag pose read `latency` later: β(link B) − β(link A)."""
+    world = World.surveyed(rec.anchors)
+    known = np.flatnonzero(world.known_pairs(id_a, id_b))
+    out = np.zeros(len(t))
+    out[known] = tdoa_basis(_truth_batch(rec, t + latency, id_a, id_b), world, known) @ np.asarray(coeffs, float)
+    return out
+
+
+def samples_link_bias(samples: Samples, flights: list[Path], latency: dict[str, float],
+                      coeffs: np.ndarray) -> np.ndarray:
+    """`link_bias_of` every sample, each flight read from `flights` (paths by name)."""
+    from rig.data.importer import load_any
+
+    by_name = {Path(f).name: Path(f) for f in flights}
+    out = np.zeros(len(samples))
+    for name in sorted(set(samples.flight.tolist())):
+        rows = np.flatnonzero(samples.flight == name)
+        out[rows] = link_bias_of(load_any(by_name[name]), samples.t[rows], samples.id_a[rows], samples.id_b[rows],
+                                 float(latency[name]), coeffs)
+    return out
+
+
+def _truth_batch(rec: Recording, t: np.ndarray, id_a: np.ndarray, id_b: np.ndarray) -> TdoaBatch:
+    """Measurements between anchors id_a and id_b with the tag at its true pose at `t`."""
+    return TdoaBatch(t, id_a, id_b, metrics.interpolate_positions(rec.truth, t),
+                     Rotation.from_matrix(tag_rotations(rec.truth, t)), np.zeros(len(t)))
 
 
 def _load_rows(flight: Path) -> FlightRows:

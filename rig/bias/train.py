@@ -327,13 +327,26 @@ def load_or_build_dataset(flights: list[Path], cache: Path | None, progress=None
 def run_training(flights: list[Path], out: Path, *, test_prefixes: list[str] | None = None,
                  all_flights: bool = False, exclude_anchors: list[int] = (), config: TrainConfig = TrainConfig(),
                  dataset_cache: Path | None = None, command: list[str] | None = None,
-                 progress=None, features_from: str = "estimate") -> dict:
+                 progress=None, features_from: str = "estimate", minus_link_bias: bool = False) -> dict:
     """Build the dataset, split by flight, train, write OUT (model JSON) and its provenance.
     With `all_flights`, no flight is held out for testing: every flight but the
-    validation ones trains (how transfer is measured instead: benchmarks/bias_validation.py)."""
+    validation ones trains (how transfer is measured instead: benchmarks/bias_validation.py).
+    With `minus_link_bias`, the labels are what the calibrated link bias leaves of each
+    error (the simulator's `learned_bias` beside `link_bias`); a restart is then chosen
+    by its validation TDOA error, since a correction of a part of the error is not
+    scored in closed loop."""
     import torch
 
     samples, latency = load_or_build_dataset(flights, dataset_cache, progress, features_from)
+    labels = {}
+    if minus_link_bias:
+        from rig.bias.calibrate import samples_link_bias
+        from rig.sim.effects import calibrated_link_bias
+
+        coeffs = np.array(calibrated_link_bias())
+        samples = replace(samples, label=samples.label - samples_link_bias(samples, flights, latency, coeffs))
+        config = replace(config, select_by="mse")
+        labels = {"labels": "measured - true TDOA - calibrated link_bias", "link_bias_coeffs_m": coeffs.tolist()}
     names = sorted(set(samples.flight.tolist()))
     test = [n for n in names if any(n.startswith(p) for p in test_prefixes)] if test_prefixes else None
     if test_prefixes and not test:
@@ -346,6 +359,6 @@ def run_training(flights: list[Path], out: Path, *, test_prefixes: list[str] | N
     provenance = {"model": out.name, "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
                   "command": command or [], "data_dir": str(Path(flights[0]).parent) if flights else "",
                   "flights": names, "ground_truth_latency_s": latency, "torch": torch.__version__,
-                  "features": config.features, "features_from": features_from, **report}
+                  "features": config.features, "features_from": features_from, **labels, **report}
     provenance_path(out).write_text(json.dumps(provenance, indent=2) + "\n")
     return provenance

@@ -42,7 +42,8 @@ def cmd_train(args: argparse.Namespace) -> int:
     prov = run_training(flights, args.out, test_prefixes=args.test, all_flights=args.all_flights,
                         exclude_anchors=anchors, config=config,
                         dataset_cache=args.dataset_cache, command=["rig", *sys.argv[1:]],
-                        progress=progress(desc="training", total=None), features_from=args.features_from)
+                        progress=progress(desc="training", total=None), features_from=args.features_from,
+                        minus_link_bias=args.minus_link_bias)
     t = prov["training"]
     print(f"trained on {len(prov['split']['train'])} flights ({prov['samples']['train']} samples), "
           f"{len(t['restarts'])} restarts in {t['seconds']:.0f} s; kept restart {t['restart']} by {t['selected_by']} "
@@ -148,4 +149,7 @@ def register_train(sub) -> None:
     p.add_argument("--max-epochs", type=int, default=TrainConfig().max_epochs)
     p.add_argument("--out", type=Path, default=DEFAULT_NETWORK)
     p.add_argument("--dataset-cache", type=Path, help="reuse (or write) the dataset here (.npz)")
+    p.add_argument("--minus-link-bias", action="store_true",
+                   help="learn what the calibrated link bias (rig/sim/effects/link_bias.json) leaves of each error: "
+                        "the simulator's learned_bias beside its link_bias (restarts chosen by --select-by mse)")
     p.set_defaults(func=cmd_train)

@@ -11,7 +11,9 @@ import numpy as np
 import pytest
 from rigtest import run_rig
 
-from rig.bias.calibrate import calibrate, flight_rows
+from rig.bias.calibrate import calibrate, flight_rows, samples_link_bias
+from rig.bias.dataset import flight_samples
+from rig.data.recording import write_recording
 from rig.sim.effects import LINK_BOUND_M, LINK_TERMS, effects_from_json
 from rig.sim.simulate import SimConfig, simulate
 
@@ -43,6 +45,18 @@ def test_calibration_recovers_the_simulated_link_bias_under_flight_to_flight_del
     assert std["after_link"] < 0.06 < std["after_delays"] < std["before"]
     effects = effects_from_json(result["effects"])            # a simulation config takes them as they are
     assert effects[0].name == "link_bias" and len(effects) == 1 + len(result["delays_by_flight_m"]["a"])
+
+
+def test_the_link_bias_of_a_flights_samples_is_what_the_simulator_put_in(survey_0425: Path, tmp_path: Path) -> None:
+    """`rig train --minus-link-bias` subtracts exactly the simulator's link bias: on a
+    flight with nothing else in its TDOA, nothing is left of the labels."""
+    rec = simulate(SimConfig(trajectory="circle-sine", duration=8.0, survey=str(survey_0425), seed=4,
+                             effects=[{"effect": "link_bias", "params": {"coeffs_m": COEFFS}}]))
+    write_recording(rec, tmp_path / "sim.mcap")
+    samples = flight_samples(rec, "sim.mcap", latency=0.0, features_from="truth")
+    bias = samples_link_bias(samples, [tmp_path / "sim.mcap"], {"sim.mcap": 0.0}, np.array(COEFFS))
+    assert np.std(samples.label) > 0.05, "the link bias is there to remove"
+    np.testing.assert_allclose(bias, samples.label, atol=2e-3)      # the truth interpolated at 100 Hz
 
 
 def test_a_coefficient_beyond_what_a_link_can_physically_have_is_flagged(survey_0425: Path) -> None:
