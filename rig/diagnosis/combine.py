@@ -6,7 +6,8 @@ An effect transfers to another trajectory if it belongs to the hardware or the r
 TDOA noise), not to one flight's path: NLOS regions, anchor displacements, antenna
 patterns and lever arms, as the diagnosis fits them on real flights, are mostly the
 pose-dependent bias seen along that path (docs/notebook/diagnosis.md) and are left out; a
-config's own `learned_bias` carries that bias to any trajectory and is kept. An
+config's own `link_bias` and `learned_bias` carry that bias to any trajectory and are
+kept. An
 effect enters when the diagnosis named it on at least half of the flights (a
 property of the room, not of one flight); its parameters are the medians over those
 flights (per anchor, for how the ranges read on the floor). Confinement in time
@@ -160,10 +161,13 @@ def _centre_delays(effects: list[dict]) -> None:
 # diagnosis's robust noise scale (not fitted), and the IMU's noise, the rotors'
 # vibration and the low-pass they go through: a flight's noise is its own (0.35-2.2
 # m/s2 RMS of vibration on the accelerometer), and noise of that size would more than
-# double the bytes a replay sends per window. And the pose-dependent bias
-# (`learned_bias`), which the diagnosis leaves to one flight's path and a network
-# trained on other flights carries to any trajectory.
-KEPT_FROM_CONFIG = ("learned_bias", "outliers", "imu_noise", "imu_vibration", "imu_resonance", "imu_lowpass")
+# double the bytes a replay sends per window. And the pose-dependent bias: the link
+# bias as `rig calibrate` fitted it to all the shared flights (`link_bias`; a flight's
+# diagnosis names only its gain) and what it leaves (`learned_bias`), which the
+# diagnosis leaves to one flight's path and a network trained on other flights
+# carries to any trajectory.
+KEPT_FROM_CONFIG = ("link_bias", "learned_bias", "outliers", "imu_noise", "imu_vibration", "imu_resonance",
+                    "imu_lowpass")
 
 
 def replace_fitted(config: dict, effects: list[dict]) -> dict:

@@ -52,14 +52,18 @@ def test_effects_named_on_most_flights_enter_with_their_medians() -> None:
     assert ("nlos", 2) not in combined, "an NLOS region belongs to one flight's path"
 
 
-def test_the_config_keeps_its_own_outliers_imu_noise_and_learned_bias() -> None:
-    own = [{"effect": "learned_bias", "params": {"gain": 1.0, "network": "room.json"}},
+def test_the_config_keeps_its_own_outliers_imu_noise_and_pose_dependent_bias() -> None:
+    own = [{"effect": "link_bias", "params": {"coeffs_m": [-0.4, 0.0, 0.2, -0.2, -0.4, 0.0], "gain": 1.0}},
+           {"effect": "learned_bias", "params": {"gain": 1.0, "network": "room.json"}},
            {"effect": "outliers", "params": {"fraction": 0.05}}, {"effect": "imu_noise", "params": {"accel_std": 0.1}},
            {"effect": "imu_vibration", "params": {"accel_std": [0.3, 0.3, 0.0]}}]
     config = {"trajectory": "circle", "effects": [*own, {"effect": "tdoa_noise", "params": {"std_m": 0.1}}]}
-    effects = replace_fitted(config, combine(MODELS + [[{"effect": "imu_noise", "params": {"accel_std": 0.9}}]]))
-    effects = effects["effects"]
-    assert effects[-4:] == own, \
+    # every flight names the same noise and link gain: still the config's own (calibrated) ones
+    diagnosed = [[*m, {"effect": "imu_noise", "params": {"accel_std": 0.9}},
+                  {"effect": "link_bias", "params": {"coeffs_m": [0.1] * 6, "gain": 0.5}}] for m in MODELS]
+    effects = replace_fitted(config, combine(diagnosed))["effects"]
+    assert [e for e in effects if e["effect"] in ("link_bias", "imu_noise")] == [own[0], own[3]]
+    assert effects[-5:] == own, \
         "the pose-dependent bias, heavy tails, the IMU's white noise and the rotors' vibration stay the config's own"
     assert all(e["effect"] != "tdoa_noise" for e in effects), "the config's own noise is replaced by none fitted"
 
