@@ -28,12 +28,14 @@ test-fast: setup
 default-recording: setup
 	$(RIG) simulate --config recordings/default.sim.json -o recordings/default.mcap
 
-# The pose-dependent bias the default recording carries (its `learned_bias`): a pairwise
-# network trained only on flights the pairwise network shipped before the link form
+# The pose-dependent bias the default recording carries beside its calibrated `link_bias`
+# (its `learned_bias`): a pairwise network of what the link bias leaves of the error,
+# trained only on flights the pairwise network shipped before the link form
 # (recordings/pair_bias_net.json, `rig train --form pair`) did not train on
 # (docs/notebook/diagnosis.md).
 room-bias-net: setup
-	$(RIG) train --form pair --apart-from recordings/pair_bias_net.json --out recordings/room_bias_net.json
+	$(RIG) train --form pair --apart-from recordings/pair_bias_net.json --minus-link-bias \
+		--out recordings/room_bias_net.json
 
 # The link bias every tag-anchor link shares, fitted to the 35 shared flights: the shape
 # the diagnosis names as `link_bias` (docs/reference/diagnosis.md).
