@@ -278,3 +278,17 @@ def test_training_apart_from_a_model_without_provenance_is_refused(tmp_path: Pat
     assert proc.returncode == 2
     assert "no readable provenance with its training flights" in proc.stderr
     assert not (tmp_path / "out.json").exists()
+
+
+def test_rig_train_minus_link_bias_learns_what_the_calibrated_link_bias_leaves(tmp_path: Path) -> None:
+    out = tmp_path / "room.json"
+    run_rig("train", "--flights", "0422", "--restarts", "1", "--max-epochs", "1", "--minus-link-bias",
+            "--out", str(out), check=True)
+    prov = json.loads(provenance_path(out).read_text())
+    assert prov["labels"] == "measured - true TDOA - calibrated link_bias"
+    assert prov["link_bias_coeffs_m"] == list(calibrated_link_bias())
+    assert prov["training"]["selected_by"] == "validation_mse"
+    run_rig("train", "--flights", "0422", "--restarts", "1", "--max-epochs", "1", "--out", str(tmp_path / "plain.json"),
+            check=True)
+    before = json.loads(provenance_path(tmp_path / "plain.json").read_text())["validation"]["before"]["std"]
+    assert prov["validation"]["before"]["std"] != pytest.approx(before, abs=1e-3), "the labels changed"
