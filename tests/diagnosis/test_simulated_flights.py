@@ -26,9 +26,11 @@ from diagnosis_cases import (
     sim_config,
     unnamed,
 )
+from rigtest import ROOT
 from scipy.spatial.transform import Rotation
 
-from rig.data.recording import Vec3Series
+from rig.data.paths import default_recording
+from rig.data.recording import Vec3Series, read_recording
 from rig.diagnosis import compare
 from rig.diagnosis.alternatives import in_place_estimates
 from rig.diagnosis.candidates import Candidate, candidates
@@ -151,6 +153,17 @@ def test_the_link_bias_leaves_the_catalogs_selection_as_it_was(survey) -> None:
     assert abs(with_link.pop(("link_bias", ()))["params"]["gain"] - 1.0) < 0.3
     assert {k: f["params"] for k, f in with_link.items()} == {k: f["params"] for k, f in without.items()}
     assert abs(without[("time_offset", ())]["params"]["seconds"] - 0.05) < 0.015
+
+
+def test_the_default_recordings_link_bias_is_named_at_the_size_it_carries() -> None:
+    """One model for the simulator and the diagnosis: the shipped default recording
+    carries the calibrated link bias beside its room network's residual bias, its
+    delays, floor and noise, and the diagnosis names it at that size."""
+    config = SimConfig.load(ROOT / "recordings" / "default.sim.json")
+    carried = next(e["params"] for e in config.effects if e["effect"] == "link_bias")
+    found = findings(diagnose(read_recording(default_recording())))[("link_bias", ())]
+    assert found["params"]["coeffs_m"] == carried["coeffs_m"]
+    assert abs(found["params"]["gain"] - carried["gain"]) < 0.2
 
 
 def test_an_effect_in_part_of_the_flight_is_confined_in_time(survey) -> None:
