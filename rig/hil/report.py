@@ -128,6 +128,9 @@ def write_report(directory: Path, messages: dict[str, list[dict]] | None = None)
         {"figure": "estimates", "value": metrics.get("n_estimates")},
         {"figure": "RMSE 3D [m]", "value": metrics.get("rmse_3d")},
         {"figure": "RMSE x, y, z [m]", "value": metrics.get("rmse_xyz")},
+        *([{"figure": "bias corrections outside where the model was trained (extrapolated)",
+            "value": f"{metrics['outside_trained_region']:.1%}"}] if metrics.get("outside_trained_region") is not None
+          else []),
         {"figure": f"worst window [{timing.get('unit')}]", "value": timing.get("window_max")},
         {"figure": "worst window / budget", "value": timing.get("window_max_fraction_of_budget")},
         {"figure": "overruns", "value": timing.get("overruns")},
