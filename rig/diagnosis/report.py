@@ -186,11 +186,12 @@ def _not_explained_lines(diagnosis: Diagnosis) -> list[str]:
     lines = ["## Not explained", "",
              "The mismatch these fits remove is real, but each is larger than its effect can physically be, so "
              "none is a finding and the re-simulation leaves them out (report.json's `not_explained`). They say "
-             "where the residual lies; on real flights it is mostly the pose-dependent bias of the UWB "
-             "antennas and the airframe, which the catalog does not model.", ""]
+             "where the residual lies; on real flights it is mostly the part of the UWB's pose-dependent bias "
+             "that the link bias every link shares does not carry: each anchor's own, and each place's.", ""]
     for f in diagnosis.not_explained:
         place = f"anchor {', '.join(map(str, f.anchors))}" if f.anchors else f"the {f.channel} channel"
-        lines.append(f"- on {place}, as a {f.effect} would (evidence {f.evidence:.1f}): {describe(f)}")
+        article = "an" if f.effect[0] in "aeiou" else "a"
+        lines.append(f"- on {place}, as {article} {f.effect} would (evidence {f.evidence:.1f}): {describe(f)}")
     return lines + [""]
 
 
