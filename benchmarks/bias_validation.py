@@ -82,6 +82,7 @@ from rig.bias.config import TrainConfig  # noqa: E402
 from rig.bias.dataset import Samples  # noqa: E402
 from rig.bias.train import Split, fit, involves, load_or_build_dataset, split_flights  # noqa: E402
 from rig.data import paths  # noqa: E402
+from rig.estimator.bias_net import link_features  # noqa: E402
 from rig.estimator.trained_region import outside_share  # noqa: E402
 
 CACHE = ROOT / "out" / "cache" / "all.npz"
@@ -134,9 +135,11 @@ def closed_loop(flights: list[str], net) -> list[dict]:
     return out
 
 
-def tdoa_spread(net, samples: Samples) -> dict:
+def tdoa_spread(net, samples: Samples, trained: Samples | None = None) -> dict:
     """The test samples' TDOA error spread before and after the correction, and the share
-    of them outside where the model was trained (its trained_region)."""
+    of them outside where the model was trained (its trained_region). With the samples
+    it `trained` on, a link model's spread with each link's bias clamped to the range it
+    took on them too (session 58)."""
     correction = net.quantized().predict(samples.features, samples.id_a, samples.id_b)
     after = samples.label - correction
     f = samples.features
@@ -148,7 +151,23 @@ def tdoa_spread(net, samples: Samples) -> dict:
         if not inside.all():
             out["outside"] = {"n": int(np.sum(~inside)), "std_before": float(np.std(samples.label[~inside])),
                               "std_after": float(np.std(after[~inside]))}
+    if trained is not None and net.form == "link" and len(samples):
+        clamped, share = clamped_correction(net.quantized(), samples, trained)
+        out["std_after_clamped"], out["clamped_share"] = float(np.std(samples.label - clamped)), share
     return out
+
+
+def clamped_correction(net, samples: Samples, trained: Samples) -> tuple[np.ndarray, float]:
+    """A link model's correction with each link's bias held within the range it took on
+    the `trained` samples' links, and the share of measurements with a link held."""
+    links = np.vstack(link_features(trained.features))
+    values = net.link_bias(links)
+    low, high = float(values.min()), float(values.max())
+    a, b = (net.link_bias(x) for x in link_features(samples.features))
+    held = (a < low) | (a > high) | (b < low) | (b > high)
+    correction = np.clip(b, low, high) - np.clip(a, low, high) + net.offsets(samples.id_b) - net.offsets(samples.id_a)
+    correction = np.where(net.trained_on(samples.id_a) & net.trained_on(samples.id_b), correction, 0.0)
+    return correction, float(held.mean())
 
 
 def run_flight_split(job: tuple) -> dict:
@@ -193,7 +212,8 @@ def run_region_split(job: tuple) -> dict:
     split = split_flights(names, seed)
     net, _ = fit(samples.select(inside), split, TrainConfig.with_features(FORMS[form], seed=seed, select_by="mse"))
     test = samples.select(~inside & np.isin(samples.flight, split.test))
-    return {"split": "region", "form": form, "seed": seed, "tdoa": tdoa_spread(net, test)}
+    trained = samples.select(inside & np.isin(samples.flight, split.train))
+    return {"split": "region", "form": form, "seed": seed, "tdoa": tdoa_spread(net, test, trained)}
 
 
 def run_sector_split(job: tuple) -> dict:
@@ -204,7 +224,8 @@ def run_sector_split(job: tuple) -> dict:
     split = split_flights(names, seed)
     net, _ = fit(samples.select(~inside), split, TrainConfig.with_features(FORMS[form], seed=seed, select_by="mse"))
     test = samples.select(inside & np.isin(samples.flight, split.test))
-    return {"split": "sector", "sector": sector, "form": form, "seed": seed, "tdoa": tdoa_spread(net, test)}
+    trained = samples.select(~inside & np.isin(samples.flight, split.train))
+    return {"split": "sector", "sector": sector, "form": form, "seed": seed, "tdoa": tdoa_spread(net, test, trained)}
 
 
 def samples_position(samples: Samples) -> np.ndarray:
