@@ -427,6 +427,8 @@ def write_doc(rows: list[dict], doc: Path) -> None:
         for r in sorted(region, key=lambda r: (r["form"], r["seed"])):
             lines.append(f"| {r['form']} | {r['seed']} | {r['tdoa']['std_before']:.3f} → {r['tdoa']['std_after']:.3f}"
                          f"{_gated(r['tdoa'])} m ({r['tdoa']['n']} samples{_flagged(r['tdoa'])}) |")
+        clamped = clamp_lines(region, "seeds")
+        lines += ["", *clamped] if clamped else []
     lines += sector_lines([r for r in rows if r["split"] == "sector"])
     doc.parent.mkdir(parents=True, exist_ok=True)
     doc.write_text("\n".join(lines) + "\n")
@@ -480,6 +482,23 @@ def sector_lines(sector: list[dict]) -> list[str]:
                      + (f"; abstaining outside the trained region, in {sum(t['std_after_gated'] < t['std_before'] for t in gated)}"
                         f" of {len(gated)}, mean {np.mean([t['std_after'] for t in gated]):.3f} → "
                         f"{np.mean([t['std_after_gated'] for t in gated]):.3f} m." if gated else "."))
+    lines += clamp_lines(sector, "quarters × seeds")
+    return lines
+
+
+def clamp_lines(rows: list[dict], runs: str) -> list[str]:
+    """Per form, what holding each link's bias within its trained range did (session 58)."""
+    lines = []
+    for form in sorted({r["form"] for r in rows}):
+        held = [r["tdoa"] for r in rows if r["form"] == form and "std_after_clamped" in r["tdoa"]]
+        if held:
+            lines.append(
+                f"- {form}, each link's bias held within its trained range (not kept, docs/notebook/bias.md): "
+                f"narrowed in {sum(t['std_after_clamped'] < t['std_before'] for t in held)} of {len(held)} {runs}, "
+                f"mean {np.mean([t['std_after'] for t in held]):.4f} → "
+                f"{np.mean([t['std_after_clamped'] for t in held]):.4f} m; a link held in "
+                f"{min(t['clamped_share'] for t in held):.1%}–{max(t['clamped_share'] for t in held):.1%} "
+                "of the measurements.")
     return lines
 
 
