@@ -248,8 +248,12 @@ def samples_height(samples: Samples) -> np.ndarray:
 def samples_sector(samples: Samples) -> np.ndarray:
     """Which quarter of the circle the tag is in at each sample: 0..SECTORS-1 by its
     bearing about the origin, from -180 degrees."""
-    p = samples_position(samples)
-    bearing = np.arctan2(p[:, 1], p[:, 0])
+    return bearing_sector(samples_position(samples))
+
+
+def bearing_sector(position: np.ndarray) -> np.ndarray:
+    """The quarter of the circle of each position (n, 3): by its bearing about the origin."""
+    bearing = np.arctan2(position[:, 1], position[:, 0])
     return np.minimum(((bearing + np.pi) / (2 * np.pi) * SECTORS).astype(int), SECTORS - 1)
 
 

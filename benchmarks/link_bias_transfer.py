@@ -22,6 +22,9 @@ mean (zero: delays are centred). Rule, fixed before the first run: the model cor
 an unseen anchor only if "link + delays" narrows its spread for at least 6 of the 8
 anchors on every seed and widens none by more than 0.01 m; otherwise the estimator
 keeps abstaining there.
+
+Leave-sector-out (session 58; descriptive, it decides nothing): bias_validation's
+quarters of the circle and seeds, for comparison with the link network's there.
 """
 
 from __future__ import annotations
@@ -37,7 +40,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from bias_validation import test_flights  # noqa: E402
+from bias_validation import SECTORS, bearing_sector, test_flights  # noqa: E402
 
 from rig.bias.train import split_flights  # noqa: E402
 
@@ -80,8 +83,7 @@ def run_split(name: str, flights: list[FlightRows]) -> dict:
 def without_anchor(rows: FlightRows, anchor: int, keep: bool = False) -> FlightRows:
     """The rows of `rows` that do not involve `anchor` (with `keep`, only those that do)."""
     involved = (rows.id_a == anchor) | (rows.id_b == anchor)
-    sel = involved if keep else ~involved
-    return FlightRows(rows.name, rows.error[sel], rows.basis[sel], rows.id_a[sel], rows.id_b[sel])
+    return rows.select(involved if keep else ~involved)
 
 
 def run_anchor(anchor: int, seed: int, flights: list[FlightRows]) -> dict:
@@ -90,6 +92,18 @@ def run_anchor(anchor: int, seed: int, flights: list[FlightRows]) -> dict:
     coeffs, delays, _ = fitted_model(train)
     test = [without_anchor(r, anchor, keep=True) for r in flights if r.name in split.test]
     return {"split": "anchors", "anchor": anchor, "seed": seed, "test": split.test, "coeffs_m": coeffs.tolist(),
+            "tdoa_std_m": spread(test, coeffs, delays)}
+
+
+def run_sector(sector: int, seed: int, flights: list[FlightRows]) -> dict:
+    """bias_validation's leave-sector-out for the physical model: fitted on the training
+    and validation flights of `seed` outside the quarter, tested inside it (quarters by
+    the tag's true position here, the estimator's there)."""
+    split = split_flights([r.name for r in flights], seed)
+    train = [r.select(bearing_sector(r.position) != sector) for r in flights if r.name not in split.test]
+    coeffs, delays, _ = fitted_model(train)
+    test = [r.select(bearing_sector(r.position) == sector) for r in flights if r.name in split.test]
+    return {"split": "sector", "sector": sector, "seed": seed, "test": split.test, "coeffs_m": coeffs.tolist(),
             "tdoa_std_m": spread(test, coeffs, delays)}
 
 
@@ -132,9 +146,13 @@ def main() -> None:
     counts = ", ".join(f"seed {seed}: {v['narrowed']} of {v['anchors']}" for seed, v in verdict["by_seed"].items())
     print(f"\nunseen anchors narrowed by link + training delays: {counts}; "
           f"corrects unseen anchors: {verdict['corrects_unseen_anchors']}")
+    sectors = [run_sector(k, seed, flights) for seed in ANCHOR_SEEDS for k in range(SECTORS)]
+    print()
+    print_table(["quarter", "seed", "TDOA std in the quarter: before"], [[r["sector"], r["seed"]] for r in sectors],
+                sectors)
     args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps({"splits": results, "anchors": anchors, "anchor_verdict": verdict}, indent=1)
-                         + "\n")
+    args.json.write_text(json.dumps({"splits": results, "anchors": anchors, "anchor_verdict": verdict,
+                                     "sectors": sectors}, indent=1) + "\n")
     print(f"wrote {args.json}")
 
 

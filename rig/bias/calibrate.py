@@ -39,6 +39,11 @@ class FlightRows:
     basis: np.ndarray      # (n, 6): LINK_TERMS, link B's minus link A's
     id_a: np.ndarray
     id_b: np.ndarray
+    position: np.ndarray   # (n, 3): the tag's true position
+
+    def select(self, mask: np.ndarray) -> "FlightRows":
+        return FlightRows(self.name, self.error[mask], self.basis[mask], self.id_a[mask], self.id_b[mask],
+                          self.position[mask])
 
 
 def flight_rows(rec: Recording, name: str, latency: float | None = None) -> FlightRows:
@@ -51,7 +56,7 @@ def flight_rows(rec: Recording, name: str, latency: float | None = None) -> Flig
     error = rec.tdoa.distance_diff[sel] - true_tdoa(batch.tag_position, a_pos, b_pos)
     keep = np.abs(error) <= MAX_ABS_ERROR_M
     basis = tdoa_basis(batch, world, np.flatnonzero(keep))
-    return FlightRows(name, error[keep], basis, batch.id_a[keep], batch.id_b[keep])
+    return FlightRows(name, error[keep], basis, batch.id_a[keep], batch.id_b[keep], batch.tag_position[keep])
 
 
 def link_bias_of(rec: Recording, t: np.ndarray, id_a: np.ndarray, id_b: np.ndarray, latency: float,
