@@ -24,7 +24,8 @@ anchors on every seed and widens none by more than 0.01 m; otherwise the estimat
 keeps abstaining there.
 
 Leave-sector-out (session 58; descriptive, it decides nothing): bias_validation's
-quarters of the circle and seeds, for comparison with the link network's there.
+quarters of the circle and seeds, for comparison with the link network's there; and per
+anchor, what the model fitted to every flight leaves in each quarter.
 """
 
 from __future__ import annotations
@@ -44,7 +45,7 @@ from bias_validation import SECTORS, bearing_sector, test_flights  # noqa: E402
 
 from rig.bias.train import split_flights  # noqa: E402
 
-from rig.bias.calibrate import FlightRows, calibrate, load_flights  # noqa: E402
+from rig.bias.calibrate import FlightRows, calibrate, delay_columns, fit_coefficients, load_flights  # noqa: E402
 from rig.data import paths  # noqa: E402
 
 SPLITS = ("day-0426", "day-0425", "mode-tdoa3", "mode-tdoa2")
@@ -107,6 +108,23 @@ def run_sector(sector: int, seed: int, flights: list[FlightRows]) -> dict:
             "tdoa_std_m": spread(test, coeffs, delays)}
 
 
+def place_means(flights: list[FlightRows]) -> dict[str, list[float]]:
+    """Per anchor, the mean of what the link model and each flight's delays, fitted to
+    every flight, leave of its ranges (TDOA residual signed + as link B, − as link A),
+    in each quarter of the circle: a bias of the anchor seen from one place."""
+    anchors = sorted({int(k) for r in flights for k in np.concatenate([r.id_a, r.id_b])})
+    coeffs, delays = fit_coefficients(flights, anchors)
+    sums, counts = np.zeros((len(anchors), SECTORS)), np.zeros((len(anchors), SECTORS))
+    for rows, d in zip(flights, delays):
+        left = rows.error - delay_columns(rows, anchors) @ d - rows.basis @ coeffs
+        quarter = bearing_sector(rows.position)
+        for i, k in enumerate(anchors):
+            for sign, ids in ((1.0, rows.id_b), (-1.0, rows.id_a)):
+                np.add.at(sums[i], quarter[ids == k], sign * left[ids == k])
+                np.add.at(counts[i], quarter[ids == k], 1.0)
+    return {str(k): (sums[i] / np.maximum(counts[i], 1.0)).round(4).tolist() for i, k in enumerate(anchors)}
+
+
 def anchor_verdict(rows: list[dict]) -> dict:
     """The rule of the module docstring, per seed and overall."""
     by_seed = {}
@@ -150,9 +168,13 @@ def main() -> None:
     print()
     print_table(["quarter", "seed", "TDOA std in the quarter: before"], [[r["sector"], r["seed"]] for r in sectors],
                 sectors)
+    places = place_means(flights)
+    print("\nper anchor, what the link model and each flight's delays leave, by quarter (m):")
+    for k, means in places.items():
+        print(f"  anchor {k}: " + ", ".join(f"{m:+.3f}" for m in means))
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps({"splits": results, "anchors": anchors, "anchor_verdict": verdict,
-                                     "sectors": sectors}, indent=1) + "\n")
+                                     "sectors": sectors, "place_means_m": places}, indent=1) + "\n")
     print(f"wrote {args.json}")
 
 

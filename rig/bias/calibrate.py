@@ -102,7 +102,7 @@ def load_flights(flights: list[Path], workers: int = 2, progress=None) -> list[F
         return list(progress(rows) if progress else rows)
 
 
-def _delay_columns(rows: FlightRows, anchors: list[int]) -> np.ndarray:
+def delay_columns(rows: FlightRows, anchors: list[int]) -> np.ndarray:
     """±1 where a measurement involves anchor k (B: +1, A: −1)."""
     return np.stack([(rows.id_b == k).astype(float) - (rows.id_a == k) for k in anchors], axis=1)
 
@@ -120,11 +120,11 @@ def fit_coefficients(flights: list[FlightRows], anchors: list[int], terms: int =
     fit costs a few small solves per flight however many flights there are; a
     flight's delays are known only relative to each other (pseudo-inverse). With
     `terms` = 0, the delays alone."""
-    delay_columns = [_delay_columns(r, anchors) for r in flights]
+    columns = [delay_columns(r, anchors) for r in flights]
     weights = [np.ones(len(r.error)) for r in flights]
     for _ in range(IRLS_ITERATIONS):
         normal, moment, parts = np.zeros((terms, terms)), np.zeros(terms), []
-        for rows, d, w in zip(flights, delay_columns, weights):
+        for rows, d, w in zip(flights, columns, weights):
             basis = rows.basis[:, :terms]
             bw, dw = basis * w[:, None], d * w[:, None]
             cross, delay_inv = bw.T @ d, np.linalg.pinv(dw.T @ d)
@@ -134,7 +134,7 @@ def fit_coefficients(flights: list[FlightRows], anchors: list[int], terms: int =
         coeffs = np.linalg.solve(normal, moment) if terms else np.zeros(0)
         delays = np.array([inv @ (dy - cross.T @ coeffs) for cross, inv, dy in parts])
         residuals = [r.error - r.basis[:, :terms] @ coeffs - d @ dl
-                     for r, d, dl in zip(flights, delay_columns, delays)]
+                     for r, d, dl in zip(flights, columns, delays)]
         weights = np.split(_huber_weights(np.concatenate(residuals)), np.cumsum([len(r) for r in residuals])[:-1])
     return coeffs, delays - delays.mean(axis=1, keepdims=True)
 
@@ -158,8 +158,8 @@ def calibrate(flights: list[FlightRows], bootstrap: int = 20, seed: int = 0, pro
     spread = resampled.std(axis=0) if bootstrap > 1 else np.full(len(LINK_TERMS), np.nan)
     error = np.concatenate([r.error for r in flights])
     delays_alone = fit_coefficients(flights, anchors, terms=0)[1]
-    after_delays = np.concatenate([r.error - _delay_columns(r, anchors) @ d for r, d in zip(flights, delays_alone)])
-    after = np.concatenate([r.error - _delay_columns(r, anchors) @ d - r.basis @ coeffs
+    after_delays = np.concatenate([r.error - delay_columns(r, anchors) @ d for r, d in zip(flights, delays_alone)])
+    after = np.concatenate([r.error - delay_columns(r, anchors) @ d - r.basis @ coeffs
                             for r, d in zip(flights, delays)])
     mean_delays = delays.mean(axis=0)
     terms = {name: {"value_m": float(v), "spread_m": float(s), "within_bound": bool(abs(v) <= LINK_BOUND_M)}
