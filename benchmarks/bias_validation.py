@@ -170,15 +170,20 @@ def clamped_correction(net, samples: Samples, trained: Samples) -> tuple[np.ndar
     return correction, float(held.mean())
 
 
-def run_flight_split(job: tuple) -> dict:
-    split_name, form, seed = job
+def flight_split_samples(split_name: str, seed: int) -> tuple[Samples, Split]:
+    """The samples a day or mode split draws on, and its seeded cut of their flights."""
     samples = cached_samples()
     names = sorted(set(samples.flight.tolist()))
     test = test_flights(split_name, names)
     if split_name == "day-0425":         # 0426 (+ 0422) only: the other direction of day-0426
         samples = samples.select(~np.char.startswith(samples.flight.astype(str), "0425") | np.isin(samples.flight, test))
         names = sorted(set(samples.flight.tolist()))
-    split = flight_split(names, test, seed)
+    return samples, flight_split(names, test, seed)
+
+
+def run_flight_split(job: tuple) -> dict:
+    split_name, form, seed = job
+    samples, split = flight_split_samples(split_name, seed)
     tic = time.perf_counter()
     net, report = fit(samples, split, TrainConfig.with_features(FORMS[form], seed=seed))
     loop = closed_loop(split.test, net)
