@@ -35,6 +35,10 @@ class TrainConfig:
     # link form: each anchor's own range offset, learnt beside the shared network and
     # bounded (ANCHOR_OFFSET_BOUND_M); an anchor never seen in training gets 0
     anchor_offsets: bool = False
+    # each training and validation flight's constant tag offset removed from its labels
+    # (rig.bias.tag_offset): the correction then carries none, as no flight can tell one
+    # from where the tag really is
+    untranslated: bool = False
 
     def __post_init__(self) -> None:
         if self.restarts < 1:

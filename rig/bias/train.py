@@ -25,6 +25,7 @@ import numpy as np
 
 from rig.bias.config import ANCHOR_OFFSET_BOUND_M, TrainConfig
 from rig.bias.dataset import Samples
+from rig.bias.tag_offset import untranslated
 from rig.data import paths
 from rig.estimator.bias_net import ANCHORS, BiasNet, link_features, shape
 from rig.estimator.trained_region import TrainedRegion
@@ -265,8 +266,11 @@ def fit(samples: Samples, split: Split, config: TrainConfig = TrainConfig(), exc
     """Train on `split`; with `exclude_anchors`, training and validation never see a measurement
     involving them and the test set is exactly the test flights' measurements that do. The
     validation flights' recordings (for selecting a restart in closed loop) are read from
-    `flight_dir`, by default the shared flights."""
+    `flight_dir`, by default the shared flights. With `config.untranslated`, every
+    flight's labels lose their own constant tag offset first."""
     exclude_anchors = list(exclude_anchors)
+    if config.untranslated:
+        samples = untranslated(samples)
     hit = involves(samples, exclude_anchors) if exclude_anchors else np.zeros(len(samples), bool)
     in_flights = lambda names: np.isin(samples.flight, names)  # noqa: E731
     train_set = samples.select(in_flights(split.train) & ~hit)

@@ -35,7 +35,8 @@ def cmd_train(args: argparse.Namespace) -> int:
                        f"not the {args.form} form's")
     try:
         config = TrainConfig.with_features(feature_set, seed=args.seed, restarts=args.restarts,
-                                           select_by=args.select_by, max_epochs=args.max_epochs)
+                                           select_by=args.select_by, max_epochs=args.max_epochs,
+                                           untranslated=args.untranslated)
     except ValueError as exc:
         raise CliError(str(exc)) from exc
     anchors = [int(a) for a in args.exclude_anchors.split(",")] if args.exclude_anchors else []
@@ -152,4 +153,7 @@ def register_train(sub) -> None:
     p.add_argument("--minus-link-bias", action="store_true",
                    help="learn what the calibrated link bias (rig/sim/effects/link_bias.json) leaves of each error: "
                         "the simulator's learned_bias beside its link_bias (restarts chosen by --select-by mse)")
+    p.add_argument("--untranslated", action="store_true",
+                   help="remove each flight's constant tag offset from its labels, so the correction carries none "
+                        "(no flight can tell one from where the tag really is; how the shipped model is made)")
     p.set_defaults(func=cmd_train)
