@@ -55,7 +55,8 @@ correction widens no unseen anchor's spread. The shipped form is the most accura
 those that pass, if it is within 0.01 m of the most accurate form; otherwise the most
 accurate form, with the anchor check reported as failing. The
 shipped model is then trained on every shared flight but a seeded 15 % kept for
-validation (`rig train --all-flights`, seed 0): the checks that matter most are new
+validation (`rig train --all-flights --untranslated`, seed 0; the labels without each
+flight's constant tag offset, decided by benchmarks/tag_offset.py): the checks that matter most are new
 flights of the days these were flown on, and every flight of those days is data about
 their anchors; this page, not a held-out share of the shared flights, is the estimate
 of its transfer.

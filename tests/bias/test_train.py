@@ -13,7 +13,7 @@ from scipy.spatial.transform import Rotation
 from rigtest import ROOT, run_rig
 
 from rig.bias.config import ANCHOR_OFFSET_BOUND_M, TrainConfig
-from rig.bias.dataset import Samples
+from rig.bias.dataset import Samples, flight_samples
 from rig.bias.train import provenance_path, run_training, split_flights, train, trained_on
 from rig.data.recording import read_recording
 from rig.estimator import native
@@ -218,7 +218,9 @@ def test_fresh_training_reproduces_the_shipped_model(tmp_path: Path, data_dir: P
     assert kept["validation_rmse_3d"] == min(r["validation_rmse_3d"] for r in kept["restarts"])
     assert kept["config"]["form"] == "link" and shipped["split"]["test"] == []       # rig train --all-flights
     # The kept restart alone (the others only lost the selection): a third of the training time.
-    config = TrainConfig(seed=kept["config"]["seed"], first_restart=kept["restart"], restarts=1, form="link")
+    assert kept["config"]["untranslated"], "rig train --untranslated"
+    config = TrainConfig(seed=kept["config"]["seed"], first_restart=kept["restart"], restarts=1, form="link",
+                         untranslated=True)
     prov = run_training(flights, tmp_path / "bias_net.json", config=config, all_flights=True)
     assert prov["split"] == shipped["split"]
     assert prov["training"]["validation_mse"] == pytest.approx(kept["validation_mse"], abs=0.01)
@@ -264,12 +266,17 @@ def test_the_default_recordings_bias_is_learned_on_flights_the_shipped_network_d
 
 
 def test_the_shipped_network_removes_part_of_the_default_recordings_bias() -> None:
-    """The shipped correction removes part of the bias the link bias and the room
-    network put in the default recording (0.23 -> 0.17 m). It trained on the room network's flights too, so
+    """The shipped correction narrows the TDOA error the link bias and the room network
+    put in the default recording (0.338 -> 0.283 m) and leaves the estimate no worse
+    (0.230 -> 0.227 m): it carries no constant tag offset, and this recording's errors
+    carry one (docs/notebook/bias.md). It trained on the room network's flights too, so
     this is no transfer figure: those are docs/notebook/bias-validation.md's."""
     rec = read_recording(ROOM_NETWORK.parent / "default.mcap")
+    samples = flight_samples(rec, "default", latency=0.0)
+    correction = BiasNet.load(DEFAULT_NETWORK).quantized().predict(samples.features, samples.id_a, samples.id_b)
+    assert np.std(samples.label - correction) < np.std(samples.label) - 0.03
     without, corrected = (evaluate(rec, use_nn=use_nn)["rmse_3d"] for use_nn in (False, True))
-    assert corrected < without - 0.03, (without, corrected)
+    assert corrected <= without, (without, corrected)
 
 
 def test_training_apart_from_a_model_without_provenance_is_refused(tmp_path: Path) -> None:
@@ -292,3 +299,17 @@ def test_rig_train_minus_link_bias_learns_what_the_calibrated_link_bias_leaves(t
             check=True)
     before = json.loads(provenance_path(tmp_path / "plain.json").read_text())["validation"]["before"]["std"]
     assert prov["validation"]["before"]["std"] != pytest.approx(before, abs=1e-3), "the labels changed"
+
+
+def test_rig_train_untranslated_learns_labels_without_each_flights_tag_offset(tmp_path: Path) -> None:
+    out = tmp_path / "untranslated.json"
+    run_rig("train", "--flights", "0422", "--restarts", "1", "--max-epochs", "1", "--untranslated",
+            "--out", str(out), check=True)
+    prov = json.loads(provenance_path(out).read_text())
+    assert prov["training"]["config"]["untranslated"] is True
+    run_rig("train", "--flights", "0422", "--restarts", "1", "--max-epochs", "1", "--out", str(tmp_path / "plain.json"),
+            check=True)
+    plain = json.loads(provenance_path(tmp_path / "plain.json").read_text())
+    assert plain["training"]["config"]["untranslated"] is False
+    # the 0422 flights' offsets are 0.1-0.2 m: without them the validation labels spread less
+    assert prov["validation"]["before"]["std"] < plain["validation"]["before"]["std"] - 1e-3
