@@ -35,7 +35,6 @@ import argparse
 import json
 import sys
 import time
-from dataclasses import replace
 from multiprocessing import Pool
 from pathlib import Path
 
@@ -46,7 +45,6 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import bias_validation as bv  # noqa: E402
-from rig.bias.config import TrainConfig  # noqa: E402
 from rig.bias.dataset import Samples  # noqa: E402
 from rig.bias.tag_offset import offset_basis, tag_offsets  # noqa: E402
 from rig.bias.train import fit  # noqa: E402
@@ -102,13 +100,13 @@ def recording_offsets(path: Path) -> dict:
 def run(job: tuple) -> dict:
     split_name, seed = job
     samples, split = bv.flight_split_samples(split_name, seed)
-    config = TrainConfig.with_features(bv.FORMS["link"], seed=seed)
+    config = bv.form_config("link", seed=seed)
     tic = time.perf_counter()
     link, _ = fit(samples, split, config)
     test = samples.select(np.isin(samples.flight, split.test))
     correction = link.quantized().predict(test.features, test.id_a, test.id_b)
     flights, own = tag_offsets(test), tag_offsets(test, correction)
-    net, _ = fit(samples, split, replace(config, untranslated=True))
+    net, _ = fit(samples, split, bv.form_config("untranslated", seed=seed))
     loop = bv.closed_loop(split.test, net)
     rmse = np.array([r["rmse_3d"] for r in loop])
     without = np.array([r["rmse_3d_without"] for r in loop])
