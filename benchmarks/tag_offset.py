@@ -2,7 +2,7 @@
 bias correction should carry it.
 
     .venv/bin/python benchmarks/tag_offset.py [--seeds 0 1 2] [--json out/tag_offset.json]
-        [--no-training [--recording REC]]
+        [--no-training [--recording REC] [--diagnoses out/diagnosis]]
 
 A constant offset δ of the tag's position changes every TDOA by H δ, H = u_A − u_B (u:
 the unit vector from the tag to the anchor). TDOA and IMU cannot tell it from the tag
@@ -97,6 +97,29 @@ def recording_offsets(path: Path) -> dict:
             "shipped_correction_offset_m": np.round(shipped_offsets(samples)[path.stem], 3).tolist()}
 
 
+def against_diagnoses(joint: dict[str, np.ndarray], directory: Path) -> dict:
+    """The lever arm `rig diagnose` fits on each flight (benchmarks/diagnosis.py's
+    reports, named or under "not explained"), beside the flight's offset fitted jointly
+    with its anchor delays: per axis, their correlation over the flights."""
+    lever, offsets, beyond = [], [], 0
+    for name, offset in sorted(joint.items()):
+        report = directory / name / "report.json"
+        if not report.is_file():
+            continue
+        data = json.loads(report.read_text())
+        fits = [f for f in data["findings"] + data["not_explained"] if f["effect"] == "lever_arm"]
+        if fits:
+            lever.append(fits[0]["params"]["offset_m"])
+            offsets.append(offset)
+            beyond += bool(fits[0].get("beyond_physical_bound"))
+    if len(lever) < 3:
+        return {"flights": len(lever)}
+    lever, offsets = np.array(lever), np.array(offsets)
+    return {"flights": len(lever), "beyond_bound": beyond,
+            "correlation_xyz": [round(float(np.corrcoef(lever[:, k], offsets[:, k])[0, 1]), 2) for k in range(3)],
+            "median_lever_arm_m": round(float(np.median(np.linalg.norm(lever, axis=1))), 3)}
+
+
 def run(job: tuple) -> dict:
     split_name, seed = job
     samples, split = bv.flight_split_samples(split_name, seed)
@@ -188,6 +211,9 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--no-training", action="store_true",
                         help="only every flight's offset and the shipped correction's (seconds)")
+    parser.add_argument("--diagnoses", type=Path, help="with --no-training: compare the lever arm in these "
+                        "`rig diagnose` reports (benchmarks/diagnosis.py's out/diagnosis) with each flight's "
+                        "offset fitted jointly with its delays")
     parser.add_argument("--recording", type=Path, help="with --no-training: also this recording's offset and the "
                         "shipped correction's on it (e.g. recordings/default.mcap)")
     args = parser.parse_args()
@@ -195,8 +221,11 @@ def main() -> None:
     every = {k: np.round(v, 3).tolist() for k, v in tag_offsets(samples).items()}
     print(json.dumps({"flight_offset_m": every}), flush=True)
     print(json.dumps({"shipped_correction_offset_m": shipped_offset(samples)}), flush=True)
-    joint = {k: np.round(v, 3).tolist() for k, v in offsets_with_delays(samples).items()}
+    joint_offsets = offsets_with_delays(samples)
+    joint = {k: np.round(v, 3).tolist() for k, v in joint_offsets.items()}
     print(json.dumps({"flight_offset_with_delays_m": joint}), flush=True)
+    if args.diagnoses:
+        print(json.dumps({"diagnosed_lever_arm": against_diagnoses(joint_offsets, args.diagnoses)}), flush=True)
     if args.no_training:
         if args.recording:
             print(json.dumps(recording_offsets(args.recording)), flush=True)
