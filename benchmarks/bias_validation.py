@@ -91,11 +91,13 @@ from rig.estimator.trained_region import outside_share  # noqa: E402
 
 CACHE = ROOT / "out" / "cache" / "all.npz"
 TDOA3 = [f"0425-traj{k}" for k in range(13, 24)] + ["0426-traj5", "0426-traj6"]
-FORMS = {"link": "7", "shared": "shared", "pair": "14", "untranslated": "7"}   # form -> rig train's feature set
+# form -> rig train's feature set
+FORMS = {"link": "7", "shared": "shared", "pair": "14", "untranslated": "7", "offset": "7"}
 # the link form trained on labels without each flight's constant tag offset (`rig train
-# --untranslated`): not a form of its own, so it does not take part in choose_form;
-# benchmarks/tag_offset.py decided it by its own rule
-UNTRANSLATED = ("untranslated",)
+# --untranslated`), and that form carrying the training flights' median offset as one
+# constant (`--tag-offset`): not forms of their own, so they do not take part in
+# choose_form; benchmarks/tag_offset.py decides them by its own rules
+UNTRANSLATED = ("untranslated", "offset")
 REGION_Z = (1.3, 1.7)            # the training band of the region split (tag height, m)
 SECTORS = 4                      # the sector split's quarters of the circle
 VALIDATION_SHARE = 0.15
@@ -180,7 +182,8 @@ def clamped_correction(net, samples: Samples, trained: Samples) -> tuple[np.ndar
 
 def form_config(form: str, **kwargs) -> TrainConfig:
     """The training configuration of a form of this page."""
-    return TrainConfig.with_features(FORMS[form], untranslated=form in UNTRANSLATED, **kwargs)
+    return TrainConfig.with_features(FORMS[form], untranslated=form in UNTRANSLATED, tag_offset=form == "offset",
+                                     **kwargs)
 
 
 def flight_split_samples(split_name: str, seed: int) -> tuple[Samples, Split]:
