@@ -11,7 +11,9 @@ the flight. Each flight's own δ (least squares of its TDOA errors against H, at
 poses the features are computed from) may come from the ground truth's frame, the
 tag's antenna offset from the body origin, or a pattern of anchor delays.
 
-Descriptive, it decides nothing: every shared flight's δ; and for bias_validation.py's
+Descriptive, it decides nothing: every shared flight's δ; on the flights that log the
+downward laser, the ground truth's height against it (does the truth's frame move
+between flights?); and for bias_validation.py's
 link models of the four day and mode splits (reproduced here: training is seeded; a
 model whose training flights differ from that page's row is not compared), the
 correction's own δ on each test flight, beside the closed-loop change bias_validation.json
@@ -110,6 +112,36 @@ def recording_offsets(path: Path) -> dict:
     samples = flight_samples(load_any(path), path.stem, latency=0.0)
     return {"recording": str(path), "offset_m": np.round(tag_offsets(samples)[path.stem], 3).tolist(),
             "shipped_correction_offset_m": np.round(shipped_offsets(samples)[path.stem], 3).tolist()}
+
+
+def _event(log, name: str, variables: list[str]) -> tuple[np.ndarray, np.ndarray]:
+    series = log.series(name)
+    order = np.argsort(series.timestamps_us, kind="stable")
+    return series.timestamps_us[order] * 1e-6, np.column_stack([series.column(v) for v in variables])[order]
+
+
+def laser_against_truth() -> dict:
+    """Per flight that logs its downward laser (estTOF), the ground truth's height less
+    the laser's range tilted to the vertical, airborne (0.5-1.8 m): its median and
+    interquartile range (m). Constant across flights, the ground truth's frame does not
+    move vertically between them, and a flight's own z offset is not in the truth."""
+    from rig.data import paths
+    from rig.data.usdlog import read_log
+
+    out = {}
+    for flight in paths.flights():
+        log = read_log(flight)
+        if not log.counts().get("estTOF"):
+            continue
+        t_laser, laser = _event(log, "estTOF", ["range.zrange"])
+        t_pose, pose = _event(log, "estPose", ["locSrv.z", "locSrv.qx", "locSrv.qy"])
+        z, qx, qy = (np.interp(t_laser, t_pose, pose[:, k]) for k in range(3))
+        vertical = laser[:, 0] * 1e-3 * (1 - 2 * (qx * qx + qy * qy))   # the body z axis's vertical part
+        airborne = (z > 0.5) & (z < 1.8) & (vertical > 0.3)
+        gap = z[airborne] - vertical[airborne]
+        out[flight.name] = {"median_m": round(float(np.median(gap)), 3),
+                            "iqr_m": round(float(np.subtract(*np.percentile(gap, [75, 25]))), 3)}
+    return out
 
 
 def against_diagnoses(joint: dict[str, np.ndarray], directory: Path) -> dict:
@@ -271,6 +303,7 @@ def main() -> None:
     if args.diagnoses:
         print(json.dumps({"diagnosed_lever_arm": against_diagnoses(joint_offsets, args.diagnoses)}), flush=True)
     if args.no_training:
+        print(json.dumps({"truth_height_less_laser_m": laser_against_truth()}), flush=True)
         if args.recording:
             print(json.dumps(recording_offsets(args.recording)), flush=True)
         return
