@@ -18,6 +18,10 @@ class RecordingError(InputError):
     """A recording file is missing, unreadable or lacks required content."""
 
 
+class ModelFileError(InputError):
+    """A bias-correction model file is malformed, incomplete or holds non-finite values."""
+
+
 # What a command reports as bad input: the rig's own, and the standard library's for
 # values it cannot parse and files it cannot read or write.
 USER_ERRORS: tuple[type[Exception], ...] = (InputError, ValueError, OSError)

@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from rig.data import paths
+from rig.data.errors import ModelFileError
 from rig.estimator.trained_region import TrainedRegion
 
 INPUTS, HIDDEN = 14, 30               # the measurement's features; the pair form's hidden width
@@ -98,6 +99,7 @@ class BiasNet:
     def __post_init__(self) -> None:
         if self.form not in FORMS:
             raise ValueError(f"form must be one of {FORMS}, not {self.form!r}")
+        self._check_layers()
         if self.anchors is not None:
             self.anchors = sorted({int(k) for k in self.anchors})
             if any(not 0 <= k < ANCHORS for k in self.anchors):
@@ -106,14 +108,36 @@ class BiasNet:
             self.anchor_offset = np.asarray(self.anchor_offset, float)
             if self.form != "link" or self.anchor_offset.shape != (ANCHORS,):
                 raise ValueError(f"anchor offsets belong to the link form, one per anchor id 0..{ANCHORS - 1}")
+            if not np.isfinite(self.anchor_offset).all():
+                raise ValueError("its anchor offsets are not all finite")
             if not np.any(self.anchor_offset):
                 self.anchor_offset = None
         if self.tag_offset is not None:
             self.tag_offset = np.asarray(self.tag_offset, float)
             if self.form != "link" or self.tag_offset.shape != (3,):
                 raise ValueError("a tag offset belongs to the link form, one vector (x, y, z) in metres")
+            if not np.isfinite(self.tag_offset).all():
+                raise ValueError("its tag offset is not finite")
             if not np.any(self.tag_offset):
                 self.tag_offset = None
+
+    def _check_layers(self) -> None:
+        """The form's layer shapes, and finite numbers everywhere: a diverged training or a
+        damaged file would otherwise reach the board as a correction of NaN."""
+        n_in, hidden = shape(self.form)
+        self.weights = [np.asarray(w, float) for w in self.weights]
+        self.biases = [np.asarray(b, float) for b in self.biases]
+        self.in_mean, self.in_scale = np.asarray(self.in_mean, float), np.asarray(self.in_scale, float)
+        shapes = [(hidden, n_in), (hidden, hidden), (hidden, hidden), (1, hidden)]
+        if [w.shape for w in self.weights] != shapes or [b.shape for b in self.biases] != [s[:1] for s in shapes] \
+                or self.in_mean.shape != (n_in,) or self.in_scale.shape != (n_in,):
+            raise ValueError(f"the {self.form} form's layers are {shapes} with {n_in} inputs, not "
+                             f"{[w.shape for w in self.weights]} with {self.in_mean.shape}")
+        arrays = {"weights": self.weights, "biases": self.biases, "in_mean": [self.in_mean],
+                  "in_scale": [self.in_scale], "out_scale": [self.out_scale], "out_offset": [self.out_offset]}
+        for name, values in arrays.items():
+            if not all(np.isfinite(v).all() for v in values):
+                raise ValueError(f"its {name} are not all finite")
 
     def offsets(self, ids: np.ndarray) -> np.ndarray:
         """Each id's range offset (m); 0 for ids beyond the table, as the C code does."""
@@ -229,7 +253,14 @@ class BiasNet:
 
     @classmethod
     def load(cls, path: Path) -> "BiasNet":
-        return cls.from_json(json.loads(Path(path).read_text()))
+        """The model in a file `save` wrote; ModelFileError for one that is not."""
+        path = Path(path)
+        try:
+            return cls.from_json(json.loads(path.read_text()))
+        except KeyError as exc:
+            raise ModelFileError(f"{path} is not a bias model: it lacks {exc}") from exc
+        except (ValueError, TypeError, AttributeError) as exc:   # JSONDecodeError is a ValueError
+            raise ModelFileError(f"{path} is not a usable bias model: {exc}") from exc
 
 
 def offset_basis(features: np.ndarray) -> np.ndarray:

@@ -18,6 +18,7 @@ from rigtest import ROOT, run_rig, simulate_exact
 from rig.data.importer import import_log
 from rig.data.recording import Recording, read_recording, write_recording
 from rig.estimator import native
+from rig.estimator.bias_net import DEFAULT_NETWORK, BiasNet
 from rig.estimator.evaluate import build_events, evaluate, make_estimator, start_time, truth_pose_at
 
 
@@ -191,3 +192,22 @@ def test_the_truth_orientation_between_samples_is_scipys_slerp() -> None:
         quat = truth_pose_at(rec, t)[1]
         expected = reference(np.clip(t, times[0], times[-1])).as_quat()
         assert np.abs(quat - expected).max() < 1e-12 or np.abs(quat + expected).max() < 1e-12
+
+
+def test_rig_evaluate_refuses_a_damaged_model_file_in_one_line_naming_it(tmp_path: Path) -> None:
+    shipped = json.loads(DEFAULT_NETWORK.read_text())
+    nan = json.loads(json.dumps(shipped))
+    nan["weights"][1][3][2] = float("nan")            # a diverged training
+    lacking = {k: v for k, v in shipped.items() if k != "biases"}
+    wrong = {**shipped, "in_mean": shipped["in_mean"][:-1]}
+    files = {"nan.json": json.dumps(nan), "lacking.json": json.dumps(lacking), "wrong.json": json.dumps(wrong),
+             "cut.json": DEFAULT_NETWORK.read_text()[:700]}
+    reasons = {"nan.json": "weights are not all finite", "lacking.json": "lacks 'biases'",
+               "wrong.json": "layers are", "cut.json": "not a usable bias model"}
+    for name, text in files.items():
+        (tmp_path / name).write_text(text)
+        proc = run_rig("evaluate", str(ROOT / "recordings" / "default.mcap"), "--model", str(tmp_path / name))
+        assert proc.returncode == 2, (name, proc.stderr)
+        assert str(tmp_path / name) in proc.stderr and reasons[name] in proc.stderr, proc.stderr
+        assert "Traceback" not in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
+    assert BiasNet.load(DEFAULT_NETWORK).form == "link"   # the file it was made from is sound
