@@ -54,7 +54,7 @@ typedef enum {
 
 /* Why inputs were rejected; indices into est_counters_t.rejected. */
 typedef enum {
-    EST_REJ_NONFINITE = 0,     /* NaN or inf in the value */
+    EST_REJ_NONFINITE = 0,     /* NaN or inf in the value, or in its bias correction */
     EST_REJ_UNKNOWN_ANCHOR,    /* id not configured */
     EST_REJ_SAME_ANCHOR,       /* id_a == id_b */
     EST_REJ_EXCEEDS_BASELINE,  /* |distance_diff| larger than the anchors' separation */

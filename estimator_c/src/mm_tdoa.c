@@ -47,6 +47,11 @@ void tdoa_update(estimator_t *est, const est_tdoa_t *m)
         float features[BN_INPUTS];
         bn_features(pos_then, est->rot, a->pos, a->rot, b->pos, b->rot, features);
         measured -= bn_predict(est->net, features, m->id_a, m->id_b);
+        /* a damaged network (an upload's NaN or inf) refuses the measurement, never the state */
+        if (!isfinite(measured)) {
+            est->counters.rejected[EST_REJ_NONFINITE]++;
+            return;
+        }
     }
     const float innovation = measured - predicted;
     const float std = est->params.tdoa_std;

@@ -211,3 +211,20 @@ def test_rig_evaluate_refuses_a_damaged_model_file_in_one_line_naming_it(tmp_pat
         assert str(tmp_path / name) in proc.stderr and reasons[name] in proc.stderr, proc.stderr
         assert "Traceback" not in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
     assert BiasNet.load(DEFAULT_NETWORK).form == "link"   # the file it was made from is sound
+
+
+def test_a_board_whose_network_predicts_nan_refuses_those_measurements_and_keeps_its_state() -> None:
+    rec = read_recording(ROOT / "recordings" / "default.mcap")
+    packed = BiasNet.load(DEFAULT_NETWORK).pack()
+    packed["link"]["b4"] = np.nan                    # what a damaged upload could hold
+    params = native.params_with(use_bias_net=1)
+    est = make_estimator(rec, params, None)
+    est.set_bias_net(packed)
+    t0 = start_time(rec)
+    est.reset(0, *truth_pose_at(rec, t0))
+    outputs = est.replay(build_events(rec, t0))
+    counters = outputs["counters"][-1]
+    assert np.isfinite(outputs["pos"]).all() and counters["resets"] == 0
+    corrected = counters["rejected"][native.REJECT_REASONS.index("nonfinite")]
+    assert corrected > 0.9 * len(rec.tdoa.t[rec.tdoa.t > t0])      # every measurement it would correct
+    assert counters["tdoa_accepted"] + counters["tdoa_downweighted"] == 0
