@@ -86,6 +86,31 @@ def offsets_with_delays(samples: Samples) -> dict[str, np.ndarray]:
     return out
 
 
+def anchor_delays(samples: Samples) -> dict[str, list[float]]:
+    """Per flight, a range delay per anchor (m, their mean removed) fitted alone to the
+    TDOA errors: the other reading of what an offset explains."""
+    out = {}
+    for name in sorted(set(samples.flight.tolist())):
+        rows = np.flatnonzero(samples.flight == name)
+        design = np.zeros((len(rows), ANCHORS))
+        np.add.at(design, (np.arange(len(rows)), samples.id_b[rows]), 1.0)
+        np.add.at(design, (np.arange(len(rows)), samples.id_a[rows]), -1.0)
+        seen = np.flatnonzero(np.any(design != 0, axis=0))
+        delays = np.linalg.lstsq(design[:, seen], samples.label[rows], rcond=None)[0]
+        out[name] = np.round(delays - delays.mean(), 3).tolist()
+    return out
+
+
+def median_offset_without_each_anchor(samples: Samples) -> dict:
+    """The median flight's offset (m) fitted on every anchor's measurements, and with each
+    anchor's left out: how much of the 'offset' one anchor's delay makes."""
+    median = lambda s: np.round(np.median(np.array(list(tag_offsets(s).values())), axis=0), 3).tolist()  # noqa: E731
+    out = {"every anchor": median(samples)}
+    for anchor in sorted(set(samples.id_a.tolist()) | set(samples.id_b.tolist())):
+        out[f"without {anchor}"] = median(samples.select((samples.id_a != anchor) & (samples.id_b != anchor)))
+    return out
+
+
 def shipped_offsets(samples: Samples) -> dict[str, np.ndarray]:
     """The shipped correction's own tag offset on each flight of `samples`."""
     from rig.data.paths import SHIPPED_BIAS_NET
@@ -297,6 +322,10 @@ def main() -> None:
     every = {k: np.round(v, 3).tolist() for k, v in tag_offsets(samples).items()}
     print(json.dumps({"flight_offset_m": every}), flush=True)
     print(json.dumps({"shipped_correction_offset_m": shipped_offset(samples)}), flush=True)
+    print(json.dumps({"median_offset_without_each_anchor_m": median_offset_without_each_anchor(samples)}), flush=True)
+    delays = anchor_delays(samples)
+    print(json.dumps({"anchor_delays_m": delays, "median_anchor_delay_m":
+                      np.round(np.median(np.array(list(delays.values())), axis=0), 3).tolist()}), flush=True)
     joint_offsets = offsets_with_delays(samples)
     joint = {k: np.round(v, 3).tolist() for k, v in joint_offsets.items()}
     print(json.dumps({"flight_offset_with_delays_m": joint}), flush=True)

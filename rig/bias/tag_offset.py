@@ -3,9 +3,9 @@
 A constant offset δ of the tag's position changes every TDOA by H δ, H = u_A − u_B (u:
 the unit vector from the tag to the anchor). TDOA and IMU cannot tell it from the tag
 really being δ away, so a correction that carries one moves every estimate by −δ,
-whatever the flight. On the shared flights each flight's own δ differs (the ground
-truth's frame, the tag antenna's place on the airframe, a pattern of anchor delays, which
-a flight around a circle cannot tell from an offset), so the shipped correction is
+whatever the flight. On the shared flights each flight's own δ differs (mostly a pattern
+of anchor delays, which a flight around a circle cannot tell from an offset; not the
+ground truth's height, which the downward laser checks), so the shipped correction is
 trained on labels with each flight's δ removed (`rig train --untranslated`;
 docs/notebook/bias.md, "The tag's constant offset"). It may carry the training flights'
 median δ as one explicit constant instead (`--tag-offset`), bounded by the airframe.
