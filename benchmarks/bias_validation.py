@@ -13,10 +13,9 @@ the features every anchor shares, with a bounded range offset per anchor; pair, 
 paper's 14-feature network. Also untranslated (session 59): the link form on labels
 without each flight's constant tag offset (`rig train --untranslated`), as the shipped
 model is trained; reported on every split but not ranked among the forms, since
-benchmarks/tag_offset.py decided it by its own rule. And offset (session 60): that form
-carrying its training flights' median tag offset as one constant (`rig train
---tag-offset`), run on the day and mode splits and decided by tag_offset.py's rule (not
-kept).
+benchmarks/tag_offset.py decided it by its own rule. The page also shows offset rows
+(session 60): that form carrying its training flights' median tag offset as one
+constant, not kept and removed (tag experiment/tag-offset-constant runs it).
 
 The protocol is fixed here, before any result is looked at:
 - splits, by flight (samples 20 ms apart are not independent):
@@ -94,13 +93,14 @@ from rig.estimator.trained_region import outside_share  # noqa: E402
 
 CACHE = ROOT / "out" / "cache" / "all.npz"
 TDOA3 = [f"0425-traj{k}" for k in range(13, 24)] + ["0426-traj5", "0426-traj6"]
-# form -> rig train's feature set
-FORMS = {"link": "7", "shared": "shared", "pair": "14", "untranslated": "7", "offset": "7"}
+FORMS = {"link": "7", "shared": "shared", "pair": "14", "untranslated": "7"}   # form -> rig train's feature set
 # the link form trained on labels without each flight's constant tag offset (`rig train
-# --untranslated`), and that form carrying the training flights' median offset as one
-# constant (`--tag-offset`): not forms of their own, so they do not take part in
-# choose_form; benchmarks/tag_offset.py decides them by its own rules
-UNTRANSLATED = ("untranslated", "offset")
+# --untranslated`): not a form of its own, so it does not take part in choose_form;
+# benchmarks/tag_offset.py decided it by its own rule
+UNTRANSLATED = ("untranslated",)
+# rows of forms tried and removed, kept in the JSON and on the page (session 60's
+# "offset": tag experiment/tag-offset-constant runs it); not ranked either
+NOT_RANKED = (*UNTRANSLATED, "offset")
 REGION_Z = (1.3, 1.7)            # the training band of the region split (tag height, m)
 SECTORS = 4                      # the sector split's quarters of the circle
 VALIDATION_SHARE = 0.15
@@ -185,8 +185,7 @@ def clamped_correction(net, samples: Samples, trained: Samples) -> tuple[np.ndar
 
 def form_config(form: str, **kwargs) -> TrainConfig:
     """The training configuration of a form of this page."""
-    return TrainConfig.with_features(FORMS[form], untranslated=form in UNTRANSLATED, tag_offset=form == "offset",
-                                     **kwargs)
+    return TrainConfig.with_features(FORMS[form], untranslated=form in UNTRANSLATED, **kwargs)
 
 
 def flight_split_samples(split_name: str, seed: int) -> tuple[Samples, Split]:
@@ -354,7 +353,7 @@ def choose_form(rows: list[dict]) -> dict:
     four day and mode splits of its mean 3D RMSE over seeds), whether it passes the
     anchor check (no unseen anchor's spread widened), and the form to ship."""
     forms = {}
-    for entry in summary([r for r in rows if r["split"] in FLIGHT_SPLITS and r["form"] not in UNTRANSLATED]):
+    for entry in summary([r for r in rows if r["split"] in FLIGHT_SPLITS and r["form"] not in NOT_RANKED]):
         forms.setdefault(entry["form"], {})[entry["split"]] = entry["mean_rmse_3d"]["mean"]
     table = {}
     for form, by_split in forms.items():

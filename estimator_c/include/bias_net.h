@@ -65,11 +65,6 @@ typedef struct {
      * bias: zero for an anchor the model never saw, and for every anchor of a model
      * whose network tells anchors apart by their position. */
     float anchor_offset[BN_ANCHORS];
-    /* The tag's constant offset (world, m) calibrated on the training flights: a tag
-     * displaced by it reads each link's range shorter by u . tag_offset (u: the unit
-     * vector from the tag to the anchor), so every TDOA by (u_A - u_B) . tag_offset.
-     * Zero in a model that carries none. */
-    float tag_offset[3];
 } bn_link_t;
 
 /* bias_net_t.anchors of a model that corrects every anchor (one saved before models

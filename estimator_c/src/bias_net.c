@@ -5,8 +5,6 @@
  * (restrict pointers and a width of BN_LANES, a multiple of the int8 SIMD width, make
  * that happen at -O2; both forms store their layers that wide, padded with zero
  * neurons). */
-#include <math.h>
-
 #include "bias_net.h"
 
 static void dense_relu(int n_in, const int8_t *restrict w, const float *restrict scale,
@@ -58,15 +56,6 @@ static float anchor_offset(const bn_link_t *net, unsigned id)
     return id < BN_ANCHORS ? net->anchor_offset[id] : 0.0f;
 }
 
-/* The range change of a link whose relative anchor position (anchor - tag, world) is
- * `to_anchor` when the tag sits `offset` away from where it is taken to be: -u . offset. */
-static float offset_range(const float offset[3], const float to_anchor[3])
-{
-    const float norm = sqrtf(to_anchor[0] * to_anchor[0] + to_anchor[1] * to_anchor[1] + to_anchor[2] * to_anchor[2]);
-    if (norm <= 0.0f) return 0.0f;
-    return -(to_anchor[0] * offset[0] + to_anchor[1] * offset[1] + to_anchor[2] * offset[2]) / norm;
-}
-
 static float link_predict(const bn_link_t *net, const float features[BN_INPUTS], unsigned id_a, unsigned id_b)
 {
     static const int index_a[BN_LINK_INPUTS] = BN_LINK_A, index_b[BN_LINK_INPUTS] = BN_LINK_B;
@@ -75,9 +64,7 @@ static float link_predict(const bn_link_t *net, const float features[BN_INPUTS],
         a[i] = features[index_a[i]];
         b[i] = features[index_b[i]];
     }
-    /* features 0-2 and 3-5 (BN_LINK_A/B's first three) are a_A - p and a_B - p */
-    return bn_link_bias(net, b) + anchor_offset(net, id_b) + offset_range(net->tag_offset, b)
-         - bn_link_bias(net, a) - anchor_offset(net, id_a) - offset_range(net->tag_offset, a);
+    return bn_link_bias(net, b) + anchor_offset(net, id_b) - bn_link_bias(net, a) - anchor_offset(net, id_a);
 }
 
 static int trained_on(const bias_net_t *net, unsigned id)

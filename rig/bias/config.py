@@ -39,9 +39,6 @@ class TrainConfig:
     # (rig.bias.tag_offset): the correction then carries none, as no flight can tell one
     # from where the tag really is
     untranslated: bool = False
-    # with untranslated: carry the training flights' median tag offset as one explicit,
-    # bounded constant (rig.bias.tag_offset.calibrated_offset) instead of none
-    tag_offset: bool = False
 
     def __post_init__(self) -> None:
         if self.restarts < 1:
@@ -58,8 +55,6 @@ class TrainConfig:
             raise ValueError(f"the {self.form} form's features are 0..{n_in - 1}, got {self.features}")
         if self.anchor_offsets and self.form != "link":
             raise ValueError("anchor offsets belong to the link form")
-        if self.tag_offset and (self.form != "link" or not self.untranslated):
-            raise ValueError("an explicit tag offset belongs to the link form trained untranslated")
 
     @classmethod
     def with_features(cls, name: str, **kwargs) -> "TrainConfig":

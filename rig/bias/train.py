@@ -25,7 +25,7 @@ import numpy as np
 
 from rig.bias.config import ANCHOR_OFFSET_BOUND_M, TrainConfig
 from rig.bias.dataset import Samples
-from rig.bias.tag_offset import calibrated_offset, untranslated
+from rig.bias.tag_offset import untranslated
 from rig.data import paths
 from rig.estimator.bias_net import ANCHORS, BiasNet, link_features, shape
 from rig.estimator.trained_region import TrainedRegion
@@ -267,38 +267,30 @@ def fit(samples: Samples, split: Split, config: TrainConfig = TrainConfig(), exc
     involving them and the test set is exactly the test flights' measurements that do. The
     validation flights' recordings (for selecting a restart in closed loop) are read from
     `flight_dir`, by default the shared flights. With `config.untranslated`, every
-    flight's labels lose their own constant tag offset first; with `config.tag_offset`,
-    the model carries the training and validation flights' median one instead."""
+    flight's labels lose their own constant tag offset first."""
     exclude_anchors = list(exclude_anchors)
-    hit = involves(samples, exclude_anchors) if exclude_anchors else np.zeros(len(samples), bool)
-    in_flights = lambda names: np.isin(samples.flight, names)  # noqa: E731
-    validation_rows = in_flights(split.validation) & ~hit
-    test_rows = in_flights(split.test) & (hit if exclude_anchors else True)
-    offset = calibrated_offset(samples.select((in_flights(split.train) & ~hit) | validation_rows)) \
-        if config.tag_offset else None
-    raw = samples
     if config.untranslated:
         samples = untranslated(samples)
-    judged_on = raw if config.tag_offset else samples   # a model carrying the offset predicts the raw errors
+    hit = involves(samples, exclude_anchors) if exclude_anchors else np.zeros(len(samples), bool)
+    in_flights = lambda names: np.isin(samples.flight, names)  # noqa: E731
     train_set = samples.select(in_flights(split.train) & ~hit)
-    validation_set, test_set = samples.select(validation_rows), samples.select(test_rows)
+    validation_set = samples.select(in_flights(split.validation) & ~hit)
+    test_set = samples.select(in_flights(split.test) & (hit if exclude_anchors else True))
     score = None
     if config.select_by == "rmse_3d" and not exclude_anchors and config.restarts > 1:
         from rig.data.importer import load_any
 
         flight_dir = paths.data_dir() / "flights" if flight_dir is None else Path(flight_dir)
         recordings = [load_any(flight_dir / name) for name in split.validation]
-        score = lambda net: closed_loop_rmse(recordings, replace(net, tag_offset=offset))  # noqa: E731
+        score = lambda net: closed_loop_rmse(recordings, net)  # noqa: E731
     net, info = train(train_set, validation_set, config, progress, score)
-    net = replace(net, tag_offset=offset)
     # it corrects only the anchors it learnt (the C estimator leaves the others alone),
     # and says where it learnt them (`rig evaluate` reports a flight's share outside)
     net = replace(net, anchors=np.union1d(train_set.id_a, train_set.id_b).astype(int).tolist(),
                   region=TrainedRegion.from_features(train_set.features, train_set.id_a, train_set.id_b))
     report = {"split": asdict(split), "exclude_anchors": exclude_anchors, "anchors": net.anchors,
               "samples": {"train": len(train_set), "validation": len(validation_set), "test": len(test_set)},
-              "validation": residual_stats(net, judged_on.select(validation_rows)),
-              "test": residual_stats(net, judged_on.select(test_rows)),
+              "validation": residual_stats(net, validation_set), "test": residual_stats(net, test_set),
               "training": {k: v for k, v in info.items() if k != "history"}, "history": info["history"]}
     return net, report
 

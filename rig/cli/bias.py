@@ -11,7 +11,7 @@ from rig.bias.config import FEATURES_FROM, SELECT_BY, TrainConfig
 from rig.cli.common import EXIT_OK, CliError, progress, write_json
 from rig.data import paths
 from rig.data.paths import SHIPPED_BIAS_NET as DEFAULT_NETWORK
-from rig.estimator.bias_net import FORMS, BiasNet
+from rig.estimator.bias_net import FORMS
 
 
 def cmd_train(args: argparse.Namespace) -> int:
@@ -36,19 +36,15 @@ def cmd_train(args: argparse.Namespace) -> int:
     try:
         config = TrainConfig.with_features(feature_set, seed=args.seed, restarts=args.restarts,
                                            select_by=args.select_by, max_epochs=args.max_epochs,
-                                           untranslated=args.untranslated or args.tag_offset,
-                                           tag_offset=args.tag_offset)
+                                           untranslated=args.untranslated)
     except ValueError as exc:
         raise CliError(str(exc)) from exc
     anchors = [int(a) for a in args.exclude_anchors.split(",")] if args.exclude_anchors else []
-    try:
-        prov = run_training(flights, args.out, test_prefixes=args.test, all_flights=args.all_flights,
-                            exclude_anchors=anchors, config=config,
-                            dataset_cache=args.dataset_cache, command=["rig", *sys.argv[1:]],
-                            progress=progress(desc="training", total=None), features_from=args.features_from,
-                            minus_link_bias=args.minus_link_bias)
-    except ValueError as exc:   # e.g. a tag offset beyond the airframe's bound
-        raise CliError(str(exc)) from exc
+    prov = run_training(flights, args.out, test_prefixes=args.test, all_flights=args.all_flights,
+                        exclude_anchors=anchors, config=config,
+                        dataset_cache=args.dataset_cache, command=["rig", *sys.argv[1:]],
+                        progress=progress(desc="training", total=None), features_from=args.features_from,
+                        minus_link_bias=args.minus_link_bias)
     t = prov["training"]
     print(f"trained on {len(prov['split']['train'])} flights ({prov['samples']['train']} samples), "
           f"{len(t['restarts'])} restarts in {t['seconds']:.0f} s; kept restart {t['restart']} by {t['selected_by']} "
@@ -59,9 +55,6 @@ def cmd_train(args: argparse.Namespace) -> int:
             print(f"{part}: TDOA error mean {stats['before']['mean']:+.3f} -> {stats['after']['mean']:+.3f} m, "
                   f"std {stats['before']['std']:.3f} -> {stats['after']['std']:.3f} m "
                   f"(int8 {stats['after_int8']['std']:.3f} m)")
-    if config.tag_offset:
-        print("tag offset (the training flights' median): "
-              + ", ".join(f"{v:+.3f}" for v in BiasNet.load(args.out).tag_offset) + " m")
     print(f"wrote {args.out} and {provenance_path(args.out)}")
     return EXIT_OK
 
@@ -163,7 +156,4 @@ def register_train(sub) -> None:
     p.add_argument("--untranslated", action="store_true",
                    help="remove each flight's constant tag offset from its labels, so the correction carries none "
                         "(no flight can tell one from where the tag really is; how the shipped model is made)")
-    p.add_argument("--tag-offset", action="store_true",
-                   help="--untranslated, and carry the training flights' median tag offset as one explicit constant "
-                        "(bounded by the airframe; printed)")
     p.set_defaults(func=cmd_train)

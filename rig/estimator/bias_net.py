@@ -12,9 +12,7 @@ Layer l computes y = relu(W_l x + b_l) (no ReLU on the output layer); inputs are
 standardised as (x - in_mean) * in_scale (a scale of 0 keeps a feature out); the output
 in metres is out_scale * y + out_offset (the link form's offset cancels in the
 difference: 0). A link model may add each anchor's own range offset (`anchor_offset`,
-zero for an anchor it never saw): TDOA bias = g(B) + d[B] − g(A) − d[A]; and the tag's
-constant offset δ calibrated on its training flights (`tag_offset`, rig.bias.tag_offset),
-which adds (u_A − u_B)·δ (u: the unit vector from the tag to the anchor).
+zero for an anchor it never saw): TDOA bias = g(B) + d[B] − g(A) − d[A].
 
 A model knows the anchors it was trained on (`anchors`) and does not correct a
 measurement with another one: a network that tells anchors apart by their position
@@ -57,7 +55,7 @@ def _layer_dtype(n_in: int, hidden: int, lanes: int, offset: bool, anchors: int 
         ("w4", "i1", hidden),
         ("s1", "<f4", lanes), ("s2", "<f4", lanes), ("s3", "<f4", lanes), ("s4", "<f4"),
         ("b1", "<f4", lanes), ("b2", "<f4", lanes), ("b3", "<f4", lanes), ("b4", "<f4"),
-        *([("anchor_offset", "<f4", anchors), ("tag_offset", "<f4", 3)] if anchors else []),
+        *([("anchor_offset", "<f4", anchors)] if anchors else []),
     ], align=True)
 
 
@@ -93,7 +91,6 @@ class BiasNet:
     form: str = "pair"
     anchor_offset: np.ndarray | None = None   # link form: (ANCHORS,) range offset per anchor id (m)
     anchors: list[int] | None = None          # the anchor ids it was trained on (None: it corrects every one)
-    tag_offset: np.ndarray | None = None      # link form: (3,) the tag's constant offset (world, m)
     region: TrainedRegion | None = None       # where it was trained (reported by `rig evaluate`, not used onboard)
 
     def __post_init__(self) -> None:
@@ -112,14 +109,6 @@ class BiasNet:
                 raise ValueError("its anchor offsets are not all finite")
             if not np.any(self.anchor_offset):
                 self.anchor_offset = None
-        if self.tag_offset is not None:
-            self.tag_offset = np.asarray(self.tag_offset, float)
-            if self.form != "link" or self.tag_offset.shape != (3,):
-                raise ValueError("a tag offset belongs to the link form, one vector (x, y, z) in metres")
-            if not np.isfinite(self.tag_offset).all():
-                raise ValueError("its tag offset is not finite")
-            if not np.any(self.tag_offset):
-                self.tag_offset = None
 
     def _check_layers(self) -> None:
         """The form's layer shapes, and finite numbers everywhere: a diverged training or a
@@ -184,8 +173,6 @@ class BiasNet:
             bias = self.link_bias(b) - self.link_bias(a)
             if self.anchor_offset is not None:
                 bias = bias + self.offsets(id_b) - self.offsets(id_a)
-            if self.tag_offset is not None:
-                bias = bias + offset_basis(features) @ self.tag_offset
         if self.anchors is None:
             return bias
         return np.where(self.trained_on(id_a) & self.trained_on(id_b), bias, 0.0)
@@ -196,10 +183,9 @@ class BiasNet:
         for w in self.weights:
             q, scale = _quantize_rows(w)
             weights.append(q.astype(np.float64) * scale[:, None])
-        as_stored = lambda v: None if v is None else v.astype(np.float32).astype(float)  # noqa: E731
+        offsets = None if self.anchor_offset is None else self.anchor_offset.astype(np.float32).astype(float)
         return BiasNet(weights, [b.copy() for b in self.biases], self.in_mean, self.in_scale,
-                       self.out_scale, self.out_offset, self.form, as_stored(self.anchor_offset), self.anchors,
-                       as_stored(self.tag_offset), self.region)
+                       self.out_scale, self.out_offset, self.form, offsets, self.anchors, self.region)
 
     def pack(self) -> np.ndarray:
         """One NET_DTYPE record, laid out like the C bias_net_t."""
@@ -211,11 +197,8 @@ class BiasNet:
         layout["in_mean"], layout["in_scale"], layout["out_scale"] = self.in_mean, self.in_scale, self.out_scale
         if self.form == "pair":
             layout["out_offset"] = self.out_offset
-        else:
-            if self.anchor_offset is not None:
-                layout["anchor_offset"] = self.anchor_offset
-            if self.tag_offset is not None:
-                layout["tag_offset"] = self.tag_offset
+        elif self.anchor_offset is not None:
+            layout["anchor_offset"] = self.anchor_offset
         for k, (w, b) in enumerate(zip(self.weights, self.biases), start=1):
             q, scale = _quantize_rows(w)
             if k < 4:  # C stores input-major, `hidden` neurons in its lanes (padding stays zero)
@@ -236,7 +219,6 @@ class BiasNet:
             "weights": [w.tolist() for w in self.weights], "biases": [b.tolist() for b in self.biases],
             **({"anchor_offset": self.anchor_offset.tolist()} if self.anchor_offset is not None else {}),
             **({"anchors": self.anchors} if self.anchors is not None else {}),
-            **({"tag_offset": self.tag_offset.tolist()} if self.tag_offset is not None else {}),
             **({"trained_region": self.region.to_json()} if self.region is not None else {}),
         }
 
@@ -245,7 +227,7 @@ class BiasNet:
         return cls([np.array(w, float) for w in obj["weights"]], [np.array(b, float) for b in obj["biases"]],
                    np.array(obj["in_mean"], float), np.array(obj["in_scale"], float),
                    float(obj["out_scale"]), float(obj["out_offset"]), obj.get("form", "pair"),
-                   obj.get("anchor_offset"), obj.get("anchors"), obj.get("tag_offset"),
+                   obj.get("anchor_offset"), obj.get("anchors"),
                    TrainedRegion.from_json(obj["trained_region"]) if "trained_region" in obj else None)
 
     def save(self, path: Path) -> None:
@@ -261,14 +243,6 @@ class BiasNet:
             raise ModelFileError(f"{path} is not a bias model: it lacks {exc}") from exc
         except (ValueError, TypeError, AttributeError) as exc:   # JSONDecodeError is a ValueError
             raise ModelFileError(f"{path} is not a usable bias model: {exc}") from exc
-
-
-def offset_basis(features: np.ndarray) -> np.ndarray:
-    """H = u_A − u_B per row of measurement features: the TDOA's change per metre of tag
-    offset. The features' first six are anchor A's and B's positions relative to the tag."""
-    features = np.atleast_2d(features)
-    a, b = features[:, 0:3], features[:, 3:6]
-    return a / np.linalg.norm(a, axis=1, keepdims=True) - b / np.linalg.norm(b, axis=1, keepdims=True)
 
 
 def _quantize_rows(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -4,11 +4,9 @@
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
-from rig.bias.config import TrainConfig
 from rig.bias.dataset import Samples
-from rig.bias.tag_offset import calibrated_offset, offset_basis, tag_offsets, untranslated
+from rig.bias.tag_offset import offset_basis, tag_offsets, untranslated
 from rig.estimator import native
 
 ANCHORS = np.array([[-4, -4, 0.2], [-4, 4, 2.8], [4, 4, 0.2], [4, -4, 2.8], [0, -4, 2.8], [0, 4, 0.2]], float)
@@ -53,17 +51,3 @@ def test_each_flights_offset_is_found_and_removed_and_the_rest_kept() -> None:
     # what an offset cannot explain stays: the pattern is still most of the label
     assert np.corrcoef(left.label, pattern)[0, 1] > 0.8
     assert np.std(left.label - pattern) < 0.07
-
-
-def test_the_calibrated_offset_is_the_median_flights_and_bounded_by_the_airframe() -> None:
-    rng = np.random.default_rng(4)
-    typical = np.array([0.04, -0.04, 0.09])
-    offsets = [typical + rng.normal(0, 0.01, 3) for _ in range(4)] + [np.array([0.0, 0.0, -0.2])]
-    samples = Samples.concatenate([_flight(f"f{k}", o, rng, n=1500)[0] for k, o in enumerate(offsets)])
-    # the flight whose offset differs does not drag it
-    assert np.allclose(calibrated_offset(samples), typical, atol=0.02)
-    far = Samples.concatenate([_flight(f"g{k}", np.array([0.0, 0.3, 0.0]), rng, n=1500)[0] for k in range(3)])
-    with pytest.raises(ValueError, match="beyond the 0.15 m"):
-        calibrated_offset(far)
-    with pytest.raises(ValueError, match="link form trained untranslated"):
-        TrainConfig(form="link", tag_offset=True)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import subprocess
 
 import numpy as np
@@ -149,27 +148,3 @@ def test_c_and_python_inference_agree_to_float32_precision(form: str) -> None:
     # and the int8 quantisation itself stays close to the float network (RMS within 2 %)
     exact = net.predict(x, ids[:, 0], ids[:, 1])
     assert np.sqrt(np.mean((exact - py_out) ** 2)) < 0.02 * np.std(exact)
-
-
-def test_the_tag_offset_adds_what_moving_the_tag_by_it_does_to_a_tdoa_in_c_and_python() -> None:
-    """A model whose network is zero and that carries a tag offset δ predicts exactly the
-    TDOA change of a tag displaced by δ (to first order), in C and in Python."""
-    net = identity_probe_net(0, gain=0.0, form="link")
-    net.tag_offset = np.array([0.04, -0.04, 0.09])
-    rng = np.random.default_rng(3)
-    anchor_a, anchor_b = np.array([4.0, -3.0, 0.2]), np.array([-4.0, 3.5, 2.8])
-    tag = rng.uniform(-1.5, 1.5, (20, 3)) + [0, 0, 1.5]
-    features = np.zeros((20, INPUTS))
-    features[:, 0:3], features[:, 3:6] = anchor_a - tag, anchor_b - tag
-    small = 1e-4 * net.tag_offset / np.linalg.norm(net.tag_offset)
-    tdoa = lambda p: np.linalg.norm(anchor_b - p, axis=1) - np.linalg.norm(anchor_a - p, axis=1)  # noqa: E731
-    moved = (tdoa(tag + small) - tdoa(tag)) / 1e-4 * np.linalg.norm(net.tag_offset)
-    np.testing.assert_allclose(net.predict(features), moved, atol=1e-5)
-    packed = net.pack()
-    c_out = [native.predict_bias(packed, row, 0, 1) for row in features]
-    np.testing.assert_allclose(c_out, moved, atol=1e-5)
-    assert np.ptp(moved) > 0.01                 # the geometry makes it vary: not a constant
-    saved = BiasNet.from_json(json.loads(json.dumps(net.to_json())))
-    np.testing.assert_array_equal(saved.tag_offset, net.tag_offset)
-    with pytest.raises(ValueError, match="link form"):
-        BiasNet.from_json({**identity_probe_net(0).to_json(), "tag_offset": [0.1, 0.0, 0.0]})
