@@ -71,6 +71,14 @@ ACCURACY_TOLERANCE_M = 0.005
 ATYPICAL_M = 0.1          # descriptive: a flight's offset this far from the median flight's
 
 
+def delay_design(samples: Samples, rows: np.ndarray) -> np.ndarray:
+    """Per row, the TDOA's change per metre of each anchor id's range delay: +1 for B, −1 for A."""
+    design = np.zeros((len(rows), ANCHORS))
+    np.add.at(design, (np.arange(len(rows)), samples.id_b[rows]), 1.0)
+    np.add.at(design, (np.arange(len(rows)), samples.id_a[rows]), -1.0)
+    return design
+
+
 def offsets_with_delays(samples: Samples) -> dict[str, np.ndarray]:
     """Per flight, the tag offset fitted jointly with a delay per anchor (up to a common
     one): whether the flight tells the two apart."""
@@ -78,26 +86,21 @@ def offsets_with_delays(samples: Samples) -> dict[str, np.ndarray]:
     out = {}
     for name in sorted(set(samples.flight.tolist())):
         rows = np.flatnonzero(samples.flight == name)
-        delays = np.zeros((len(rows), ANCHORS))
-        np.add.at(delays, (np.arange(len(rows)), samples.id_b[rows]), 1.0)
-        np.add.at(delays, (np.arange(len(rows)), samples.id_a[rows]), -1.0)
-        design = np.hstack([basis[rows], delays[:, 1:]])
+        design = np.hstack([basis[rows], delay_design(samples, rows)[:, 1:]])
         out[name] = np.linalg.lstsq(design, samples.label[rows], rcond=None)[0][:3]
     return out
 
 
-def anchor_delays(samples: Samples) -> dict[str, list[float]]:
-    """Per flight, a range delay per anchor (m, their mean removed) fitted alone to the
+def anchor_delays(samples: Samples) -> dict[str, dict[int, float]]:
+    """Per flight, a range delay per anchor id (m, their mean removed) fitted alone to the
     TDOA errors: the other reading of what an offset explains."""
     out = {}
     for name in sorted(set(samples.flight.tolist())):
         rows = np.flatnonzero(samples.flight == name)
-        design = np.zeros((len(rows), ANCHORS))
-        np.add.at(design, (np.arange(len(rows)), samples.id_b[rows]), 1.0)
-        np.add.at(design, (np.arange(len(rows)), samples.id_a[rows]), -1.0)
+        design = delay_design(samples, rows)
         seen = np.flatnonzero(np.any(design != 0, axis=0))
         delays = np.linalg.lstsq(design[:, seen], samples.label[rows], rcond=None)[0]
-        out[name] = np.round(delays - delays.mean(), 3).tolist()
+        out[name] = {int(k): round(float(d), 3) for k, d in zip(seen, delays - delays.mean())}
     return out
 
 
@@ -295,8 +298,9 @@ def main() -> None:
     print(json.dumps({"shipped_correction_offset_m": shipped_offset(samples)}), flush=True)
     print(json.dumps({"median_offset_without_each_anchor_m": median_offset_without_each_anchor(samples)}), flush=True)
     delays = anchor_delays(samples)
-    print(json.dumps({"anchor_delays_m": delays, "median_anchor_delay_m":
-                      np.round(np.median(np.array(list(delays.values())), axis=0), 3).tolist()}), flush=True)
+    ids = sorted({k for flight in delays.values() for k in flight})
+    median = {k: round(float(np.median([f[k] for f in delays.values() if k in f])), 3) for k in ids}
+    print(json.dumps({"anchor_delays_m": delays, "median_anchor_delay_m": median}), flush=True)
     joint_offsets = offsets_with_delays(samples)
     joint = {k: np.round(v, 3).tolist() for k, v in joint_offsets.items()}
     print(json.dumps({"flight_offset_with_delays_m": joint}), flush=True)
