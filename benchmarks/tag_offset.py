@@ -52,6 +52,7 @@ import argparse
 import json
 import sys
 import time
+from dataclasses import replace
 from multiprocessing import Pool
 from pathlib import Path
 
@@ -102,6 +103,26 @@ def anchor_delays(samples: Samples) -> dict[str, dict[int, float]]:
         delays = np.linalg.lstsq(design[:, seen], samples.label[rows], rcond=None)[0]
         out[name] = {int(k): round(float(d), 3) for k, d in zip(seen, delays - delays.mean())}
     return out
+
+
+def median_delays(delays: dict[str, dict[int, float]]) -> dict[int, float]:
+    """Each anchor id's median delay over the flights."""
+    ids = sorted({k for flight in delays.values() for k in flight})
+    return {k: round(float(np.median([f[k] for f in delays.values() if k in f])), 3) for k in ids}
+
+
+def carried_delays(samples: Samples) -> dict[str, dict[int, float]]:
+    """The median flight's anchor delays in the labels without each flight's offset (what
+    the shipped model learns from) and in the shipped correction's predictions: which
+    anchors' usual delays it carries."""
+    from rig.bias.tag_offset import untranslated
+    from rig.data.paths import SHIPPED_BIAS_NET
+    from rig.estimator.bias_net import BiasNet
+
+    net = BiasNet.load(SHIPPED_BIAS_NET).quantized()
+    predicted = replace(samples, label=net.predict(samples.features, samples.id_a, samples.id_b))
+    return {"untranslated labels": median_delays(anchor_delays(untranslated(samples))),
+            "shipped correction": median_delays(anchor_delays(predicted))}
 
 
 def median_offset_without_each_anchor(samples: Samples) -> dict:
@@ -298,9 +319,8 @@ def main() -> None:
     print(json.dumps({"shipped_correction_offset_m": shipped_offset(samples)}), flush=True)
     print(json.dumps({"median_offset_without_each_anchor_m": median_offset_without_each_anchor(samples)}), flush=True)
     delays = anchor_delays(samples)
-    ids = sorted({k for flight in delays.values() for k in flight})
-    median = {k: round(float(np.median([f[k] for f in delays.values() if k in f])), 3) for k in ids}
-    print(json.dumps({"anchor_delays_m": delays, "median_anchor_delay_m": median}), flush=True)
+    print(json.dumps({"anchor_delays_m": delays, "median_anchor_delay_m": median_delays(delays)}), flush=True)
+    print(json.dumps({"median_anchor_delay_carried_m": carried_delays(samples)}), flush=True)
     joint_offsets = offsets_with_delays(samples)
     joint = {k: np.round(v, 3).tolist() for k, v in joint_offsets.items()}
     print(json.dumps({"flight_offset_with_delays_m": joint}), flush=True)
