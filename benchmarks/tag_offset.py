@@ -2,7 +2,7 @@
 bias correction should carry it.
 
     .venv/bin/python benchmarks/tag_offset.py [--seeds 0 1 2] [--json out/tag_offset.json]
-        [--no-training [--recording REC] [--diagnoses out/diagnosis]]
+        [--no-training [--recording REC] [--diagnoses out/diagnosis] [--model MODEL]]
 
 A constant offset δ of the tag's position changes every TDOA by H δ, H = u_A − u_B (u:
 the unit vector from the tag to the anchor). TDOA and IMU cannot tell it from the tag
@@ -111,18 +111,24 @@ def median_delays(delays: dict[str, dict[int, float]]) -> dict[int, float]:
     return {k: round(float(np.median([f[k] for f in delays.values() if k in f])), 3) for k in ids}
 
 
-def carried_delays(samples: Samples) -> dict[str, dict[int, float]]:
+def carried_delays(samples: Samples, other: Path | None = None) -> dict[str, dict[int, float]]:
     """The median flight's anchor delays in the labels without each flight's offset (what
-    the shipped model learns from) and in the shipped correction's predictions: which
-    anchors' usual delays it carries."""
+    the shipped model learns from) and in the shipped correction's predictions (and those
+    of the model at `other`): which anchors' usual delays a correction carries."""
     from rig.bias.tag_offset import untranslated
     from rig.data.paths import SHIPPED_BIAS_NET
     from rig.estimator.bias_net import BiasNet
 
-    net = BiasNet.load(SHIPPED_BIAS_NET).quantized()
-    predicted = replace(samples, label=net.predict(samples.features, samples.id_a, samples.id_b))
-    return {"untranslated labels": median_delays(anchor_delays(untranslated(samples))),
-            "shipped correction": median_delays(anchor_delays(predicted))}
+    def carried(path: Path) -> dict[int, float]:
+        net = BiasNet.load(path).quantized()
+        return median_delays(anchor_delays(replace(samples, label=net.predict(samples.features, samples.id_a,
+                                                                               samples.id_b))))
+
+    out = {"untranslated labels": median_delays(anchor_delays(untranslated(samples))),
+           "shipped correction": carried(SHIPPED_BIAS_NET)}
+    if other is not None:
+        out[str(other)] = carried(other)
+    return out
 
 
 def median_offset_without_each_anchor(samples: Samples) -> dict:
@@ -310,6 +316,8 @@ def main() -> None:
     parser.add_argument("--diagnoses", type=Path, help="with --no-training: compare the lever arm in these "
                         "`rig diagnose` reports (benchmarks/diagnosis.py's out/diagnosis) with each flight's "
                         "offset fitted jointly with its delays")
+    parser.add_argument("--model", type=Path, help="also the anchor delays this model's correction carries (e.g. "
+                        "the link model of 1bd6636: git show 1bd6636:rig/bias/models/bias_net.json > link.json)")
     parser.add_argument("--recording", type=Path, help="with --no-training: also this recording's offset and the "
                         "shipped correction's on it (e.g. recordings/default.mcap)")
     args = parser.parse_args()
@@ -320,7 +328,7 @@ def main() -> None:
     print(json.dumps({"median_offset_without_each_anchor_m": median_offset_without_each_anchor(samples)}), flush=True)
     delays = anchor_delays(samples)
     print(json.dumps({"anchor_delays_m": delays, "median_anchor_delay_m": median_delays(delays)}), flush=True)
-    print(json.dumps({"median_anchor_delay_carried_m": carried_delays(samples)}), flush=True)
+    print(json.dumps({"median_anchor_delay_carried_m": carried_delays(samples, args.model)}), flush=True)
     joint_offsets = offsets_with_delays(samples)
     joint = {k: np.round(v, 3).tolist() for k, v in joint_offsets.items()}
     print(json.dumps({"flight_offset_with_delays_m": joint}), flush=True)
