@@ -16,6 +16,8 @@ from __future__ import annotations
 import json
 import logging
 import time
+import zipfile
+import zlib
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
 from datetime import datetime, timezone
@@ -31,6 +33,8 @@ from rig.estimator.bias_net import ANCHORS, BiasNet, link_features, shape
 from rig.estimator.trained_region import TrainedRegion
 
 log = logging.getLogger(__name__)
+# what reading a damaged .npz or sidecar raises (a truncated archive, a bad member, garbage)
+DAMAGED_CACHE = (OSError, ValueError, KeyError, TypeError, EOFError, zipfile.BadZipFile, zlib.error)
 
 
 
@@ -310,22 +314,51 @@ def trained_on(model_path: Path) -> set[str]:
 def load_or_build_dataset(flights: list[Path], cache: Path | None, progress=None,
                           features_from: str = "estimate") -> tuple[Samples, dict]:
     """The samples of `flights`, from `cache` when it holds exactly these flights with
-    features from the same tag pose."""
+    features from the same tag pose; otherwise built, and written there."""
     from rig.bias.dataset import build_dataset
 
     names = sorted(Path(f).name for f in flights)
     meta = {"flights": names, "features_from": features_from}
-    if cache is not None and cache.exists() and cache.with_suffix(".json").exists():
-        cached = json.loads(cache.with_suffix(".json").read_text())
-        if all(cached.get(k) == v for k, v in meta.items()):
-            log.info("dataset from cache %s", cache)
-            return Samples.load(cache), cached["latency_s"]
+    cached = _cached_dataset(cache, meta) if cache is not None else None
+    if cached is not None:
+        return cached
     samples, latency = build_dataset(flights, progress=progress, features_from=features_from)
     if cache is not None:
-        cache.parent.mkdir(parents=True, exist_ok=True)
-        samples.save(cache)
-        cache.with_suffix(".json").write_text(json.dumps({**meta, "latency_s": latency}) + "\n")
+        _write_dataset(cache, samples, {**meta, "latency_s": latency})
     return samples, latency
+
+
+def _cached_dataset(cache: Path, meta: dict) -> tuple[Samples, dict] | None:
+    """The cache's samples if its sidecar (`cache` with .json) names `meta`; None when it
+    does not, or when either file is damaged (a cache is rebuilt, never an error)."""
+    sidecar = cache.with_suffix(".json")
+    if not (cache.exists() and sidecar.exists()):
+        return None
+    try:
+        cached = json.loads(sidecar.read_text())
+        if not all(cached.get(k) == v for k, v in meta.items()):
+            return None
+        samples = Samples.load(cache)
+        log.info("dataset from cache %s", cache)
+        return samples, cached["latency_s"]
+    except DAMAGED_CACHE as exc:
+        log.warning("dataset cache %s is unreadable (%s: %s): building it again", cache, type(exc).__name__, exc)
+        return None
+
+
+def _write_dataset(cache: Path, samples: Samples, meta: dict) -> None:
+    """Samples, then their sidecar, each written whole (a partial file, then a rename): an
+    interrupted write leaves no sidecar that names a damaged archive."""
+    sidecar = cache.with_suffix(".json")
+    cache.parent.mkdir(parents=True, exist_ok=True)
+    sidecar.unlink(missing_ok=True)
+    partial = cache.with_name(cache.name + ".partial")
+    with open(partial, "wb") as out:
+        samples.save(out)
+    partial.replace(cache)
+    partial = sidecar.with_name(sidecar.name + ".partial")
+    partial.write_text(json.dumps(meta) + "\n")
+    partial.replace(sidecar)
 
 
 def run_training(flights: list[Path], out: Path, *, test_prefixes: list[str] | None = None,

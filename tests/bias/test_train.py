@@ -14,7 +14,7 @@ from rigtest import ROOT, run_rig
 
 from rig.bias.config import ANCHOR_OFFSET_BOUND_M, TrainConfig
 from rig.bias.dataset import Samples, flight_samples
-from rig.bias.train import provenance_path, run_training, split_flights, train, trained_on
+from rig.bias.train import load_or_build_dataset, provenance_path, run_training, split_flights, train, trained_on
 from rig.data.recording import read_recording
 from rig.estimator import native
 from rig.estimator.bias_net import DEFAULT_NETWORK, BiasNet, link_features
@@ -313,3 +313,28 @@ def test_rig_train_untranslated_learns_labels_without_each_flights_tag_offset(tm
     assert plain["training"]["config"]["untranslated"] is False
     # the 0422 flights' offsets are 0.1-0.2 m: without them the validation labels spread less
     assert prov["validation"]["before"]["std"] < plain["validation"]["before"]["std"] - 1e-3
+
+
+def test_a_damaged_dataset_cache_is_built_again_never_an_error(tmp_path: Path, data_dir: Path,
+                                                                caplog: pytest.LogCaptureFixture) -> None:
+    flights = sorted((data_dir / "flights").glob("0422-log03"))
+    cache = tmp_path / "ds.npz"
+    samples, latency = load_or_build_dataset(flights, cache)
+    whole = cache.read_bytes()
+    damages = {"garbage": (b"garbage\n", None), "truncated": (whole[: len(whole) // 2], None),
+               "sidecar": (whole, "{\"flights\":")}
+    for name, (archive, sidecar) in damages.items():
+        cache.write_bytes(archive)
+        if sidecar is not None:
+            cache.with_suffix(".json").write_text(sidecar)
+        caplog.clear()
+        again, again_latency = load_or_build_dataset(flights, cache)
+        assert "is unreadable" in caplog.text and str(cache) in caplog.text, name
+        assert len(again) == len(samples) and again_latency == latency, name
+        np.testing.assert_array_equal(again.label, samples.label)
+        assert cache.read_bytes() != archive or sidecar is not None, "written again"
+        caplog.clear()
+        reread, _ = load_or_build_dataset(flights, cache)          # and now read from the cache
+        assert "unreadable" not in caplog.text
+        np.testing.assert_array_equal(reread.label, samples.label)
+    assert not list(tmp_path.glob("*.partial"))
