@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 from rig.cli.common import EXIT_OK, CliError, progress, strict_option, survey_option
+from rig.data.errors import read_json
 
 CHANGES_PRINTED = 12           # `rig diagnose --control`: the largest changes printed (all in report.md)
 
@@ -85,7 +86,7 @@ def cmd_combine_models(args: argparse.Namespace) -> int:
 
     try:
         effects = combine(read_models(args.models))
-        config = json.loads(args.config.read_text())
+        config = read_json(args.config)
     except (OSError, ValueError) as exc:
         raise CliError(str(exc)) from exc
     config = replace_fitted(config, effects)

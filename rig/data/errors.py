@@ -1,5 +1,11 @@
 """The exceptions that mean bad input: the CLI reports them in one line (exit 2), never
-as a traceback."""
+as a traceback; and `read_json`, whose parse errors name their file."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
 
 
 class InputError(Exception):
@@ -20,6 +26,20 @@ class RecordingError(InputError):
 
 class ModelFileError(InputError):
     """A bias-correction model file is malformed, incomplete or holds non-finite values."""
+
+
+class JsonFileError(InputError):
+    """A JSON file (a configuration, metrics, a baseline) is not valid JSON."""
+
+
+def read_json(path: Path) -> Any:
+    """The JSON value in `path`; JsonFileError naming the file when it does not parse (a
+    missing or unreadable file stays an OSError)."""
+    text = Path(path).read_text()
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise JsonFileError(f"{path} is not valid JSON: {exc}") from exc
 
 
 # What a command reports as bad input: the rig's own, and the standard library's for

@@ -10,11 +10,11 @@ nanoseconds depend on the machine and its load, so theirs is loose.
 
 from __future__ import annotations
 
-import json
 import logging
 from dataclasses import dataclass
 from pathlib import Path
 
+from rig.data.errors import read_json
 from rig.data.recording import Recording
 from rig.estimator.evaluate import estimator_config
 from rig.hil import replay, targets
@@ -88,7 +88,7 @@ def baseline_document(current: list[Figures], recording: str, start: float | Non
 
 def load_baseline(path: Path) -> dict:
     try:
-        return json.loads(path.read_text())
+        return read_json(path)
     except FileNotFoundError:
         raise FileNotFoundError(f"no baseline at {path}: run `rig bench --update-baseline` first") from None
 

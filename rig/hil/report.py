@@ -9,12 +9,12 @@ board's estimate at that time) and the histogram of window costs against the bud
 from __future__ import annotations
 
 import html
-import json
 import logging
 from pathlib import Path
 
 import numpy as np
 
+from rig.data.errors import read_json
 from rig.data.recording import TOPIC_ANCHORS
 from rig.estimator.metrics import interpolate
 from rig.hil.svgplot import COLORS, Chart, Series, histogram, render
@@ -118,7 +118,7 @@ def write_report(directory: Path, messages: dict[str, list[dict]] | None = None)
     if messages is None:
         messages = read_run(directory / RUN_FILE)
     metrics_path = directory / "metrics.json"
-    metrics = json.loads(metrics_path.read_text()) if metrics_path.exists() else {}
+    metrics = read_json(metrics_path) if metrics_path.exists() else {}
     stats = innovation_stats(messages)
     images = _plots(messages, stats)
     timing = metrics.get("timing", {})

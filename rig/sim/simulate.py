@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from rig.data.errors import read_json
 from rig.data.importer import load_any
 from rig.data.recording import PoseSeries, Recording, TdoaSeries, Vec3Series
 from rig.data.survey import Anchor, parse_survey
@@ -53,7 +54,7 @@ class SimConfig:
 
     @classmethod
     def load(cls, path: Path) -> "SimConfig":
-        data = json.loads(Path(path).read_text())
+        data = read_json(path)
         unknown = set(data) - set(cls.__dataclass_fields__)
         if unknown:
             raise ValueError(f"{path}: unknown simulation setting(s) {sorted(unknown)}")
