@@ -318,22 +318,22 @@ def test_real_time_mode_with_compact_answers_times_every_window(default_rec) -> 
 
 @pytest.mark.serial
 def test_real_time_mode_exposes_the_slow_qemu_usart_that_lock_step_hides(tmp_path: Path) -> None:
-    """QEMU's emulated UART takes about 75 us a byte: lock-step hides it (every window
-    still meets the board's budget), real time at 3x the recording's clock shows the
-    estimates falling ever further behind; --assert-deadlines fails the run, the run
-    record carries each window's latency."""
+    """QEMU's emulated UART takes one byte per turn of its main loop: lock-step hides it
+    (every window still meets the board's budget), real time at 10x the recording's clock
+    shows the estimates falling ever further behind; --assert-deadlines fails the run, the
+    run record carries each window's latency. The UART's pace depends on the host (2.7 to
+    5 ms a window measured, faster with other work beside it; at 3x a loaded CI run kept
+    up with 60 % of the windows), so the run is 10x, a 1 ms deadline."""
     out = tmp_path / "rt"
     proc = subprocess.run([*RIG, "replay", "recordings/default.mcap", "--target", "qemu-usart", "--duration", "8",
-                           "--mode", "realtime", "--speed", "3", "--assert-deadlines", "--assert-budget", "0.2",
+                           "--mode", "realtime", "--speed", "10", "--assert-deadlines", "--assert-budget", "0.2",
                            "--out", str(out)], capture_output=True, text=True, timeout=300)
     assert proc.returncode == 1, proc.stdout + proc.stderr
     assert "late windows" in proc.stderr and "budget" not in proc.stderr
     result = json.loads((out / "metrics.json").read_text())
     rt = result["realtime"]
     assert result["mode"] == "realtime" and result["timing"]["overruns"] == 0
-    # most windows late; with the link-form correction a few go unanswered at 3x (1 to 70
-    # seen on a loaded machine, not yet explained): every window is accounted for
-    assert rt["late_windows"] > rt["windows_sent"] // 2
+    assert rt["late_windows"] > rt["windows_sent"] // 2, rt
     assert result["n_estimates"] + rt["missed_windows"] == rt["windows_sent"]
     assert rt["latency_ms"]["max"] > 10 * rt["deadline_ms"]       # a backlog that grows, not jitter
     from rig.hil.runrecord import TOPIC_TIMING, read_run
