@@ -81,7 +81,8 @@ typedef enum {
 typedef enum {
     PROTO_STATUS_BOOT = 1,       /* sent once after a (re)start: the host knows a reset happened */
     PROTO_STATUS_BAD_FRAME = 2,  /* a corrupt frame was dropped */
-    PROTO_STATUS_BAD_MESSAGE = 3 /* a well-framed message with an unknown type or wrong length */
+    PROTO_STATUS_BAD_MESSAGE = 3, /* a well-framed message with an unknown type or wrong length */
+    PROTO_STATUS_RX_OVERFLOW = 4  /* the target's receive buffer was full: bytes lost before the parser */
 } proto_status_code_t;
 
 typedef enum {

@@ -66,6 +66,10 @@ def print_score(result: dict) -> None:
         print(f"real time x{rt['speed']:g}: latency p50 {lat['p50']:.1f} ms, p99 {lat['p99']:.1f} ms, max "
               f"{lat['max']:.1f} ms; late windows {rt['late_windows']} (deadline {rt['deadline_ms']:.1f} ms), "
               f"missed windows {rt['missed_windows']}")
+    lost = result.get("board_link", {})
+    if lost.get("bytes_dropped") or lost.get("frames_bad"):
+        print(f"board link: {lost['frames_bad']} corrupt frames, {lost['bytes_dropped']} bytes dropped "
+              f"({', '.join(f'{m}: {n}' for m, n in lost['reports'].items())})")
 
 
 def print_timing(timing: dict) -> None:

@@ -209,14 +209,16 @@ def replay_job(recording: Path, target: str, out: Path, estimator: EstimatorChoi
 
 
 def score_run(run, rec, model=None) -> dict:
-    """Accuracy and timing of what the board answered; a run cut short before the
-    scored segment still reports its estimates and timing, without accuracy."""
+    """Accuracy and timing of what the board answered, and what it reported of the link;
+    a run cut short before the scored segment still reports its estimates and timing,
+    without accuracy."""
     from rig.estimator.metrics import MetricsError
     from rig.hil import replay
 
     if run is None or not run.estimates:
         return {"n_estimates": 0}
     try:
-        return replay.score(run, rec, model)
+        result = replay.score(run, rec, model)
     except MetricsError as exc:
-        return {"n_estimates": len(run.estimates), "timing": replay.timing_summary(run), "score_error": str(exc)}
+        result = {"n_estimates": len(run.estimates), "timing": replay.timing_summary(run), "score_error": str(exc)}
+    return result | {"board_link": replay.board_link_summary(run.statuses)}

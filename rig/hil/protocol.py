@@ -30,7 +30,10 @@ IMU_DELTA_MAX = 8             # samples in one packed delta message (3-bit count
 TDOA_PACK_MAX = 5
 PACKED_ID_LIMIT = 16          # anchor ids that fit a nibble
 UNITS = {0: "ns", 1: "cycles", 2: "instructions"}
-STATUS_BOOT, STATUS_BAD_FRAME, STATUS_BAD_MESSAGE = 1, 2, 3
+STATUS_BOOT, STATUS_BAD_FRAME, STATUS_BAD_MESSAGE, STATUS_RX_OVERFLOW = 1, 2, 3, 4
+STATUS_MEANING = {STATUS_BOOT: "started", STATUS_BAD_FRAME: "dropped a corrupt frame",
+                  STATUS_BAD_MESSAGE: "refused a message it does not know",
+                  STATUS_RX_OVERFLOW: "lost bytes to a full receive buffer"}
 CAP_BIAS_NET, CAP_BRIEF_STEP = 0x01, 0x02      # capability bits of the hello reply
 
 

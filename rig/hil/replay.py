@@ -26,6 +26,7 @@ import contextlib
 import gc
 import logging
 import time
+from collections import Counter
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -186,8 +187,15 @@ def _note(link: BoardLink, msg, session: Session | None) -> None:
                                         f"{msg.frames_bad}, bytes dropped {msg.bytes_dropped}")
             if msg.code == protocol.STATUS_BOOT:
                 raise LinkError(f"{link.name}: the board reset during the replay (window {session.windows_sent})")
+            if msg.code == protocol.STATUS_RX_OVERFLOW and session.realtime is None:
+                # lock-step: a lost window would only time out later, so say why now
+                raise LinkError(f"{link.name}: the board {protocol.STATUS_MEANING[msg.code]} ({msg.bytes_dropped} "
+                                f"bytes dropped by window {session.windows_sent}): the link brings bytes faster "
+                                "than the board reads them (a smaller --lookahead sends less at once)")
         if msg.code != protocol.STATUS_BOOT:
-            log.warning("%s: status %d (frames ok %d, bad %d)", link.name, msg.code, msg.frames_ok, msg.frames_bad)
+            log.warning("%s: the board %s (frames ok %d, bad %d, bytes dropped %d)", link.name,
+                        protocol.STATUS_MEANING.get(msg.code, f"sent status {msg.code}"), msg.frames_ok,
+                        msg.frames_bad, msg.bytes_dropped)
     elif isinstance(msg, protocol.Ack) and msg.status != 0:
         raise LinkError(f"{link.name}: message 0x{msg.acked:02x} refused with status {msg.status}")
 
@@ -432,6 +440,15 @@ def timing_summary(session: Session) -> dict:
                             "max": float(tdoa_max.max()), "calls": int(n_tdoa.sum())},
         },
     }
+
+
+def board_link_summary(statuses: list) -> dict:
+    """What the board said of its side of the link: how often it reported each problem
+    and its totals at the last report (a board that never reported lost nothing)."""
+    last = statuses[-1] if statuses else protocol.Status(0, 0, 0, 0)
+    reports = Counter(protocol.STATUS_MEANING.get(s.code, f"status {s.code}")
+                      for s in statuses if s.code != protocol.STATUS_BOOT)
+    return {"frames_bad": last.frames_bad, "bytes_dropped": last.bytes_dropped, "reports": dict(sorted(reports.items()))}
 
 
 def score(session: Session, rec: Recording, model: BiasNet | None = None) -> dict:

@@ -18,6 +18,7 @@ from rig.data.importer import load_any
 from rig.estimator import native
 from rig.estimator.evaluate import build_events, load_model, make_estimator, start_time, truth_pose_at
 from rig.hil import protocol, replay, targets
+from rig.hil.job import score_run
 from rig.hil.links import CrtpLink, LinkError, open_url
 
 pytestmark = pytest.mark.slow        # left out of `make test-fast`
@@ -269,6 +270,37 @@ def test_a_board_that_resets_mid_replay_fails_clearly_and_keeps_the_record(defau
     assert any(r["code"] == protocol.STATUS_BOOT for r in record[TOPIC_STATUS])
 
 
+def _small_ring_firmware() -> Path:
+    """The firmware with a 16-byte receive ring: a window's bytes overflow it while the
+    board works on the window's first messages."""
+    native.make("firmware", "BUILD=build/small-ring", "FW_DEFS=-DBOARD_RX_RING=16u")
+    return native.ESTIMATOR_DIR / "build" / "small-ring" / "stm32f405" / "firmware.elf"
+
+
+def test_a_board_whose_receive_ring_overflows_says_so(default_rec) -> None:
+    """The real firmware in QEMU, its receive ring made small: with 8 windows in flight
+    (or 10x real time) bytes are lost in the USART interrupt, the board reports it (STATUS RX_OVERFLOW with its bytes dropped);
+    lock-step stops on the report with that reason instead of timing out on a lost
+    window; real time goes on, every window accounted for, and the score carries what
+    the board reported."""
+    firmware, params, model = _small_ring_firmware(), native.params_with(), load_model()
+    link = targets.open_qemu(firmware, channel="usart")
+    try:
+        with pytest.raises(LinkError, match="lost bytes to a full receive buffer") as failure:
+            replay.run(link, default_rec, params, model, duration=3.0, lookahead=8)
+    finally:
+        link.close()
+    assert failure.value.session.statuses[-1].code == protocol.STATUS_RX_OVERFLOW
+    link = targets.open_qemu(firmware, channel="usart")
+    try:
+        session = replay.run(link, default_rec, params, model, duration=3.0, speed=10)
+    finally:
+        link.close()
+    rt, lost = session.realtime.summary(), score_run(session, default_rec, model)["board_link"]
+    assert len(session.estimates) + rt["missed_windows"] == rt["windows_sent"] == 299
+    assert lost["bytes_dropped"] > 0 and lost["reports"]["lost bytes to a full receive buffer"] > 0
+
+
 @pytest.mark.serial
 def test_real_time_mode_gives_the_lock_step_estimates_and_counts_a_lost_window(default_rec) -> None:
     """Real time at 2x on the native program: every window answered in order with the
@@ -335,6 +367,7 @@ def test_real_time_mode_exposes_the_slow_qemu_usart_that_lock_step_hides(tmp_pat
     assert result["mode"] == "realtime" and result["timing"]["overruns"] == 0
     assert rt["late_windows"] > rt["windows_sent"] // 2, rt
     assert result["n_estimates"] + rt["missed_windows"] == rt["windows_sent"]
+    assert result["board_link"]["bytes_dropped"] == 0         # the backlog waits in the link, not lost
     assert rt["latency_ms"]["max"] > 10 * rt["deadline_ms"]       # a backlog that grows, not jitter
     from rig.hil.runrecord import TOPIC_TIMING, read_run
     latency = [r["latency_ms"] for r in read_run(out / "run.mcap")[TOPIC_TIMING]]

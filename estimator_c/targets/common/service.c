@@ -346,6 +346,14 @@ void service_feed(service_t *s, const uint8_t *data, size_t n)
     }
 }
 
+void service_note_lost(service_t *s, uint32_t lost_total)
+{
+    if (lost_total == s->lost_reported) return;
+    s->parser.bytes_dropped += lost_total - s->lost_reported;
+    s->lost_reported = lost_total;
+    send_status(s, PROTO_STATUS_RX_OVERFLOW);
+}
+
 void service_feed_packet(service_t *s, const uint8_t *payload, size_t n)
 {
     if (n == 0 || n > PROTO_MAX_PAYLOAD) {

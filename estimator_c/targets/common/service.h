@@ -44,6 +44,7 @@ typedef struct {
     window_timing_t worst;          /* the most expensive window not yet reported in a TIMING */
     uint8_t worst_pending;          /* 0: no window since the last TIMING (or RESET) */
     uint32_t frames_bad_reported;
+    uint32_t lost_reported;         /* the target's running total of lost bytes, last reported */
 } service_t;
 
 void service_init(service_t *s, const service_io_t *io);
@@ -51,6 +52,9 @@ void service_init(service_t *s, const service_io_t *io);
 void service_boot(service_t *s);
 /* Feed received bytes; answers are written through io.write. */
 void service_feed(service_t *s, const uint8_t *data, size_t n);
+/* The target's running total of bytes lost before the parser (a full receive buffer):
+ * each new loss is counted as dropped and the host hears of it (STATUS RX_OVERFLOW). */
+void service_note_lost(service_t *s, uint32_t lost_total);
 /* One message received as a packet (no COBS, no CRC); answers go through io.packet. */
 void service_feed_packet(service_t *s, const uint8_t *payload, size_t n);
 

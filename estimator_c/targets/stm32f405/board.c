@@ -57,6 +57,7 @@
 static struct {
     volatile uint8_t rx[BOARD_RX_RING];
     volatile uint32_t rx_head, rx_tail;   /* head: written by the IRQ; tail: by the main loop */
+    volatile uint32_t rx_lost;            /* bytes received into a full ring (IRQ) */
     volatile uint8_t tx[BOARD_TX_RING];
     volatile uint32_t tx_head, tx_tail;   /* head: main loop; tail: IRQ and kick */
     volatile uint32_t isr_ticks;          /* time spent in interrupts, not the estimator's */
@@ -187,11 +188,18 @@ void usart1_irq(void)
         if (board.rx_head - board.rx_tail < BOARD_RX_RING) {
             board.rx[board.rx_head & (BOARD_RX_RING - 1)] = byte;
             board.rx_head++;
+        } else {
+            board.rx_lost++;
         }
         sr = USART1_SR;
     }
     if (USART1_CR1 & CR1_TXEIE) tx_pump();
     board.isr_ticks += raw_clock() - start;
+}
+
+uint32_t board_rx_lost(void)
+{
+    return board.rx_lost;
 }
 
 size_t board_read(uint8_t *dst, size_t max)

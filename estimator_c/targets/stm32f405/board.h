@@ -7,7 +7,9 @@
 
 #define BOARD_CPU_HZ 168000000u
 #define BOARD_BAUD 921600u
-#define BOARD_RX_RING 1024u     /* power of two */
+#ifndef BOARD_RX_RING
+#define BOARD_RX_RING 1024u     /* power of two (a test build makes it small, to overflow it) */
+#endif
 #define BOARD_TX_RING 512u      /* power of two */
 
 void board_init(void);
@@ -29,6 +31,9 @@ void board_write(const uint8_t *data, size_t n);
  * BOARD_BULK_MAGIC and its complement into the last RAM words before reset
  * (`-device loader`): on a board without a debugger a semihosting call is a fault. */
 #define BOARD_BULK_MAGIC 0x6B6C7562u   /* "bulk" */
+/* Bytes the USART received while the receive ring was full, since boot: lost before
+ * the service saw them. */
+uint32_t board_rx_lost(void);
 int board_bulk_selected(void);
 int board_bulk_open(void);             /* 0 on success */
 size_t board_bulk_read(uint8_t *dst, size_t max);  /* blocks until at least one byte */

@@ -23,6 +23,7 @@ int main(void)
         const size_t n = bulk ? board_bulk_read(buf, sizeof buf) : board_read(buf, sizeof buf);
         if (n) {
             board_defer_tick(1);
+            if (!bulk) service_note_lost(&service, board_rx_lost());
             service_feed(&service, buf, n);
             if (bulk) board_bulk_flush();
             board_defer_tick(0);
