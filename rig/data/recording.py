@@ -358,6 +358,8 @@ def _read_topics_checked(path: Path, topics: Iterable[str] | None
     path = Path(path)
     if not path.is_file():
         raise RecordingError(f"recording {path} does not exist")
+    if path.stat().st_size == 0:
+        raise RecordingError(f"recording {path} is empty (0 bytes)")
     wanted = set(topics) if topics is not None else None
     try:
         return (*_read_whole(path, wanted), True)
@@ -365,7 +367,8 @@ def _read_topics_checked(path: Path, topics: Iterable[str] | None
         messages, metadata = _read_prefix(path, wanted)
         count = sum(map(len, messages.values()))
         if not count:
-            raise RecordingError(f"cannot read {path} as MCAP: {exc} (and no message before the damage)") from exc
+            raise RecordingError(f"cannot read {path} as MCAP: {exc or type(exc).__name__} "
+                                 "(and no message before the damage)") from exc
         log.warning("%s is unfinished or damaged: read the %d messages before its first damaged record (%s)",
                     path, count, exc)
         return messages, metadata, False

@@ -153,13 +153,17 @@ def test_a_cut_or_damaged_recording_is_read_up_to_the_damage_with_a_warning_or_r
     np.testing.assert_array_equal(salvaged.accel.xyz, original.accel.xyz[:n])   # nothing damaged decoded
 
 
-def test_a_recording_cut_before_its_first_chunk_is_a_clear_error(tmp_path: Path) -> None:
+def test_a_recording_cut_before_its_first_chunk_or_empty_is_a_clear_error(tmp_path: Path) -> None:
     data = paths.default_recording().read_bytes()
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(data[: len(data) // 2])
     proc = run_rig("evaluate", str(cut))
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     assert "cannot read" in proc.stderr and "no message before the damage" in proc.stderr
+    empty = tmp_path / "empty.mcap"
+    empty.touch()
+    proc = run_rig("evaluate", str(empty))
+    assert proc.returncode == 2 and f"recording {empty} is empty (0 bytes)" in proc.stderr
 
 
 def test_cli_reports_a_missing_file_without_traceback(tmp_path: Path) -> None:
