@@ -138,6 +138,8 @@ def write_report(directory: Path, messages: dict[str, list[dict]] | None = None)
         {"figure": "mode", "value": metrics.get("mode")},
         *([{"figure": f"real time: {k}", "value": v} for k, v in metrics["realtime"].items()]
           if metrics.get("realtime") else []),
+        *([{"figure": f"board link: {k.replace('_', ' ')}", "value": v} for k, v in metrics["board_link"].items()]
+          if metrics.get("board_link") else []),
         {"figure": "error", "value": metrics.get("error")},
     ]
     parts = ["<!doctype html><meta charset='utf-8'><title>uwb-rig run report</title>",

@@ -50,6 +50,8 @@ def test_a_short_native_replay_writes_its_metrics_record_and_report(tmp_path: Pa
     assert report.stat().st_size > 10_000
     assert f"outside where the model was trained (extrapolated)</td><td>{result['outside_trained_region']:.1%}" \
         in report.read_text()
+    assert result["board_link"] == {"frames_bad": 0, "bytes_dropped": 0, "reports": {}}     # nothing lost on a pty
+    assert "board link: bytes dropped</td><td>0" in report.read_text()
     built_in_memory = report.read_bytes()              # from what the replay held: the same as from its record
     assert write_report(tmp_path) == report and report.read_bytes() == built_in_memory
 
