@@ -215,10 +215,13 @@ def score_run(run, rec, model=None) -> dict:
     from rig.estimator.metrics import MetricsError
     from rig.hil import replay
 
-    if run is None or not run.estimates:
+    if run is None:
         return {"n_estimates": 0}
+    board_link = {"board_link": replay.board_link_summary(run.statuses)}
+    if not run.estimates:
+        return {"n_estimates": 0} | board_link
     try:
         result = replay.score(run, rec, model)
     except MetricsError as exc:
         result = {"n_estimates": len(run.estimates), "timing": replay.timing_summary(run), "score_error": str(exc)}
-    return result | {"board_link": replay.board_link_summary(run.statuses)}
+    return result | board_link

@@ -43,6 +43,9 @@ log = logging.getLogger(__name__)
 BUDGET_SECONDS = 0.010        # one 10 ms window
 CPU_HZ = 168_000_000          # STM32F405
 REPLY_TIMEOUT_S = 5.0
+CONFIG_ATTEMPTS = 3           # a configuration message the board lost bytes of is sent again
+SETTLE_S = 0.1                # after a loss, the link is quiet this long before the message goes again
+LOSS_STATUSES = (protocol.STATUS_BAD_FRAME, protocol.STATUS_RX_OVERFLOW)
 LOOKAHEAD = 0                 # strict lock-step; more windows in flight need the board RX ring (1 kB)
 FULL_EVERY = 1                # every window answered with its counters and timing
 
@@ -178,13 +181,18 @@ def _expect(link: BoardLink, kind: type, what: str, timeout: float = REPLY_TIMEO
     raise LinkError(f"{link.name}: no answer to {what} within {timeout:.0f} s (target stopped answering)")
 
 
+def _keep_status(session: Session | None, msg: protocol.Status) -> None:
+    if session is not None:
+        session.statuses.append(msg)
+        if session.recorder is not None:
+            session.recorder.status(session.t0, "board", msg.code, f"frames ok {msg.frames_ok}, bad "
+                                    f"{msg.frames_bad}, bytes dropped {msg.bytes_dropped}")
+
+
 def _note(link: BoardLink, msg, session: Session | None) -> None:
     if isinstance(msg, protocol.Status):
+        _keep_status(session, msg)
         if session is not None:
-            session.statuses.append(msg)
-            if session.recorder is not None:
-                session.recorder.status(session.t0, "board", msg.code, f"frames ok {msg.frames_ok}, bad "
-                                        f"{msg.frames_bad}, bytes dropped {msg.bytes_dropped}")
             if msg.code == protocol.STATUS_BOOT:
                 raise LinkError(f"{link.name}: the board reset during the replay (window {session.windows_sent})")
             if msg.code == protocol.STATUS_RX_OVERFLOW and session.realtime is None:
@@ -215,25 +223,58 @@ def handshake(link: BoardLink, attempts: int = 10) -> protocol.HelloReply:
     return reply
 
 
-def _acked(link: BoardLink, payloads: list[bytes], what: str) -> None:
+def _acked(link: BoardLink, payloads: list[bytes], what: str, session: Session | None = None) -> None:
+    """Send configuration messages one at a time, each acknowledged before the next. One
+    that the board reports losing bytes of is sent again (it sets a value, so twice is
+    as once), after a lone delimiter that ends whatever the board's parser holds."""
     for payload in payloads:
-        link.send([payload])
-        ack = _expect(link, protocol.Ack, what)
+        for attempt in range(CONFIG_ATTEMPTS):
+            link.send([payload], b"\x00" + protocol.frame(payload) if attempt else None)
+            ack = _ack_unless_lost(link, what, session)
+            if ack is not None:
+                break
+        else:
+            raise LinkError(f"{link.name}: {what}: the board lost bytes of the same message {CONFIG_ATTEMPTS} times")
         if ack.status != 0:
             raise LinkError(f"{link.name}: {what} refused (status {ack.status})")
 
 
+def _ack_unless_lost(link: BoardLink, what: str, session: Session | None) -> protocol.Ack | None:
+    """The board's ACK; None when it reported losing bytes (a corrupt frame, a full
+    receive buffer) before any ACK came and none came while the link settled."""
+    deadline = time.monotonic() + REPLY_TIMEOUT_S
+    while time.monotonic() < deadline:
+        msg = link.next_message(min(0.5, max(0.01, deadline - time.monotonic())))
+        if isinstance(msg, protocol.Ack):
+            return msg
+        if isinstance(msg, protocol.Status) and msg.code in LOSS_STATUSES:
+            _keep_status(session, msg)
+            log.warning("%s: the board %s during %s: sending it again", link.name,
+                        protocol.STATUS_MEANING[msg.code], what)
+            while (msg := link.next_message(SETTLE_S)) is not None:     # its other reports of the same loss
+                if isinstance(msg, protocol.Ack):
+                    return msg
+                if isinstance(msg, protocol.Status):
+                    _keep_status(session, msg)
+            return None
+        if msg is not None:
+            _note(link, msg, None)          # not a window's: a boot here is the board still starting
+    raise LinkError(f"{link.name}: no answer to {what} within {REPLY_TIMEOUT_S:.0f} s (target stopped answering)")
+
+
 def configure(link: BoardLink, rec: Recording, params: native.EstimatorParams, model: BiasNet | None,
-              hello: protocol.HelloReply) -> None:
+              hello: protocol.HelloReply, session: Session | None = None) -> None:
+    """Parameters, anchors and the bias network, each message acknowledged; the board's
+    reports of lost bytes meanwhile are kept in `session`."""
     _acked(link, [protocol.param(k, float(getattr(params, name)))
-                  for k, (name, _) in enumerate(native.EstimatorParams._fields_)], "parameters")
+                  for k, (name, _) in enumerate(native.EstimatorParams._fields_)], "parameters", session)
     anchors = [a for a in rec.anchors if 0 <= a.id < hello.max_anchors]
-    _acked(link, [protocol.anchor(a.id, a.position, a.quaternion) for a in anchors], "anchors")
+    _acked(link, [protocol.anchor(a.id, a.position, a.quaternion) for a in anchors], "anchors", session)
     if model is not None and params.use_bias_net:
         image = model.pack().tobytes()
         if len(image) != hello.net_size:
             raise LinkError(f"{link.name}: the board's network is {hello.net_size} bytes, the model {len(image)}")
-        _acked(link, protocol.net_chunks(image) + [protocol.net_commit(len(image))], "bias network")
+        _acked(link, protocol.net_chunks(image) + [protocol.net_commit(len(image))], "bias network", session)
 
 
 def run(link: BoardLink, rec: Recording, params: native.EstimatorParams, model: BiasNet | None = None,
@@ -256,9 +297,9 @@ def run(link: BoardLink, rec: Recording, params: native.EstimatorParams, model: 
         if full_every > 1 and not hello.capabilities & protocol.CAP_BRIEF_STEP:
             raise LinkError(f"{link.name}: the board does not answer brief STEPs (compact answers); "
                             "replay it with every answer full")
-        configure(link, rec, params, model, hello)
+        configure(link, rec, params, model, hello, session)
         pos, quat = truth_pose_at(rec, t0)
-        _acked(link, [protocol.reset(0, pos, quat)], "reset")
+        _acked(link, [protocol.reset(0, pos, quat)], "reset", session)
         wire = Wire(windows(build_events(rec, t0, t_end)), full_every)
         if recorder is not None:            # the record starts when the first window is ready to go
             recorder.start(rec, t0, t_end if t_end is not None else t0 + len(wire) * BUDGET_SECONDS,
