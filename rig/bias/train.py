@@ -29,6 +29,7 @@ from rig.bias.config import ANCHOR_OFFSET_BOUND_M, TrainConfig
 from rig.bias.dataset import Samples
 from rig.bias.tag_offset import untranslated
 from rig.data import paths
+from rig.data.files import write_text_whole
 from rig.estimator.bias_net import ANCHORS, BiasNet, link_features, shape
 from rig.estimator.trained_region import TrainedRegion
 
@@ -397,5 +398,5 @@ def run_training(flights: list[Path], out: Path, *, test_prefixes: list[str] | N
                   "command": command or [], "data_dir": str(Path(flights[0]).parent) if flights else "",
                   "flights": names, "ground_truth_latency_s": latency, "torch": torch.__version__,
                   "features": config.features, "features_from": features_from, **labels, **report}
-    provenance_path(out).write_text(json.dumps(provenance, indent=2) + "\n")
+    write_text_whole(provenance_path(out), json.dumps(provenance, indent=2) + "\n")
     return provenance

@@ -42,7 +42,7 @@ def write_json(path: Path | None, data: dict) -> None:
     """`data` into `path` as every command writes JSON; nothing when no path was asked for."""
     if path is None:
         return
-    from rig.hil.job import write_json as write
+    from rig.data.files import write_json as write
 
     write(path, data)
 

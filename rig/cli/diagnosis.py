@@ -10,6 +10,7 @@ from pathlib import Path
 
 from rig.cli.common import EXIT_OK, CliError, progress, strict_option, survey_option
 from rig.data.errors import read_json
+from rig.data.files import write_text_whole
 
 CHANGES_PRINTED = 12           # `rig diagnose --control`: the largest changes printed (all in report.md)
 
@@ -90,7 +91,7 @@ def cmd_combine_models(args: argparse.Namespace) -> int:
     except (OSError, ValueError) as exc:
         raise CliError(str(exc)) from exc
     config = replace_fitted(config, effects)
-    args.config.write_text(config_json(config))
+    write_text_whole(args.config, config_json(config))
     for e in config["effects"]:
         print(f"  {e['effect']:16s} {json.dumps(e['params'])}")
     print(f"wrote {len(effects)} fitted effects of {len(args.models)} flights into {args.config}")

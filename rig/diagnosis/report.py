@@ -17,6 +17,7 @@ from rig.diagnosis import (
     compare,  # noqa: E402
     imu_spectrum,  # noqa: E402
 )
+from rig.data.files import write_text_whole  # noqa: E402
 from rig.diagnosis.channels import AXES, GROSS_Z, left_out_text  # noqa: E402
 from rig.diagnosis.diagnose import Diagnosis, Finding, vibration_spread  # noqa: E402
 from rig.diagnosis.floor_error import ON_GROUND_M  # noqa: E402
@@ -108,11 +109,11 @@ def write(diagnosis: Diagnosis, out: Path, recording: str, against_control: dict
     report["recording"] = recording
     if against_control is not None:
         report["against_control"] = against_control
-    (out / REPORT_JSON).write_text(json.dumps(report, indent=2, allow_nan=False, default=_finite))
-    (out / MODEL_JSON).write_text(json.dumps({"effects": report["model"],
-                                              "vibration_rms_mps2": report["vibration_rms_mps2"]}, indent=2))
+    write_text_whole(out / REPORT_JSON, json.dumps(report, indent=2, allow_nan=False, default=_finite))
+    write_text_whole(out / MODEL_JSON, json.dumps({"effects": report["model"],
+                                                   "vibration_rms_mps2": report["vibration_rms_mps2"]}, indent=2))
     images = _plots(diagnosis, report["model"], report["mismatch"], out)
-    (out / REPORT_MD).write_text(_markdown(diagnosis, report, images))
+    write_text_whole(out / REPORT_MD, _markdown(diagnosis, report, images))
     return report
 
 

@@ -32,6 +32,7 @@ import numpy as np
 
 from rig.data import paths
 from rig.data.errors import ModelFileError
+from rig.data.files import write_text_whole
 from rig.estimator.trained_region import TrainedRegion
 
 INPUTS, HIDDEN = 14, 30               # the measurement's features; the pair form's hidden width
@@ -231,7 +232,7 @@ class BiasNet:
                    TrainedRegion.from_json(obj["trained_region"]) if "trained_region" in obj else None)
 
     def save(self, path: Path) -> None:
-        Path(path).write_text(json.dumps(self.to_json()) + "\n")
+        write_text_whole(path, json.dumps(self.to_json()) + "\n")      # a failed write keeps the old model
 
     @classmethod
     def load(cls, path: Path) -> "BiasNet":

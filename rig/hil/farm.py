@@ -10,7 +10,8 @@ from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
-from rig.hil.job import EstimatorChoice, replay_job, write_json
+from rig.data.files import write_json
+from rig.hil.job import EstimatorChoice, replay_job
 
 FARM_FILE = "farm.json"
 

@@ -7,7 +7,6 @@ metrics.json (also after a board failure, with the error) and the HTML report.
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 import os
@@ -18,6 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable
 
+from rig.data.files import write_json
 from rig.hil.links import LinkError
 
 if TYPE_CHECKING:
@@ -49,23 +49,6 @@ class JobFailed(LinkError):
     def __init__(self, message: str, result: dict):
         super().__init__(message)
         self.result = result
-
-
-def write_json(path: Path, data: dict) -> None:
-    """`data` as indented, key-sorted JSON (what every command writes), atomically: a
-    temporary file beside it, renamed over it once whole, so a reader never sees half a
-    file and a failed write (a full disk) leaves what was there. A failure names the file."""
-    text = json.dumps(data, indent=2, sort_keys=True) + "\n"
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, temporary = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as stream:
-            stream.write(text)
-        os.replace(temporary, path)
-    except OSError as exc:
-        Path(temporary).unlink(missing_ok=True)
-        raise OSError(exc.errno, f"cannot write {path}: {exc.strerror}") from exc
-    log.info("wrote %s", path)
 
 
 # Windows kept in flight ahead of the one awaited (same answers: the board takes them in

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from rig.data.errors import read_json
+from rig.data.files import write_text_whole
 from rig.data.recording import TOPIC_ANCHORS
 from rig.estimator.metrics import interpolate
 from rig.hil.svgplot import COLORS, Chart, Series, histogram, render
@@ -156,5 +157,5 @@ def write_report(directory: Path, messages: dict[str, list[dict]] | None = None)
         if key == "innovation" and stats:
             parts.append(_table(stats, ["anchor", "n", "mean", "median", "std", "mad"]))
     out = directory / REPORT_FILE
-    out.write_text("\n".join(parts))
+    write_text_whole(out, "\n".join(parts))
     return out

@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 from rigtest import RIG, alive, board_processes, exit_status, finished_mcap, run_rig, start
 
-from rig.hil.job import write_json
+from rig.data.files import write_json
 from rig.hil.runrecord import read_run
 
 
