@@ -16,7 +16,7 @@ import sys
 
 from rig.hil.links import LinkError
 from rig.hil.targets import open_target
-from rig.hil.zenoh import Bridge, open_session
+from rig.hil.zenoh import Bridge, EndpointError, check_endpoints, open_session
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -30,8 +30,9 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     faulthandler.register(signal.SIGUSR1, all_threads=True)      # `kill -USR1 PID`: where a stuck bridge is
     try:
+        check_endpoints([*args.listen, *args.connect])
         link = open_target(args.target)
-    except LinkError as exc:
+    except (EndpointError, LinkError) as exc:
         print(f"bridge: {exc}", file=sys.stderr)
         return 2
     session = None

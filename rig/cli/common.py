@@ -28,6 +28,20 @@ class BoardError(CliError):
     status = EXIT_BOARD
 
 
+def positive(kind: type):
+    """An argparse type: a number of `kind` above zero, else a one-line usage error."""
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+        if not value > 0:
+            raise argparse.ArgumentTypeError(f"must be above zero, not {text}")
+        return value
+    parse.__name__ = kind.__name__
+    return parse
+
+
 def progress(total: int | None = None, desc: str = ""):
     """A tqdm wrapper factory that stays quiet when stderr is not a terminal."""
     from tqdm import tqdm

@@ -14,6 +14,7 @@ from rig.cli.common import (
     CliError,
     add_estimator_options,
     print_accuracy,
+    positive,
     progress,
     write_json,
 )
@@ -369,14 +370,14 @@ def register(sub) -> None:
                        description="Run a zenoh router on explicit endpoints (no multicast scouting) until "
                                    "Ctrl-C: bridges, replays and watchers on other processes or hosts connect to it.")
     p.add_argument("--listen", action="append", required=True, metavar="ENDPOINT", help="e.g. tcp/0.0.0.0:7447")
-    p.add_argument("--duration", type=float, help="stop after this many seconds (default: until Ctrl-C)")
+    p.add_argument("--duration", type=positive(float), help="stop after this many seconds (default: until Ctrl-C)")
     p.set_defaults(func=cmd_router)
     p = sub.add_parser("watch", help="subscribe to boards' estimates on zenoh and count them",
                        description="Subscribe to rig/board/BOARD/estimate through a router and count what arrives; "
                                    "exit when --count estimates arrived (exit 1 if they did not within --timeout).")
     p.add_argument("--connect", action="append", required=True, metavar="ENDPOINT")
     p.add_argument("--board", default="*", help="board name or * (default)")
-    p.add_argument("--count", type=int, help="stop after this many estimates")
-    p.add_argument("--timeout", type=float, default=600.0, help="give up after this many seconds")
+    p.add_argument("--count", type=positive(int), help="stop after this many estimates")
+    p.add_argument("--timeout", type=positive(float), default=600.0, help="give up after this many seconds")
     p.add_argument("--json", type=Path, help="write the counts and the last estimate of each board")
     p.set_defaults(func=cmd_watch)

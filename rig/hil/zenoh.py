@@ -23,6 +23,7 @@ from __future__ import annotations
 import json
 import logging
 import queue
+import re
 import threading
 import time
 from collections import deque
@@ -30,6 +31,7 @@ from dataclasses import dataclass, field
 
 import zenoh
 
+from rig.data.errors import InputError
 from rig.hil import protocol
 from rig.hil.links import BoardLink, LinkError
 
@@ -58,9 +60,26 @@ def config(mode: str = "peer", listen: list[str] = (), connect: list[str] = ()) 
     return conf
 
 
+ENDPOINT = re.compile(r"[a-z][a-z0-9-]*/\S+")       # zenoh's PROTOCOL/ADDRESS[?metadata][#config]
+
+
+class EndpointError(InputError):
+    """A zenoh endpoint that is not PROTOCOL/ADDRESS."""
+
+
+def check_endpoints(endpoints: list[str]) -> None:
+    """EndpointError naming the first endpoint that is not PROTOCOL/ADDRESS (zenoh's own
+    error for it is a JSON5 parse message)."""
+    for endpoint in endpoints:
+        if not ENDPOINT.fullmatch(endpoint):
+            raise EndpointError(f"zenoh endpoint {endpoint!r} is not PROTOCOL/ADDRESS (e.g. tcp/127.0.0.1:7447)")
+
+
 def open_session(mode: str | None = None, listen: list[str] = (), connect: list[str] = ()) -> zenoh.Session:
     """A session; by default a client when it only connects (to a router: two peers that
-    reach each other only through a router do not exchange data), else a peer."""
+    reach each other only through a router do not exchange data), else a peer. A
+    malformed endpoint is bad input (EndpointError), one that cannot be reached a LinkError."""
+    check_endpoints([*listen, *connect])
     mode = mode or ("client" if connect and not listen else "peer")
     try:
         return zenoh.open(config(mode, listen, connect))

@@ -9,11 +9,13 @@ import json
 import os
 import re
 import signal
+import subprocess
+import sys
 import time
 from pathlib import Path
 
 import pytest
-from rigtest import RIG, alive, board_processes, exit_status, finished_mcap, run_rig, start
+from rigtest import RIG, ROOT, alive, board_processes, exit_status, finished_mcap, run_rig, start
 
 from rig.data.files import write_json
 from rig.hil.runrecord import read_run
@@ -54,6 +56,7 @@ def test_a_signal_mid_replay_finishes_the_record_says_how_it_ended_and_leaves_no
     (["--lookahead", "-1"], "--lookahead must be 0"),
     (["--full-answer-every", "0"], "--full-answer-every must be 1"),
     (["--start", "1e9"], "is past the end of"),
+    (["--target", "zenoh:b0", "--zenoh-connect", "nope"], "zenoh endpoint 'nope' is not PROTOCOL/ADDRESS"),
 ])
 def test_an_option_value_a_replay_cannot_use_is_refused_before_anything_starts(tmp_path: Path, option: list[str],
                                                                                rule: str) -> None:
@@ -190,3 +193,17 @@ def test_an_output_directory_that_cannot_be_written_is_refused_before_a_board_st
     with pytest.raises(InputError, match="Read-only file system"):
         job.replay_job(paths.default_recording(), "native", tmp_path / "run", job.EstimatorChoice())
     assert not started
+
+
+@pytest.mark.parametrize("command, rule", [
+    (["-m", "rig", "watch", "--connect", "nope"], "zenoh endpoint 'nope' is not PROTOCOL/ADDRESS"),
+    (["-m", "rig", "watch", "--connect", "tcp/127.0.0.1:7447", "--timeout", "-1"], "--timeout: must be above zero"),
+    (["-m", "rig", "watch", "--connect", "tcp/127.0.0.1:7447", "--count", "0"], "--count: must be above zero"),
+    (["-m", "rig", "router", "--listen", "tcp/127.0.0.1:0", "--duration", "0"], "--duration: must be above zero"),
+    (["-m", "bridge", "--target", "native", "--name", "b0", "--connect", "127.0.0.1:7447"],
+     "zenoh endpoint '127.0.0.1:7447' is not PROTOCOL/ADDRESS"),
+])
+def test_a_zenoh_command_refuses_a_malformed_endpoint_or_a_bound_below_one_in_one_line(command: list[str],
+                                                                                       rule: str) -> None:
+    proc = subprocess.run([sys.executable, *command], capture_output=True, text=True, timeout=60, cwd=ROOT)
+    assert proc.returncode == 2 and rule in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
