@@ -4,6 +4,7 @@ effects of the catalog had been present."""
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 from pathlib import Path
 
@@ -25,9 +26,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         "survey": args.survey, "imu_hz": args.imu_hz, "tdoa_hz": args.tdoa_hz,
         "uwb_mode": args.uwb_mode, "seed": args.seed,
     }
-    for key, value in overrides.items():
-        if value is not None:
-            setattr(cfg, key, str(value) if isinstance(value, Path) else value)
+    cfg = dataclasses.replace(cfg, **{key: str(value) if isinstance(value, Path) else value   # checked again
+                                      for key, value in overrides.items() if value is not None})
     if args.recording is not None and args.trajectory is None:
         cfg.trajectory = "recording"
     if cfg.trajectory != "recording" and not cfg.survey:

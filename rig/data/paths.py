@@ -35,6 +35,22 @@ def survey_for(flight: Path) -> Path:
     return beside if beside.is_file() else data_dir() / "surveys" / name
 
 
+def config_file(given: str | Path, *elsewhere: Path) -> Path:
+    """A file a configuration names: as given (from the working directory), else from the
+    project root (the shipped configurations name their files from there), else in each
+    of `elsewhere`; the path as given when none exists (reading it then says so). So a
+    configuration works from any directory."""
+    path = Path(given)
+    candidates = [path] if path.is_absolute() else [path, PROJECT_ROOT / path, *elsewhere]
+    return next((p for p in candidates if p.is_file()), path)
+
+
+def config_survey(given: str | Path) -> Path:
+    """A survey a configuration names (`config_file`), else the survey of that name in
+    the shared data (`UWB_RIG_DATA`, which may be elsewhere than the configuration said)."""
+    return config_file(given, data_dir() / "surveys" / Path(given).name)
+
+
 def default_survey() -> Path:
     return data_dir() / "surveys" / DEFAULT_SURVEY_NAME
 

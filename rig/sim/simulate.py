@@ -10,11 +10,13 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from rig.data import paths
 from rig.data.errors import read_json
 from rig.data.importer import load_any
 from rig.data.recording import PoseSeries, Recording, TdoaSeries, Vec3Series
@@ -51,6 +53,12 @@ class SimConfig:
         {"effect": "outliers", "params": {"fraction": 0.05, "mean_excess_m": 2.0}},
     ])
     resolution: dict[str, float] = field(default_factory=lambda: dict(DEFAULT_RESOLUTION))
+
+    def __post_init__(self) -> None:
+        for name in ("duration", "imu_hz", "tdoa_hz", "truth_hz"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value < math.inf:
+                raise ValueError(f"simulation setting {name} must be a finite number above zero, not {value!r}")
 
     @classmethod
     def load(cls, path: Path) -> "SimConfig":
@@ -104,7 +112,7 @@ def _trajectory_and_anchors(cfg: SimConfig) -> tuple[Trajectory, list[Anchor], d
     else:
         trajectory = parametric(cfg.trajectory, duration=cfg.duration, seed=cfg.seed, **cfg.trajectory_params)
     if cfg.survey:
-        anchors = parse_survey(Path(cfg.survey))
+        anchors = parse_survey(paths.config_survey(cfg.survey))
         meta["survey"] = str(cfg.survey)
     if not anchors:
         raise ValueError("no anchors: give a survey or a recording")

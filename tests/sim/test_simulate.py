@@ -331,10 +331,19 @@ def test_another_trajectory_than_the_configs_leaves_its_parameters_and_a_wrong_o
 
 
 @pytest.mark.slow
-def test_shipped_default_recording_regenerates_byte_identically(tmp_path: Path) -> None:
+def test_shipped_default_recording_regenerates_byte_identically_from_any_directory(tmp_path: Path) -> None:
+    """Its config names its survey and room network from the project root: they are
+    found from another working directory too."""
     out = tmp_path / "default.mcap"
-    run_rig("simulate", "--config", "recordings/default.sim.json", "-o", str(out), check=True)
+    run_rig("simulate", "--config", str(ROOT / "recordings" / "default.sim.json"), "-o", str(out), check=True,
+            cwd=tmp_path)
     assert out.read_bytes() == (ROOT / "recordings" / "default.mcap").read_bytes()
+
+
+@pytest.mark.parametrize("setting", [{"duration": -5}, {"duration": 0}, {"imu_hz": float("nan")}, {"tdoa_hz": "fast"}])
+def test_a_simulation_setting_that_is_not_a_number_above_zero_is_refused(setting: dict) -> None:
+    with pytest.raises(ValueError, match=f"{next(iter(setting))} must be a finite number above zero"):
+        SimConfig(**setting)
 
 
 @pytest.mark.slow

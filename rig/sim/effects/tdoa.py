@@ -5,11 +5,11 @@ pose-dependent bias."""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from rig.data import paths
 from rig.estimator import native
 from rig.estimator.bias_net import DEFAULT_NETWORK, BiasNet
 from rig.sim.effects.base import (
@@ -287,7 +287,7 @@ class LearnedBias(Effect):
     name, stage = "learned_bias", SIGNAL
 
     def __init__(self, gain: float = 1.0, network: str | None = None):
-        path = Path(network) if network else DEFAULT_NETWORK
+        path = paths.config_file(network) if network else DEFAULT_NETWORK
         if not path.is_file():
             raise ValueError(f"no bias network at {path} (write one with `rig train --out`)")
         self.gain, self.network, self.net = _finite(gain, "gain"), network, BiasNet.load(path)
