@@ -43,6 +43,8 @@ class TrainConfig:
     def __post_init__(self) -> None:
         if self.restarts < 1:
             raise ValueError(f"restarts must be at least 1, got {self.restarts}")
+        if self.max_epochs < 1:
+            raise ValueError(f"max_epochs must be at least 1, got {self.max_epochs}")
         if not 0 <= self.first_restart <= RESTART_STRIDE - self.restarts:
             raise ValueError(f"restarts {self.first_restart}..{self.first_restart + self.restarts - 1} "
                              f"are outside 0..{RESTART_STRIDE - 1}")

@@ -274,6 +274,9 @@ def fit(samples: Samples, split: Split, config: TrainConfig = TrainConfig(), exc
     `flight_dir`, by default the shared flights. With `config.untranslated`, every
     flight's labels lose their own constant tag offset first."""
     exclude_anchors = list(exclude_anchors)
+    absent = sorted(set(exclude_anchors) - set(samples.id_a.tolist()) - set(samples.id_b.tolist()))
+    if absent:
+        raise ValueError(f"anchor(s) {absent} to leave out are in no measurement of these flights")
     if config.untranslated:
         samples = untranslated(samples)
     hit = involves(samples, exclude_anchors) if exclude_anchors else np.zeros(len(samples), bool)

@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from rig.bias.config import FEATURES_FROM, SELECT_BY, TrainConfig
-from rig.cli.common import EXIT_OK, CliError, progress, write_json
+from rig.cli.common import EXIT_OK, CliError, anchor_ids, positive, progress, write_json
 from rig.data import paths
 from rig.data.paths import SHIPPED_BIAS_NET as DEFAULT_NETWORK
 from rig.estimator.bias_net import FORMS
@@ -39,12 +39,14 @@ def cmd_train(args: argparse.Namespace) -> int:
                                            untranslated=args.untranslated)
     except ValueError as exc:
         raise CliError(str(exc)) from exc
-    anchors = [int(a) for a in args.exclude_anchors.split(",")] if args.exclude_anchors else []
-    prov = run_training(flights, args.out, test_prefixes=args.test, all_flights=args.all_flights,
-                        exclude_anchors=anchors, config=config,
-                        dataset_cache=args.dataset_cache, command=["rig", *sys.argv[1:]],
-                        progress=progress(desc="training", total=None), features_from=args.features_from,
-                        minus_link_bias=args.minus_link_bias)
+    try:
+        prov = run_training(flights, args.out, test_prefixes=args.test, all_flights=args.all_flights,
+                            exclude_anchors=args.exclude_anchors or [], config=config,
+                            dataset_cache=args.dataset_cache, command=["rig", *sys.argv[1:]],
+                            progress=progress(desc="training", total=None), features_from=args.features_from,
+                            minus_link_bias=args.minus_link_bias)
+    except ValueError as exc:
+        raise CliError(str(exc)) from exc
     t = prov["training"]
     print(f"trained on {len(prov['split']['train'])} flights ({prov['samples']['train']} samples), "
           f"{len(t['restarts'])} restarts in {t['seconds']:.0f} s; kept restart {t['restart']} by {t['selected_by']} "
@@ -126,7 +128,7 @@ def register_train(sub) -> None:
     p.add_argument("--all-flights", action="store_true",
                    help="hold no flight out for testing: every flight but the validation ones trains (how the "
                         "shipped model is made; its transfer is measured by benchmarks/bias_validation.py)")
-    p.add_argument("--exclude-anchors", metavar="K,K", help="leave these anchors out of training; test on them "
+    p.add_argument("--exclude-anchors", type=anchor_ids, metavar="K,K", help="leave these anchors out of training; test on them "
                    "(the model leaves measurements with an anchor it was not trained on uncorrected)")
     p.add_argument("--form", choices=FORMS, default=TrainConfig().form,
                    help="link (default): one network of a tag-anchor link's 7 features, TDOA bias = g(B) - g(A); "
@@ -147,7 +149,7 @@ def register_train(sub) -> None:
                    help="choose the kept restart by the robust estimator's mean 3D RMSE replaying the validation "
                         "flights with it (default), or by the validation TDOA error (no replay; always used "
                         "with --exclude-anchors)")
-    p.add_argument("--max-epochs", type=int, default=TrainConfig().max_epochs)
+    p.add_argument("--max-epochs", type=positive(int), default=TrainConfig().max_epochs)
     p.add_argument("--out", type=Path, default=DEFAULT_NETWORK)
     p.add_argument("--dataset-cache", type=Path, help="reuse (or write) the dataset here (.npz)")
     p.add_argument("--minus-link-bias", action="store_true",

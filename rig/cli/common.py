@@ -42,6 +42,17 @@ def positive(kind: type):
     return parse
 
 
+def anchor_ids(text: str) -> list[int]:
+    """An argparse type: anchor ids as K,K (non-negative integers)."""
+    try:
+        ids = [int(k) for k in text.split(",")]
+    except ValueError:
+        ids = []
+    if not ids or min(ids) < 0:
+        raise argparse.ArgumentTypeError(f"not anchor ids K,K: {text!r}")
+    return ids
+
+
 def progress(total: int | None = None, desc: str = ""):
     """A tqdm wrapper factory that stays quiet when stderr is not a terminal."""
     from tqdm import tqdm

@@ -172,6 +172,9 @@ def cmd_bench(args: argparse.Namespace) -> int:
     from rig.hil import bench
     from rig.hil.links import LinkError
 
+    unknown = [t for t in args.targets.split(",") if t not in bench.TARGETS]
+    if unknown:
+        raise CliError(f"rig bench measures {' and '.join(bench.TARGETS)}, not {', '.join(map(repr, unknown))}")
     rec = load_any(args.recording)
     baseline = None if args.update_baseline else bench.load_baseline(args.baseline)
     start, duration = (args.start, args.duration) if baseline is None else bench.run_settings(baseline)
@@ -337,7 +340,7 @@ def register(sub) -> None:
     p.add_argument("--update-baseline", action="store_true", help="measure and write the baseline instead")
     p.add_argument("--start", type=float, help="segment start when writing a baseline (default: take-off)")
     p.add_argument("--duration", type=float, default=20.0, help="segment length when writing a baseline")
-    p.add_argument("--threshold", type=float, metavar="FRACTION", help="one threshold for every unit")
+    p.add_argument("--threshold", type=positive(float), metavar="FRACTION", help="one threshold for every unit")
     p.add_argument("--json", type=Path, default=Path("out/bench.json"), help="figures and comparison")
     p.add_argument("--program", type=Path, help="native program to measure (default: build it)")
     p.add_argument("--firmware", type=Path, help="firmware ELF to measure (default: build it)")

@@ -22,6 +22,7 @@ from rig.hil.links import Link, LinkError
 
 log = logging.getLogger(__name__)
 
+TARGETS = ("native", "qemu")          # what the bench measures
 THRESHOLDS = {"instructions": 0.05, "cycles": 0.05, "ns": 0.50}
 # Wall-clock extremes are one preemption away from anything: printed, never compared.
 UNCOMPARED = {"ns": {"window_p99", "window_max", "tdoa_update_max"}}
@@ -47,7 +48,7 @@ def open_link(target: str, binary: Path | None) -> Link:
         return targets.open_native(binary)
     if target == "qemu":
         return targets.open_qemu(binary)
-    raise LinkError(f"rig bench measures native and qemu, not {target!r}")
+    raise LinkError(f"rig bench measures {' and '.join(TARGETS)}, not {target!r}")
 
 
 def measure(target: str, rec: Recording, start: float | None, duration: float,

@@ -14,7 +14,16 @@ from rigtest import ROOT, run_rig
 
 from rig.bias.config import ANCHOR_OFFSET_BOUND_M, TrainConfig
 from rig.bias.dataset import Samples, flight_samples
-from rig.bias.train import load_or_build_dataset, provenance_path, run_training, split_flights, train, trained_on
+from rig.bias.train import (
+    Split,
+    fit,
+    load_or_build_dataset,
+    provenance_path,
+    run_training,
+    split_flights,
+    train,
+    trained_on,
+)
 from rig.data.recording import read_recording
 from rig.estimator import native
 from rig.estimator.bias_net import DEFAULT_NETWORK, BiasNet, link_features
@@ -155,6 +164,24 @@ def test_restarts_keep_the_lowest_validation_error_and_can_be_retrained_alone() 
     assert refused.returncode == 2 and "--restarts must be at least 1" in refused.stderr
 
 
+@pytest.mark.parametrize("option, rule", [
+    (["--max-epochs", "0"], "--max-epochs: must be above zero"),
+    (["--exclude-anchors", "x"], "--exclude-anchors: not anchor ids K,K: 'x'"),
+    (["--exclude-anchors", "1,-2"], "not anchor ids K,K"),
+])
+def test_rig_train_refuses_an_option_it_cannot_use_in_one_line(option: list[str], rule: str) -> None:
+    refused = run_rig("train", *option)
+    assert refused.returncode == 2 and rule in refused.stderr and "Traceback" not in refused.stderr
+    with pytest.raises(ValueError, match="max_epochs must be at least 1"):
+        TrainConfig(max_epochs=0)
+
+
+def test_leaving_out_an_anchor_no_flight_has_is_refused() -> None:
+    data = synthetic_samples(2, 200, seed=3)
+    with pytest.raises(ValueError, match=r"anchor\(s\) \[9\] to leave out are in no measurement"):
+        fit(data, Split(["sim0"], ["sim1"], []), TrainConfig(max_epochs=1), exclude_anchors=[9])
+
+
 def test_a_score_chooses_the_kept_restart() -> None:
     data = synthetic_samples(2, 1000, seed=3)
     train_set, val_set = data.select(data.flight == "sim0"), data.select(data.flight == "sim1")
@@ -180,7 +207,6 @@ def test_split_is_by_flight_and_seeded() -> None:
 def test_restarts_are_chosen_by_the_estimator_replaying_the_validation_flights(tmp_path: Path,
                                                                               data_dir: Path) -> None:
     from rig.bias.dataset import build_dataset
-    from rig.bias.train import Split, fit
     from rig.data.importer import load_any
     from rig.estimator.evaluate import evaluate
 

@@ -202,8 +202,10 @@ def test_an_output_directory_that_cannot_be_written_is_refused_before_a_board_st
     (["-m", "rig", "router", "--listen", "tcp/127.0.0.1:0", "--duration", "0"], "--duration: must be above zero"),
     (["-m", "bridge", "--target", "native", "--name", "b0", "--connect", "127.0.0.1:7447"],
      "zenoh endpoint '127.0.0.1:7447' is not PROTOCOL/ADDRESS"),
+    (["-m", "rig", "bench", "--targets", "native,nonsense"], "rig bench measures native and qemu, not 'nonsense'"),
+    (["-m", "rig", "bench", "--threshold", "-1"], "--threshold: must be above zero"),
 ])
-def test_a_zenoh_command_refuses_a_malformed_endpoint_or_a_bound_below_one_in_one_line(command: list[str],
-                                                                                       rule: str) -> None:
+def test_a_service_command_refuses_a_malformed_endpoint_target_or_bound_in_one_line(command: list[str],
+                                                                                    rule: str) -> None:
     proc = subprocess.run([sys.executable, *command], capture_output=True, text=True, timeout=60, cwd=ROOT)
     assert proc.returncode == 2 and rule in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
