@@ -79,6 +79,9 @@ def print_accuracy(result: dict) -> None:
     x, y, z = result["rmse_xyz"]
     print(f"RMSE 3D {result['rmse_3d']:.3f} m (x {x:.3f}, y {y:.3f}, z {z:.3f}); "
           f"p95 {result['p95_3d']:.3f} m, max {result['max_3d']:.3f} m over {result['n_scored']} estimates")
+    if result.get("n_not_finite"):
+        print(f"{result['n_not_finite']} of the {result['n_scored']} scored estimates are not finite numbers "
+              "(counted as an infinite error)")
     share = result.get("outside_trained_region")
     if share is not None:
         print(f"bias correction: {share:.1%} of the measurements corrected with the tag outside where the model "

@@ -101,16 +101,17 @@ def accuracy(alignment: Alignment) -> dict:
     norm = np.linalg.norm(err, axis=1)
     norm = np.where(np.isfinite(norm), norm, np.inf)
     finite = np.isfinite(norm)
+    # with an infinite error among them, a percentile is an order statistic (interpolating
+    # between two infinities is not a number)
+    method = "linear" if finite.all() else "inverted_cdf"
     return {
         "rmse_3d": _rms(norm) if finite.all() else float("inf"),
         "rmse_xyz": [_rms(err[:, i]) if finite.all() else float("inf") for i in range(3)],
-        "mean_xyz": [float(np.mean(err[:, i])) for i in range(3)],
+        "mean_xyz": [float(np.mean(err[:, i])) if finite.all() else float("nan") for i in range(3)],
         "max_3d": float(np.max(norm)),
-        "p50_3d": float(np.percentile(norm, 50)),
-        "p90_3d": float(np.percentile(norm, 90)),
-        "p95_3d": float(np.percentile(norm, 95)),
-        "p99_3d": float(np.percentile(norm, 99)),
+        **{f"p{q}_3d": float(np.percentile(norm, q, method=method)) for q in (50, 90, 95, 99)},
         "n_scored": int(len(norm)),
+        "n_not_finite": int((~finite).sum()),
         "segment_s": [float(alignment.t[0]), float(alignment.t[-1])] if len(alignment.t) else [],
     }
 

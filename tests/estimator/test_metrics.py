@@ -60,7 +60,11 @@ def test_nan_estimates_count_as_failures_not_as_zero_error() -> None:
     t = np.arange(0.0, 30.0, 0.01)
     est = np.column_stack([np.cos(t), np.sin(t), np.interp(t, truth.t, truth.position[:, 2])])
     est[1500] = np.nan
-    assert score(t, est, truth)["rmse_3d"] == float("inf")
+    result = score(t, est, truth)
+    assert result["rmse_3d"] == float("inf") and result["max_3d"] == float("inf") and result["n_not_finite"] == 1
+    assert result["p50_3d"] < 1e-3 and all(np.isfinite(result[k]) for k in ("p90_3d", "p95_3d", "p99_3d"))
+    est[:] = np.nan                                  # all of them: every percentile infinite, not NaN
+    assert score(t, est, truth)["p50_3d"] == float("inf")
 
 
 def test_no_flight_is_a_clear_error() -> None:
