@@ -47,16 +47,18 @@ class Candidate:
     neutral: float = 0.0                            # parameter value that means "no effect"
     step: float = 0.01                              # finite-difference step
     prior: float = 0.5                              # plausible size of the parameter (a weak ridge)
-    bound: float = 1.0                              # largest physical size: a fit beyond is a misfit
+    bound: float | None = None                      # largest physical size (default: the catalog's, Effect.bounds)
     nonnegative: bool = False                       # a negative value is no physical size either (a gain)
     penalty: float = PENALTY_PER_PARAMETER          # evidence each parameter must pay for
-    by_axis: bool = False                           # named on the axes that pay for themselves (see gyro_scale_candidate)
+    by_axis: bool = False                           # named on the axes that pay for themselves (gyro_scale_candidate)
     recorded_weight: np.ndarray | float = 0.0       # share of the regressor that is the recording (design_columns)
     columns: np.ndarray | None = None               # design columns (standardised), rows x size
     key: str = ""
 
     def __post_init__(self) -> None:
         self.key = self.effect + "".join(f":{v}" for v in self.fixed.values())
+        if self.bound is None:                      # a fit beyond it is a misfit
+            self.bound = fx.bound_of(self.effect, self.param)
 
     @property
     def anchors(self) -> list[int]:
@@ -105,21 +107,21 @@ def candidates(problem: Problem) -> list[Candidate]:
     """The catalog's mean effects, one per anchor where they have one."""
     out = []
     if len(problem.tdoa_rows):
-        out += [Candidate("time_offset", "tdoa", "seconds", 1, step=0.005, prior=0.2, bound=0.5),
-                Candidate("clock_drift", "tdoa", "ppm", 1, step=200.0, prior=2000.0, bound=20000.0),
-                Candidate("lever_arm", "tdoa", "offset_m", 3, prior=0.3, bound=0.5)]
+        out += [Candidate("time_offset", "tdoa", "seconds", 1, step=0.005, prior=0.2),
+                Candidate("clock_drift", "tdoa", "ppm", 1, step=200.0, prior=2000.0),
+                Candidate("lever_arm", "tdoa", "offset_m", 3, prior=0.3)]
         for k in problem.anchor_ids:
-            out += [Candidate("anchor_delay", "tdoa", "meters", 1, {"anchor": k}, bound=1.5),
-                    Candidate("anchor_position", "tdoa", "offset_m", 3, {"anchor": k}, prior=0.3, bound=1.0,
+            out += [Candidate("anchor_delay", "tdoa", "meters", 1, {"anchor": k}),
+                    Candidate("anchor_position", "tdoa", "offset_m", 3, {"anchor": k}, prior=0.3,
                               penalty=2 * PENALTY_PER_PARAMETER),     # a delay wins a tie
-                    Candidate("antenna_pattern", "tdoa", "coeffs_m", 3, {"anchor": k}, prior=0.3, bound=1.0,
+                    Candidate("antenna_pattern", "tdoa", "coeffs_m", 3, {"anchor": k}, prior=0.3,
                               penalty=3 * PENALTY_PER_PARAMETER)]    # the least specific: pays most
     if len(problem.imu_rows["accel"]):
-        out += [Candidate("imu_accel_bias", "accel", "bias_mps2", 3, prior=3.0, bound=6.0),
-                Candidate("imu_accel_scale", "accel", "scale", 3, neutral=1.0, step=1e-3, prior=0.2, bound=0.5),
-                Candidate("imu_vibration_rectification", "accel", "gain", 3, step=1.0, prior=5.0, bound=20.0)]
+        out += [Candidate("imu_accel_bias", "accel", "bias_mps2", 3, prior=3.0),
+                Candidate("imu_accel_scale", "accel", "scale", 3, neutral=1.0, step=1e-3, prior=0.2),
+                Candidate("imu_vibration_rectification", "accel", "gain", 3, step=1.0, prior=5.0)]
     if len(problem.imu_rows["gyro"]):
-        out += [Candidate("imu_gyro_bias", "gyro", "bias_rps", 3, step=1e-3, prior=0.2, bound=0.5),
+        out += [Candidate("imu_gyro_bias", "gyro", "bias_rps", 3, step=1e-3, prior=0.2),
                 gyro_scale_candidate(problem)]
     for c in out:
         c.columns = design_columns(problem, c)
@@ -149,7 +151,7 @@ def gyro_scale_candidate(problem: Problem) -> Candidate:
     are measured alike (a bias's columns are constant), and an accelerometer scale
     named on fewer axes leaves the rest to its look-alike, the bias
     (docs/notebook/diagnosis-experiments.md)."""
-    return Candidate("imu_gyro_scale", "gyro", "scale", 3, neutral=1.0, step=1e-3, prior=0.2, bound=0.5,
+    return Candidate("imu_gyro_scale", "gyro", "scale", 3, neutral=1.0, step=1e-3, prior=0.2,
                      recorded_weight=problem.truth_noise_share("gyro"), by_axis=True)
 
 

@@ -292,6 +292,26 @@ def test_a_parameter_that_is_not_a_finite_number_is_refused_by_name(effect: str,
         make_effect(effect, {param: bad})
 
 
+def test_an_effect_beyond_its_physical_bound_is_injected_with_a_warning_naming_it(tmp_path: Path) -> None:
+    """The catalog's bounds are the diagnosis's (a fit beyond one is not explained): a
+    configuration beyond one is what no real flight carries, so the rig says so, and
+    still does what it was asked (a test may want an absurd effect)."""
+    from rig.diagnosis.candidates import Candidate
+    from rig.sim import effects as fx
+
+    assert make_effect("time_offset", {"seconds": 0.4}).beyond_bound() == []
+    assert make_effect("imu_gyro_scale", {"scale": [1.4, 0.7, 1.0]}).beyond_bound() == []     # |scale − 1|
+    assert make_effect("imu_gyro_scale", {"scale": [1.6, 1.0, 1.0]}).beyond_bound() == \
+        ["scale [1.6, 1.0, 1.0] (bound 0.5)"]
+    assert make_effect("link_bias", {"coeffs_m": [0.1] * len(fx.LINK_TERMS), "gain": -1.0}).beyond_bound() == \
+        ["gain -1 (bound: not negative)"]
+    assert Candidate("anchor_delay", "tdoa", "meters", 1).bound == fx.AnchorDelay.bounds["meters"] == 1.5
+    proc = run_rig("inject", "recordings/default.mcap", "--effects",
+                   '[{"effect": "time_offset", "params": {"seconds": 1e9}}]', "-o", str(tmp_path / "far.mcap"))
+    assert proc.returncode == 0, proc.stderr
+    assert "time_offset: seconds 1000000000.0 (bound 0.5) is beyond what a real flight can carry" in proc.stderr
+
+
 def test_an_effect_on_an_anchor_the_flight_lacks_is_refused(survey_0425: Path) -> None:
     """It would change nothing: a concealed-effect check would then judge a flight that
     carries nothing injected."""

@@ -6,6 +6,7 @@ from the diagnosis) is a plain JSON list of effects."""
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Iterable
 
 from rig.sim.effects.base import (
@@ -72,8 +73,11 @@ from rig.sim.effects.link import (
 from rig.sim.effects.timing import ClockDrift, TimeOffset
 from rig.sim.effects.world import AnchorPosition, LeverArm
 
+log = logging.getLogger(__name__)
+
 __all__ = ["CORRUPTION", "FILTERED", "NOISE", "RECTIFIED", "SCALE", "SIGNAL", "TIMING", "WORLD", "EFFECTS",
-           "Effect", "ImuBatch", "TdoaBatch", "World", "Region", "make_effect", "effects_from_json", "params_by_name",
+           "Effect", "ImuBatch", "TdoaBatch", "World", "Region", "make_effect", "effects_from_json", "bound_of",
+           "params_by_name",
            "anchor_sign", "ranges", "staged", "apply_imu", "sample_rate", "vibration_level", "lowpass",
            "lowpass_design", "LOWPASS_MAX_SHARE", "resonance_design", "resonance_gain", "resonant_noise",
            "filter_noise_gain", "on_ground_weight", "pattern_basis", "viewing_angles", "link_basis", "tdoa_basis",
@@ -91,6 +95,11 @@ EFFECTS: dict[str, type[Effect]] = {
 }
 
 
+def bound_of(name: str, param: str) -> float:
+    """The physical bound of an effect's parameter (`Effect.bounds`)."""
+    return EFFECTS[name].bounds[param]
+
+
 def make_effect(name: str, params: dict | None = None) -> Effect:
     if name not in EFFECTS:
         raise ValueError(f"unknown effect {name!r}; known: {', '.join(sorted(EFFECTS))}")
@@ -104,6 +113,10 @@ def effects_from_json(items: list[dict], anchors: Iterable[int] | None = None) -
     """The effects listed as JSON; with the flight's `anchors` (ids), an effect on any
     other anchor is refused: it would change nothing, silently."""
     effects = [make_effect(item["effect"], item.get("params", {})) for item in items]
+    for effect in effects:
+        for what in effect.beyond_bound():
+            log.warning("%s: %s is beyond what a real flight can carry: simulated as asked, but the "
+                        "diagnosis would leave it unexplained", effect.name, what)
     if anchors is not None:
         known = sorted(set(anchors))
         for effect in effects:

@@ -94,9 +94,20 @@ class Effect:
 
     name: ClassVar[str] = ""
     stage: ClassVar[int] = SIGNAL
+    # The largest size each parameter can physically have, as |value − neutral| of every
+    # component: what a real flight can carry. The diagnosis reports a fit beyond it as
+    # not explained; a configuration beyond it is simulated, with a warning.
+    bounds: ClassVar[dict[str, float]] = {}
+    neutral: ClassVar[float] = 0.0
 
     def params(self) -> dict:
         return {}
+
+    def beyond_bound(self) -> list[str]:
+        """Each parameter beyond its physical bound, as 'name value (bound B)'."""
+        params = self.params()
+        return [f"{name} {params[name]} (bound {bound:g})" for name, bound in self.bounds.items()
+                if np.max(np.abs(np.asarray(params[name], float) - self.neutral)) > bound]
 
     def to_json(self) -> dict:
         return {"effect": self.name, "params": self.params()}

@@ -35,7 +35,6 @@ class _ImuVectorEffect(_Windowed, Effect):
 
     stream: ClassVar[str] = ""   # "accel" or "gyro"
     param: ClassVar[str] = ""    # the catalog's parameter name
-    neutral: ClassVar[float] = 0.0
 
     def __init__(self, during=None, **params):
         unknown = set(params) - {self.param}
@@ -76,25 +75,25 @@ class _ImuScale(_ImuVectorEffect):
 class ImuAccelScale(_ImuScale):
     """Accelerometer scale factors."""
 
-    name, stream = "imu_accel_scale", "accel"
+    name, stream, bounds = "imu_accel_scale", "accel", {"scale": 0.5}
 
 
 class ImuGyroScale(_ImuScale):
     """Gyroscope scale factors."""
 
-    name, stream = "imu_gyro_scale", "gyro"
+    name, stream, bounds = "imu_gyro_scale", "gyro", {"scale": 0.5}
 
 
 class ImuAccelBias(_ImuConstantBias):
     """Accelerometer bias (m/s²)."""
 
-    name, stream, param = "imu_accel_bias", "accel", "bias_mps2"
+    name, stream, param, bounds = "imu_accel_bias", "accel", "bias_mps2", {"bias_mps2": 6.0}
 
 
 class ImuGyroBias(_ImuConstantBias):
     """Gyroscope bias (rad/s)."""
 
-    name, stream, param = "imu_gyro_bias", "gyro", "bias_rps"
+    name, stream, param, bounds = "imu_gyro_bias", "gyro", "bias_rps", {"bias_rps": 0.5}
 
 
 def sample_rate(t: np.ndarray) -> float:
@@ -153,6 +152,7 @@ class ImuVibrationRectification(_ImuVectorEffect):
     speed) and is absent with the motors off: a bias that comes and goes in flight."""
 
     name, stream, param, stage = "imu_vibration_rectification", "accel", "gain", RECTIFIED
+    bounds = {"gain": 20.0}
 
     def apply_imu(self, imu: ImuBatch, rng: np.random.Generator | None) -> None:
         level = imu.vibration if imu.vibration is not None else vibration_level(imu.t, imu.accel)

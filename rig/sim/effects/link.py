@@ -101,6 +101,13 @@ class LinkBias(Effect):
     def params(self) -> dict:
         return {"coeffs_m": self.coeffs.tolist(), "gain": self.gain}
 
+    def beyond_bound(self) -> list[str]:
+        """Each term's size (gain × coefficient) is at most LINK_BOUND_M, and the gain
+        does not turn the pattern inside out (it is not negative)."""
+        size = float(np.max(np.abs(self.gain * self.coeffs))) if len(self.coeffs) else 0.0
+        return ([f"gain × coeffs_m up to {size:g} m (bound {LINK_BOUND_M:g})"] if size > LINK_BOUND_M else []) + \
+            ([f"gain {self.gain:g} (bound: not negative)"] if self.gain < 0 else [])
+
     def link_values(self, tag_position: np.ndarray, tag_rotation: Rotation, anchor_position: np.ndarray,
                     anchor_rotation: np.ndarray) -> np.ndarray:
         """β of n links (metres)."""

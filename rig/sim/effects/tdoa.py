@@ -79,7 +79,7 @@ class AnchorDelay(_Windowed, Effect):
     delay that changes for part of the flight (TDOA sees delays only relative to each
     other, so "no delay outside the window" is rarely what a diagnosis can say)."""
 
-    name, stage = "anchor_delay", SIGNAL
+    name, stage, bounds = "anchor_delay", SIGNAL, {"meters": 1.5}
 
     def __init__(self, anchor: int = 0, meters: float = 0.0, during=None, outside_m: float = 0.0):
         self.anchor, self.meters = _anchor_id(anchor), _finite(meters, "meters")
@@ -108,7 +108,7 @@ class AntennaPattern(_Windowed, Effect):
     doughnut-shaped radiation pattern, paper Section II.B): `coeffs_m` weigh
     `pattern_basis` of the tag's azimuth and elevation in the anchor's frame."""
 
-    name, stage = "antenna_pattern", SIGNAL
+    name, stage, bounds = "antenna_pattern", SIGNAL, {"coeffs_m": 1.0}
 
     def __init__(self, anchor: int = 0, coeffs_m=(0.0, 0.0, 0.0), during=None):
         self.anchor, self.coeffs = _anchor_id(anchor), _vec3(coeffs_m, "coeffs_m")
@@ -179,7 +179,7 @@ class Nlos(_Windowed, Effect):
     """Non-line-of-sight to `anchor` while the tag is inside `region`: a `fraction` of
     those ranges gets a positive excess delay, exponential with mean `mean_excess_m`."""
 
-    name, stage = "nlos", NOISE
+    name, stage, bounds = "nlos", NOISE, {"mean_excess_m": 1.0}
 
     def __init__(self, anchor: int = 0, fraction: float = 1.0, mean_excess_m: float = 0.0, region=None,
                  during=None):

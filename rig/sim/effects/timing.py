@@ -19,7 +19,7 @@ class _UwbClock(Effect):
 class TimeOffset(_UwbClock):
     """UWB timestamps are late by `seconds` relative to the IMU and ground-truth clock."""
 
-    name = "time_offset"
+    name, bounds = "time_offset", {"seconds": 0.5}
 
     def __init__(self, seconds: float = 0.0):
         self.seconds = _finite(seconds, "seconds")
@@ -35,7 +35,7 @@ class ClockDrift(_UwbClock):
     """The UWB timestamps run fast by `ppm` relative to the IMU clock (zero at t = 0 of
     the recording's clock)."""
 
-    name = "clock_drift"
+    name, bounds = "clock_drift", {"ppm": 20000.0}
 
     def __init__(self, ppm: float = 0.0):
         self.ppm = _finite(ppm, "ppm")

@@ -8,7 +8,7 @@ from rig.sim.effects.base import WORLD, Effect, World, _anchor_id, _vec3
 class AnchorPosition(Effect):
     """The anchor's antenna is really at surveyed + `offset_m` (true minus surveyed)."""
 
-    name, stage = "anchor_position", WORLD
+    name, stage, bounds = "anchor_position", WORLD, {"offset_m": 1.0}
 
     def __init__(self, anchor: int = 0, offset_m=(0.0, 0.0, 0.0)):
         self.anchor, self.offset = _anchor_id(anchor), _vec3(offset_m, "offset_m")
@@ -24,7 +24,7 @@ class AnchorPosition(Effect):
 class LeverArm(Effect):
     """The UWB antenna sits at `offset_m` from the body origin (body frame)."""
 
-    name, stage = "lever_arm", WORLD
+    name, stage, bounds = "lever_arm", WORLD, {"offset_m": 0.5}
 
     def __init__(self, offset_m=(0.0, 0.0, 0.0)):
         self.offset = _vec3(offset_m, "offset_m")
