@@ -269,6 +269,9 @@ def configure(link: BoardLink, rec: Recording, params: native.EstimatorParams, m
     _acked(link, [protocol.param(k, float(getattr(params, name)))
                   for k, (name, _) in enumerate(native.EstimatorParams._fields_)], "parameters", session)
     anchors = [a for a in rec.anchors if 0 <= a.id < hello.max_anchors]
+    for a in rec.anchors:
+        if a not in anchors:        # as the in-process estimator says (evaluate.make_estimator)
+            log.warning("anchor id %d is outside the board's range 0..%d; ignored", a.id, hello.max_anchors - 1)
     _acked(link, [protocol.anchor(a.id, a.position, a.quaternion) for a in anchors], "anchors", session)
     if model is not None and params.use_bias_net:
         image = model.pack().tobytes()

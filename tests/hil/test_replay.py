@@ -3,7 +3,9 @@ and the STM32F405 firmware in QEMU, against the in-process library."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
+import logging
 import os
 import signal
 import subprocess
@@ -268,6 +270,20 @@ def test_a_board_that_resets_mid_replay_fails_clearly_and_keeps_the_record(defau
     received = failure.value.session.estimates
     assert 200 < len(received) < 300 and len(record[TOPIC_ESTIMATE]) == len(received)
     assert any(r["code"] == protocol.STATUS_BOOT for r in record[TOPIC_STATUS])
+
+
+def test_an_anchor_id_beyond_the_estimators_range_is_ignored_with_a_warning(default_rec, caplog) -> None:
+    """In process and on a board alike: the anchor is not set, the rig says so, the
+    replay goes on with the others."""
+    rec = dataclasses.replace(default_rec, anchors=[*default_rec.anchors,
+                                                    dataclasses.replace(default_rec.anchors[0], id=20)])
+    params = native.params_with(use_bias_net=0)
+    with caplog.at_level(logging.WARNING):
+        make_estimator(rec, params, None)
+        session = run_target(targets.open_native(), rec, params, None, duration=1.0)
+    assert "anchor id 20 is outside the estimator's range 0..15; ignored" in caplog.text
+    assert "anchor id 20 is outside the board's range 0..15; ignored" in caplog.text
+    assert len(session.estimates) == 100
 
 
 def test_a_configuration_message_the_board_lost_bytes_of_is_sent_again(default_rec) -> None:
