@@ -18,18 +18,6 @@ benchmarks/tag_offset.py decided it by its own rule. The page also shows offset 
 (session 60): that form carrying its training flights' median tag offset as one
 constant, not kept and removed (tag experiment/tag-offset-constant runs it).
 
-Session 62's experiment, its rule fixed here before its first run: huber, the
-untranslated form trained on the Huber loss instead of the squared error (quadratic
-within 1.345 robust standard deviations of the training labels' pair-centred spread,
-linear beyond; `TrainConfig.loss`). The labels are heavy-tailed (NLOS, multipath up to
-the 1 m cut), and the squared error lets those samples pull the network. Let accuracy
-be the mean over the four day and mode splits of the mean 3D RMSE over seeds, and
-flights worse the sum over those splits of the mean over seeds of the flights the
-correction makes worse, both against the untranslated rows of the same run. Huber
-replaces the shipped recipe only if (1) neither is higher than the untranslated
-form's, and (2) accuracy is lower by at least 0.005 m or flights worse by at least
-1.0. `--verdict` prints it from --json. The within-0426 rows decide nothing.
-
 The protocol is fixed here, before any result is looked at:
 - splits, by flight (samples 20 ms apart are not independent):
   - day-0426: trained on 0422 + 0425, tested on every 0426 flight (a new day, with
@@ -117,12 +105,11 @@ CACHE = ROOT / "out" / "cache" / "all.npz"
 TDOA3 = [f"0425-traj{k}" for k in range(13, 24)] + ["0426-traj5", "0426-traj6"]
 WITHIN_0426_FOLDS = {"a": ["0426-traj1", "0426-traj4", "0426-traj5", "0426-traj8"],
                      "b": ["0426-traj2", "0426-traj3", "0426-traj6", "0426-traj7"]}
-FORMS = {"link": "7", "shared": "shared", "pair": "14", "untranslated": "7", "huber": "7"}   # form -> feature set
+FORMS = {"link": "7", "shared": "shared", "pair": "14", "untranslated": "7"}   # form -> rig train's feature set
 # the link form trained on labels without each flight's constant tag offset (`rig train
 # --untranslated`): not a form of its own, so it does not take part in choose_form;
 # benchmarks/tag_offset.py decided it by its own rule
-UNTRANSLATED = ("untranslated", "huber")
-HUBER = ("huber",)        # the untranslated form trained on the Huber loss (session 62's experiment)
+UNTRANSLATED = ("untranslated",)
 # rows of forms tried and removed, kept in the JSON and on the page (session 60's
 # "offset": tag experiment/tag-offset-constant runs it); not ranked either
 NOT_RANKED = (*UNTRANSLATED, "offset")
@@ -213,8 +200,7 @@ def clamped_correction(net, samples: Samples, trained: Samples) -> tuple[np.ndar
 
 def form_config(form: str, **kwargs) -> TrainConfig:
     """The training configuration of a form of this page."""
-    return TrainConfig.with_features(FORMS[form], untranslated=form in UNTRANSLATED,
-                                     loss="huber" if form in HUBER else "mse", **kwargs)
+    return TrainConfig.with_features(FORMS[form], untranslated=form in UNTRANSLATED, **kwargs)
 
 
 def flight_split_samples(split_name: str, seed: int) -> tuple[Samples, Split]:
@@ -372,12 +358,7 @@ def main() -> None:
                         help="the notebook page written from the results")
     parser.add_argument("--from-json", action="store_true", help="write the page from --json, training nothing")
     parser.add_argument("--fresh", action="store_true", help="drop the rows already in --json")
-    parser.add_argument("--verdict", action="store_true",
-                        help="print session 62's verdict on the huber form from --json, training nothing")
     args = parser.parse_args()
-    if args.verdict:
-        print(json.dumps(huber_verdict(json.loads(args.json.read_text())["rows"]), indent=1))
-        return
     if args.from_json:
         write_doc(json.loads(args.json.read_text())["rows"], args.doc)
         return
@@ -442,31 +423,6 @@ def choose_form(rows: list[dict]) -> dict:
         if table[candidate]["accuracy_m"] <= table[best]["accuracy_m"] + ACCURACY_TOLERANCE_M:
             ship = candidate
     return {"forms": table, "ship": ship, "anchor_check_met": table[ship]["passes_anchor_check"]}
-
-
-HUBER_ACCURACY_GAIN_M = 0.005
-HUBER_FLIGHTS_GAIN = 1.0
-
-
-def huber_verdict(rows: list[dict]) -> dict:
-    """Session 62's rule (module docstring): the huber form against the untranslated
-    form on the four day and mode splits."""
-    figures = {}
-    for form in ("untranslated", "huber"):
-        by_split = {e["split"]: e for e in summary([r for r in rows if r["form"] == form
-                                                    and r["split"] in FLIGHT_SPLITS])}
-        if set(by_split) != set(FLIGHT_SPLITS):
-            return {"verdict": None, "missing": f"{form} lacks splits {sorted(set(FLIGHT_SPLITS) - set(by_split))}"}
-        figures[form] = {"accuracy_m": float(np.mean([e["mean_rmse_3d"]["mean"] for e in by_split.values()])),
-                         "flights_worse": float(sum(e["worse_flights"]["mean"] for e in by_split.values())),
-                         "by_split": {k: {"mean_rmse_3d": e["mean_rmse_3d"], "worse_flights": e["worse_flights"]}
-                                      for k, e in sorted(by_split.items())}}
-    u, h = figures["untranslated"], figures["huber"]
-    no_worse = h["accuracy_m"] <= u["accuracy_m"] and h["flights_worse"] <= u["flights_worse"]
-    gains = (h["accuracy_m"] <= u["accuracy_m"] - HUBER_ACCURACY_GAIN_M
-             or h["flights_worse"] <= u["flights_worse"] - HUBER_FLIGHTS_GAIN)
-    return {"verdict": "kept" if no_worse and gains else "not kept", "no_worse": no_worse, "gains": gains,
-            **figures}
 
 
 def row_key(row: dict) -> tuple:

@@ -14,8 +14,6 @@ RESTART_STRIDE = 1000
 # (closed loop), or the validation TDOA error (no replay; also used with excluded anchors,
 # whose measurements the validation flights' replays would correct).
 SELECT_BY = ("rmse_3d", "mse")
-LOSSES = ("mse", "huber")
-HUBER_K = 1.345      # Huber's constant for 95 % efficiency on Gaussian errors
 
 
 @dataclass
@@ -41,9 +39,6 @@ class TrainConfig:
     # (rig.bias.tag_offset): the correction then carries none, as no flight can tell one
     # from where the tag really is
     untranslated: bool = False
-    # the training loss: "mse" (the paper's), or "huber" (quadratic within HUBER_K robust
-    # standard deviations of the training labels' pair-centred spread, linear beyond)
-    loss: str = LOSSES[0]
 
     def __post_init__(self) -> None:
         if self.restarts < 1:
@@ -53,8 +48,6 @@ class TrainConfig:
         if not 0 <= self.first_restart <= RESTART_STRIDE - self.restarts:
             raise ValueError(f"restarts {self.first_restart}..{self.first_restart + self.restarts - 1} "
                              f"are outside 0..{RESTART_STRIDE - 1}")
-        if self.loss not in LOSSES:
-            raise ValueError(f"loss must be one of {LOSSES}, got {self.loss!r}")
         if self.select_by not in SELECT_BY:
             raise ValueError(f"select_by must be one of {SELECT_BY}, got {self.select_by!r}")
         if self.form not in FORMS:

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rig.bias.config import ANCHOR_OFFSET_BOUND_M, HUBER_K, TrainConfig
+from rig.bias.config import ANCHOR_OFFSET_BOUND_M, TrainConfig
 from rig.bias.dataset import Samples
 from rig.bias.tag_offset import untranslated
 from rig.data import paths
@@ -182,12 +182,11 @@ def train(train_set: Samples, validation_set: Samples, config: TrainConfig = Tra
         return torch.tensor(x, dtype=torch.float32), torch.tensor(y[:, None], dtype=torch.float32)
 
     data = (*tensors(train_set), *tensors(validation_set))
-    huber = huber_delta_m(train_set) / out_scale if config.loss == "huber" else None
     seen = np.unique(np.concatenate([train_set.id_a, train_set.id_b]).astype(int))
     tic = time.perf_counter()
     runs = []
     for restart in range(config.first_restart, config.first_restart + config.restarts):
-        model, run = _train_once(torch, data, config, restart, progress, huber)
+        model, run = _train_once(torch, data, config, restart, progress)
         net = _to_bias_net(model, in_mean, in_scale, out_scale, out_offset, config.form, seen)
         if score is not None:
             run["validation_rmse_3d"] = score(net)
@@ -210,29 +209,15 @@ def closed_loop_rmse(recordings: list, net: BiasNet) -> float:
     return float(np.mean([r["rmse_3d"] for r in results]))
 
 
-def huber_delta_m(samples: Samples) -> float:
-    """Where the Huber loss turns linear: HUBER_K robust standard deviations (1.4826
-    median absolute deviations) of the labels, each pair's median removed, so that the
-    spread is the error a network of the pose could still fit, not the pairs' constants."""
-    pair = samples.id_a.astype(int) * 256 + samples.id_b.astype(int)
-    centred = samples.label.astype(float).copy()
-    for p in np.unique(pair):
-        hit = pair == p
-        centred[hit] -= np.median(centred[hit])
-    return HUBER_K * 1.4826 * float(np.median(np.abs(centred)))
-
-
-def _train_once(torch, data: tuple, config: TrainConfig, restart: int, progress=None,
-                huber: float | None = None) -> tuple:
-    """One training run from the initialisation `config.init_seed(restart)`; with `huber`
-    (in standardised label units), on the Huber loss, validation included."""
+def _train_once(torch, data: tuple, config: TrainConfig, restart: int, progress=None) -> tuple:
+    """One training run from the initialisation `config.init_seed(restart)`."""
     xt, yt, xv, yv = data
     init_seed = config.init_seed(restart)
     torch.manual_seed(init_seed)
     rng = np.random.default_rng(init_seed)
     model = _model(torch, config)
     optimiser = torch.optim.Adam(model.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay)
-    loss_fn = torch.nn.MSELoss() if huber is None else torch.nn.HuberLoss(delta=huber)
+    loss_fn = torch.nn.MSELoss()
     best, best_state, best_epoch, history = np.inf, None, -1, []
     epochs = range(config.max_epochs)
     for epoch in progress(epochs) if progress else epochs:
