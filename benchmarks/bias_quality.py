@@ -26,7 +26,7 @@ sys.path.insert(0, str(ROOT))
 from bias_ablation import CACHES, OUT, TEST_DAY  # noqa: E402  - ablation (d): its network, test day, dataset
 
 from rig.bias.dataset import known_pairs, measurement_features, truth_latency  # noqa: E402
-from rig.bias.train import load_or_build_dataset  # noqa: E402
+from rig.bias.train import import_torch, load_or_build_dataset  # noqa: E402
 from rig.data import paths  # noqa: E402
 from rig.data.importer import load_any  # noqa: E402
 from rig.estimator.bias_net import BiasNet  # noqa: E402
@@ -39,9 +39,7 @@ DROPPED = (0.1, 0.2, 0.3)
 
 def quality_network(features: np.ndarray, residual: np.ndarray, seed: int = 0, epochs: int = 6):
     """log-variance of the residual as a function of the features (seeded, CPU)."""
-    import torch
-
-    torch.set_num_threads(1)
+    torch = import_torch()
     torch.manual_seed(seed)
     mean, scale = features.mean(0), features.std(0) + 1e-6
     x = torch.tensor(((features - mean) / scale).astype(np.float32))

@@ -8,13 +8,16 @@ initialisations; the one kept is the one with which the robust estimator tracks 
 validation flights best (lowest mean 3D RMSE, replayed in closed loop): on the shared
 flights the end-to-end result varies by 0.01-0.02 m from one initialisation to the
 next, and the validation TDOA error ranks them poorly (docs/notebook/bias.md). Seeded: the same
-data and seed give the same network.
+data and seed give the same network, on any x86-64 machine (`import_torch` pins the
+kernels of torch's BLAS, which otherwise follow the CPU).
 """
 
 from __future__ import annotations
 
 import json
 import logging
+import os
+import sys
 import time
 import zipfile
 import zlib
@@ -70,10 +73,25 @@ def error_stats(residual: np.ndarray) -> dict:
             "rmse": float(np.sqrt(np.mean(residual ** 2))), "n": int(len(residual))}
 
 
-def _torch():
+# MKL, torch's BLAS on x86-64, picks its kernels by CPU (SSE2 ... AVX-512) and the
+# training's path parts with them: one split and seed gave 0.191, 0.198 and 0.197 m
+# under three of its branches (docs/notebook/bias.md). Its reproducibility branch
+# COMPATIBLE runs on every x86-64 CPU, so a training repeats from machine to machine.
+# MKL_CBWR set beforehand (e.g. AVX512, to repeat a figure made with that branch) wins.
+MKL_BRANCH = "COMPATIBLE"
+
+
+def import_torch():
+    """torch, for training: one thread (fastest for these small networks, and its sums
+    in one order) and MKL on a fixed code branch."""
+    if "torch" not in sys.modules:
+        os.environ.setdefault("MKL_CBWR", MKL_BRANCH)
+    elif "MKL_CBWR" not in os.environ:
+        log.warning("torch was imported before the training pinned MKL's code branch: "
+                    "the training may not repeat on another machine (set MKL_CBWR=%s)", MKL_BRANCH)
     import torch
 
-    torch.set_num_threads(1)  # fastest for this small network on this machine
+    torch.set_num_threads(1)
     return torch
 
 
@@ -167,7 +185,7 @@ def train(train_set: Samples, validation_set: Samples, config: TrainConfig = Tra
     """Fit `config.restarts` networks from different initialisations and keep the one with the
     lowest `score` (default: the validation error); returns it with its training history and
     every restart's result."""
-    torch = _torch()
+    torch = import_torch()
     in_mean, in_scale = _standardisation(train_set, config)
     # a difference of link biases has no offset of its own
     out_offset = float(train_set.label.mean()) if config.form == "pair" else 0.0
@@ -376,8 +394,7 @@ def run_training(flights: list[Path], out: Path, *, test_prefixes: list[str] | N
     error (the simulator's `learned_bias` beside `link_bias`); a restart is then chosen
     by its validation TDOA error, since a correction of a part of the error is not
     scored in closed loop."""
-    import torch
-
+    torch = import_torch()
     samples, latency = load_or_build_dataset(flights, dataset_cache, progress, features_from)
     labels = {}
     if minus_link_bias:
@@ -400,6 +417,7 @@ def run_training(flights: list[Path], out: Path, *, test_prefixes: list[str] | N
     provenance = {"model": out.name, "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
                   "command": command or [], "data_dir": str(Path(flights[0]).parent) if flights else "",
                   "flights": names, "ground_truth_latency_s": latency, "torch": torch.__version__,
+                  "mkl_cbwr": os.environ.get("MKL_CBWR"),
                   "features": config.features, "features_from": features_from, **labels, **report}
     write_text_whole(provenance_path(out), json.dumps(provenance, indent=2) + "\n")
     return provenance
