@@ -231,7 +231,8 @@ def test_restarts_are_chosen_by_the_estimator_replaying_the_validation_flights(t
 # A fresh training's validation error against the recorded one's (m). A retraining
 # follows the CPU's float arithmetic (its SIMD paths) through every epoch: on an
 # AMX/AVX-512 Xeon the room network's read 0.2097 against the recorded 0.2066, of a
-# correction from 0.299.
+# correction from 0.299. The shipped models predate the pinned MKL branch
+# (rig.bias.train.import_torch); one trained on it repeats on any x86-64 machine.
 RETRAINED_STD = 0.01
 
 
@@ -339,6 +340,23 @@ def test_rig_train_untranslated_learns_labels_without_each_flights_tag_offset(tm
     assert plain["training"]["config"]["untranslated"] is False
     # the 0422 flights' offsets are 0.1-0.2 m: without them the validation labels spread less
     assert prov["validation"]["before"]["std"] < plain["validation"]["before"]["std"] - 1e-3
+
+
+def test_training_runs_on_a_pinned_mkl_branch_and_says_which(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """MKL's kernels follow the CPU unless pinned, and a training's path follows them:
+    `rig train` pins them (COMPATIBLE, any x86-64 CPU) unless MKL_CBWR names a branch,
+    records which in the provenance, and the same command gives the same network."""
+    monkeypatch.delenv("MKL_CBWR", raising=False)
+    args = ("train", "--flights", "0422", "--restarts", "1", "--max-epochs", "2",
+            "--dataset-cache", str(tmp_path / "samples.npz"))
+    for name in ("first", "again"):
+        run_rig(*args, "--out", str(tmp_path / f"{name}.json"), check=True)
+    monkeypatch.setenv("MKL_CBWR", "AVX2")
+    run_rig(*args, "--out", str(tmp_path / "avx2.json"), check=True)
+    branch = {name: json.loads(provenance_path(tmp_path / f"{name}.json").read_text())["mkl_cbwr"]
+              for name in ("first", "again", "avx2")}
+    assert branch == {"first": "COMPATIBLE", "again": "COMPATIBLE", "avx2": "AVX2"}
+    assert (tmp_path / "first.json").read_bytes() == (tmp_path / "again.json").read_bytes()
 
 
 def test_a_damaged_dataset_cache_is_built_again_never_an_error(tmp_path: Path, data_dir: Path,
