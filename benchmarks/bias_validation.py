@@ -56,6 +56,9 @@ The protocol is fixed here, before any result is looked at:
   flights; three initialisations each, the one kept chosen by the robust estimator's
   mean 3D RMSE on the validation flights (the shipped recipe, `rig train`);
 - seeds 0, 1 and 2 (each its own cut and initialisations);
+- since session 62, training on one MKL code branch (COMPATIBLE unless MKL_CBWR names
+  another; each row says which, `mkl_cbwr`), so that a figure repeats on any x86-64
+  machine; rows without it were made on their machine's own branch;
 - metrics: on the test flights, the robust estimator's 3D RMSE with and without the
   correction (mean, and how many flights the correction makes worse), and the TDOA
   error's standard deviation on the test samples before and after the correction
@@ -98,7 +101,7 @@ sys.path.insert(0, str(ROOT))
 
 from rig.bias.config import TrainConfig  # noqa: E402
 from rig.bias.dataset import Samples  # noqa: E402
-from rig.bias.train import Split, fit, involves, load_or_build_dataset, split_flights  # noqa: E402
+from rig.bias.train import MKL_BRANCH, Split, fit, involves, load_or_build_dataset, split_flights  # noqa: E402
 from rig.data import paths  # noqa: E402
 from rig.estimator.bias_net import link_features  # noqa: E402
 from rig.estimator.trained_region import outside_share  # noqa: E402
@@ -366,6 +369,8 @@ def main() -> None:
         write_doc(json.loads(args.json.read_text())["rows"], args.doc)
         return
     cached_samples()         # built once, before the workers read it
+    # the workers train on this MKL branch (rig.bias.train.import_torch), said in every row
+    os.environ.setdefault("MKL_CBWR", MKL_BRANCH)
     jobs = []
     for split_name in args.splits:
         for form in args.forms:
@@ -384,7 +389,7 @@ def main() -> None:
     with Pool(args.workers) as pool:
         pending = [pool.apply_async(fn, (job,)) for fn, job in jobs]
         for p in pending:
-            row = p.get()
+            row = {**p.get(), "mkl_cbwr": os.environ["MKL_CBWR"]}
             rows = [r for r in rows if row_key(r) != row_key(row)] + [row]
             brief = {k: row[k] for k in ("split", "form", "seed", "mean_rmse_3d", "mean_rmse_3d_without",
                                          "worse_flights", "anchor", "sector", "fold") if k in row}
