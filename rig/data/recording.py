@@ -16,6 +16,7 @@ from typing import Callable, Iterable, Iterator
 
 import numpy as np
 from mcap.reader import make_reader
+from mcap.exceptions import EndOfFile
 from mcap.records import Channel, Message, Metadata
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, IndexType, Writer
@@ -364,13 +365,13 @@ def _read_topics_checked(path: Path, topics: Iterable[str] | None
     try:
         return (*_read_whole(path, wanted), True)
     except Exception as exc:  # the mcap reader raises many types for damaged files
-        messages, metadata = _read_prefix(path, wanted)
+        messages, metadata, stop = _read_prefix(path, wanted)
         count = sum(map(len, messages.values()))
         if not count:
-            raise RecordingError(f"cannot read {path} as MCAP: {exc or type(exc).__name__} "
+            raise RecordingError(f"cannot read {path} as MCAP: {stop or exc or type(exc).__name__} "
                                  "(and no message before the damage)") from exc
         log.warning("%s is unfinished or damaged: read the %d messages before its first damaged record (%s)",
-                    path, count, exc)
+                    path, count, stop or exc)
         return messages, metadata, False
 
 
@@ -384,12 +385,15 @@ def _read_whole(path: Path, wanted: set[str] | None) -> tuple[dict[str, list[dic
     return messages, metadata
 
 
-def _read_prefix(path: Path, wanted: set[str] | None) -> tuple[dict[str, list[dict]], dict[str, dict[str, str]]]:
+def _read_prefix(path: Path, wanted: set[str] | None
+                 ) -> tuple[dict[str, list[dict]], dict[str, dict[str, str]], str]:
     """The records of `path` in file order up to the first one that is cut short or
-    fails its CRC (chunks are checked, so nothing damaged is decoded)."""
+    fails its CRC (chunks are checked, so nothing damaged is decoded), and what stopped
+    the read there ("" if nothing did)."""
     messages: dict[str, list[dict]] = {}
     metadata: dict[str, dict[str, str]] = {}
     topic_of: dict[int, str] = {}
+    stop = ""
     with open(path, "rb") as stream:
         try:
             for record in StreamReader(stream, validate_crcs=True).records:
@@ -399,9 +403,12 @@ def _read_prefix(path: Path, wanted: set[str] | None) -> tuple[dict[str, list[di
                     messages.setdefault(topic_of[record.channel_id], []).append(json.loads(record.data))
                 elif isinstance(record, Metadata):
                     metadata[record.name] = dict(record.metadata)
+        except EndOfFile:
+            stop = f"it ends inside a record, at byte {stream.tell()}: cut short?"
         except Exception as exc:  # the damaged record: what came before it stands
-            log.debug("%s: stopped at %s", path, exc)
-    return messages, metadata
+            stop = f"{exc or type(exc).__name__}"
+        log.debug("%s: stopped: %s", path, stop)
+    return messages, metadata, stop
 
 
 def read_recording(path: Path) -> Recording:
