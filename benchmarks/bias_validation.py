@@ -1,24 +1,28 @@
 """Honest validation of the bias correction: does it transfer to flights, days, modes,
-anchors and places it was not trained on? Regenerates docs/notebook/bias-validation.md.
+anchors and places it was not trained on? Regenerates docs/notebook/bias-validation.md
+and the table of estimates in docs/bias.md (every split and form: 71 min on two cores).
 
     .venv/bin/python benchmarks/bias_validation.py [--forms link shared pair] [--seeds 0 1 2]
         [--splits day-0426 day-0425 mode-tdoa3 mode-tdoa2 within-0426 anchors region sector]
-        [--json out/bias_validation.json]
-        [--fresh]
+        [--json docs/notebook/bias-validation.json] [--doc PAGE]
+        [--fresh] [--from-json]
 
 Rows are merged into --json by split, form, seed and anchor (a run of one form keeps the
-others' rows); --fresh starts from none.
+others' rows); --fresh starts from none. The JSON is kept beside the page, so that
+`--from-json` rewrites both pages from it without training (a test checks they agree),
+and every row says the MKL branch it was trained on (`mkl_cbwr`). A run into another
+JSON (an experiment) writes its page beside that JSON and leaves docs/ alone.
 
 Forms (rig train --features): link, the link form's 7 features; shared, the link form on
 the features every anchor shares, with a bounded range offset per anchor; pair, the
 paper's 14-feature network. Also untranslated (session 59): the link form on labels
 without each flight's constant tag offset (`rig train --untranslated`), as the shipped
 model is trained; reported on every split but not ranked among the forms, since
-benchmarks/tag_offset.py decided it by its own rule. The page also shows offset rows
-(session 60): that form carrying its training flights' median tag offset as one
-constant, not kept and removed (tag experiment/tag-offset-constant runs it), and
-huber rows (session 62): the untranslated form trained on the Huber loss, not kept by
-its rule and removed (tag experiment/huber-loss runs it; docs/notebook/bias.md).
+benchmarks/tag_offset.py decided it by its own rule. Forms tried and removed are not
+run here; their figures are in docs/notebook/bias.md and their tags run them into this
+JSON (not ranked either): offset (session 60, experiment/tag-offset-constant), the form
+carrying its training flights' median tag offset as one constant, and huber (session 62,
+experiment/huber-loss), the untranslated form trained on the Huber loss.
 
 The protocol is fixed here, before any result is looked at:
 - splits, by flight (samples 20 ms apart are not independent):
@@ -106,21 +110,25 @@ from rig.data import paths  # noqa: E402
 from rig.estimator.bias_net import link_features  # noqa: E402
 from rig.estimator.trained_region import outside_share  # noqa: E402
 
+from bias_validation_results import (  # noqa: E402
+    ENTRY_PAGE,
+    FLIGHT_SPLITS,
+    PAGE,
+    REGION_Z,
+    RESULTS,
+    SECTORS,
+    SHIPPED,
+    WITHIN_0426_FOLDS,
+    choose_form,
+    row_key,
+    summary,
+    write_doc,
+    write_estimates,
+)
+
 CACHE = ROOT / "out" / "cache" / "all.npz"
 TDOA3 = [f"0425-traj{k}" for k in range(13, 24)] + ["0426-traj5", "0426-traj6"]
-WITHIN_0426_FOLDS = {"a": ["0426-traj1", "0426-traj4", "0426-traj5", "0426-traj8"],
-                     "b": ["0426-traj2", "0426-traj3", "0426-traj6", "0426-traj7"]}
-FORMS = {"link": "7", "shared": "shared", "pair": "14", "untranslated": "7"}   # form -> rig train's feature set
-# the link form trained on labels without each flight's constant tag offset (`rig train
-# --untranslated`): not a form of its own, so it does not take part in choose_form;
-# benchmarks/tag_offset.py decided it by its own rule
-UNTRANSLATED = ("untranslated",)
-# rows of forms tried and removed, kept in the JSON and on the page (session 60's
-# "offset": tag experiment/tag-offset-constant runs it; session 62's "huber": tag
-# experiment/huber-loss); not ranked either
-NOT_RANKED = (*UNTRANSLATED, "offset", "huber")
-REGION_Z = (1.3, 1.7)            # the training band of the region split (tag height, m)
-SECTORS = 4                      # the sector split's quarters of the circle
+FORMS = {"link": "7", "shared": "shared", "pair": "14", SHIPPED: "7"}   # form -> rig train's feature set
 VALIDATION_SHARE = 0.15
 
 
@@ -206,7 +214,7 @@ def clamped_correction(net, samples: Samples, trained: Samples) -> tuple[np.ndar
 
 def form_config(form: str, **kwargs) -> TrainConfig:
     """The training configuration of a form of this page."""
-    return TrainConfig.with_features(FORMS[form], untranslated=form in UNTRANSLATED, **kwargs)
+    return TrainConfig.with_features(FORMS[form], untranslated=form == SHIPPED, **kwargs)
 
 
 def flight_split_samples(split_name: str, seed: int) -> tuple[Samples, Split]:
@@ -301,72 +309,26 @@ def bearing_sector(position: np.ndarray) -> np.ndarray:
     return np.minimum(((bearing + np.pi) / (2 * np.pi) * SECTORS).astype(int), SECTORS - 1)
 
 
-def merge_folds(rows: list[dict]) -> list[dict]:
-    """A split run in folds (within-0426) as one row per form and seed, over the test
-    flights of all its folds; a seed whose folds are not all run is left out."""
-    merged, whole = [], [r for r in rows if "fold" not in r]
-    for key in sorted({(r["split"], r["form"], r["seed"]) for r in rows if "fold" in r}):
-        folds = sorted((r for r in rows if "fold" in r and (r["split"], r["form"], r["seed"]) == key),
-                       key=lambda r: r["fold"])
-        if {r["fold"] for r in folds} != set(WITHIN_0426_FOLDS):
-            continue
-        flights = [f for r in folds for f in r["flights"]]
-        rmse = np.array([f["rmse_3d"] for f in flights])
-        without = np.array([f["rmse_3d_without"] for f in flights])
-        merged.append({"split": key[0], "form": key[1], "seed": key[2], "test": [t for r in folds for t in r["test"]],
-                       "flights": flights, "mean_rmse_3d": float(rmse.mean()),
-                       "mean_rmse_3d_without": float(without.mean()), "worse_flights": int(np.sum(rmse > without)),
-                       "tdoa": pooled_spread([r["tdoa"] for r in folds])})
-    return whole + merged
-
-
-def pooled_spread(parts: list[dict]) -> dict:
-    """The TDOA error spread before and after over the samples of several test sets."""
-    n = np.array([p["n"] for p in parts], float)
-    out = {"n": int(n.sum())}
-    for when in ("before", "after"):
-        mean = np.array([p[f"mean_{when}"] for p in parts])
-        second = np.array([p[f"std_{when}"] ** 2 for p in parts]) + mean ** 2
-        grand = float(n @ mean / n.sum())
-        out[f"std_{when}"] = float(np.sqrt(n @ second / n.sum() - grand ** 2))
-        out[f"mean_{when}"] = grand
-    return out
-
-
-def summary(rows: list[dict]) -> list[dict]:
-    """Per split and form: mean and min–max over seeds."""
-    rows = merge_folds(rows)
-    out = []
-    for key in sorted({(r["split"], r["form"]) for r in rows}):
-        group = [r for r in rows if (r["split"], r["form"]) == key]
-        entry = {"split": key[0], "form": key[1], "runs": len(group)}
-        for name in ("mean_rmse_3d", "mean_rmse_3d_without", "worse_flights"):
-            if name in group[0]:
-                values = [r[name] for r in group]
-                entry[name] = {"mean": float(np.mean(values)), "min": float(min(values)), "max": float(max(values))}
-        after = [r["tdoa"]["std_after"] for r in group]
-        before = [r["tdoa"]["std_before"] for r in group]
-        entry["tdoa_std"] = {"before": float(np.mean(before)), "after_mean": float(np.mean(after)),
-                             "after_min": float(min(after)), "after_max": float(max(after))}
-        out.append(entry)
-    return out
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--forms", nargs="+", choices=list(FORMS), default=list(FORMS))
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
-    parser.add_argument("--splits", nargs="+", default=["day-0426", "day-0425", "mode-tdoa3", "mode-tdoa2",
-                                                         "anchors", "region", "sector"])
-    parser.add_argument("--json", type=Path, default=ROOT / "out" / "bias_validation.json")
+    parser.add_argument("--splits", nargs="+", default=[*FLIGHT_SPLITS, "within-0426", "anchors", "region", "sector"])
+    parser.add_argument("--json", type=Path, default=RESULTS)
     parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--doc", type=Path, default=ROOT / "docs" / "notebook" / "bias-validation.md",
-                        help="the notebook page written from the results")
+    parser.add_argument("--doc", type=Path, default=None,
+                        help="the notebook page written from the results (default: the notebook's, for the kept "
+                             "results; else beside --json)")
     parser.add_argument("--from-json", action="store_true", help="write the page from --json, training nothing")
     parser.add_argument("--fresh", action="store_true", help="drop the rows already in --json")
     args = parser.parse_args()
+    # only the kept results write the notebook page and docs/bias.md's table; a run into
+    # another JSON (an experiment, a tag) writes its page beside it
+    kept = args.json.resolve() == RESULTS.resolve()
+    args.doc = args.doc or (PAGE if kept else args.json.with_suffix(".md"))
+    entry = ENTRY_PAGE if kept else None
     if args.from_json:
-        write_doc(json.loads(args.json.read_text())["rows"], args.doc)
+        write_pages(json.loads(args.json.read_text())["rows"], args.doc, entry)
         return
     cached_samples()         # built once, before the workers read it
     # the workers train on this MKL branch (rig.bias.train.import_torch), said in every row
@@ -399,215 +361,15 @@ def main() -> None:
     for entry in summary(rows):
         print(json.dumps(entry))
     print(json.dumps(choose_form(rows)))
-    write_doc(rows, args.doc)
+    write_pages(rows, args.doc, entry)
 
 
-FLIGHT_SPLITS = ("day-0426", "day-0425", "mode-tdoa3", "mode-tdoa2")
-ACCURACY_TOLERANCE_M = 0.01
-
-
-def choose_form(rows: list[dict]) -> dict:
-    """The protocol's choice (module docstring): each form's accuracy (the mean over the
-    four day and mode splits of its mean 3D RMSE over seeds), whether it passes the
-    anchor check (no unseen anchor's spread widened), and the form to ship."""
-    forms = {}
-    for entry in summary([r for r in rows if r["split"] in FLIGHT_SPLITS and r["form"] not in NOT_RANKED]):
-        forms.setdefault(entry["form"], {})[entry["split"]] = entry["mean_rmse_3d"]["mean"]
-    table = {}
-    for form, by_split in forms.items():
-        if set(by_split) != set(FLIGHT_SPLITS):
-            continue
-        anchors = [r["tdoa"] for r in rows if r["split"] == "anchors" and r["form"] == form]
-        widened = sum(t["std_after"] > t["std_before"] for t in anchors)
-        table[form] = {"accuracy_m": float(np.mean(list(by_split.values()))), "anchors_run": len(anchors),
-                       "anchors_widened": int(widened), "passes_anchor_check": len(anchors) == 8 and widened == 0}
-    if not table:
-        return {"forms": {}, "ship": None}
-    best = min(table, key=lambda f: table[f]["accuracy_m"])
-    passing = [f for f in table if table[f]["passes_anchor_check"]]
-    ship = best
-    if passing:
-        candidate = min(passing, key=lambda f: table[f]["accuracy_m"])
-        if table[candidate]["accuracy_m"] <= table[best]["accuracy_m"] + ACCURACY_TOLERANCE_M:
-            ship = candidate
-    return {"forms": table, "ship": ship, "anchor_check_met": table[ship]["passes_anchor_check"]}
-
-
-def row_key(row: dict) -> tuple:
-    return row["split"], row["form"], row.get("seed"), row.get("anchor"), row.get("sector"), row.get("fold")
-
-
-SPLIT_WORDS = {"day-0426": "trained on 0422 + 0425, tested on the 0426 flights",
-               "day-0425": "trained on 0426 + 0422, tested on the 0425 flights",
-               "mode-tdoa3": "trained on TDOA2 flights, tested on the TDOA3 flights",
-               "mode-tdoa2": "trained on TDOA3 flights, tested on the TDOA2 flights",
-               "within-0426": "trained on every other flight, 0426 flights among them, tested on 0426 flights (two folds)",
-               "anchors": "each anchor left out of training, tested on its pairs in the test flights",
-               "region": f"trained with the tag {REGION_Z[0]}–{REGION_Z[1]} m high, tested above and below",
-               "sector": "each quarter of the circle left out of training, tested there"}
-
-
-def _anchor_cell(row: dict) -> str:
-    """A row of session 52 or before corrected the unseen anchor: its figure is the
-    extrapolation, and how the model runs now was not measured on it."""
-    t, extrapolated = row["tdoa"], row.get("tdoa_extrapolated")
-    if extrapolated is None:
-        return f"{t['std_before']:.3f} → not run / {t['std_after']:.3f} m"
-    return f"{t['std_before']:.3f} → {t['std_after']:.3f} / {extrapolated['std_after']:.3f} m"
-
-
-def write_doc(rows: list[dict], doc: Path) -> None:
-    """The notebook page: the protocol (this module's docstring) and every figure."""
-    lines = ["# Bias correction: validation by transfer", "",
-             "Regenerated by `.venv/bin/python benchmarks/bias_validation.py` (writes "
-             "`out/bias_validation.json`; `--from-json` rewrites this page from it).", "",
-             "## Protocol", "", __doc__.split("The protocol is fixed here, before any result is looked at:\n")[1].strip(), "",
-             "## Closed loop: the robust estimator's 3D RMSE on the test flights", "",
-             "| split | form | with correction: mean (min–max over seeds) | without | flights worse, of | TDOA std before → after |",
-             "|---|---|---|---|---|---|"]
-    flight_rows = merge_folds([r for r in rows if "mean_rmse_3d" in r])
-    for entry in summary(flight_rows):
-        n_test = len(next(r for r in flight_rows if (r["split"], r["form"]) == (entry["split"], entry["form"]))["test"])
-        m, w, worse, s = entry["mean_rmse_3d"], entry["mean_rmse_3d_without"], entry["worse_flights"], entry["tdoa_std"]
-        lines.append(f"| {SPLIT_WORDS[entry['split']]} | {entry['form']} | {m['mean']:.3f} m ({m['min']:.3f}–{m['max']:.3f}) "
-                     f"| {w['mean']:.3f} m | {worse['mean']:.1f} (max {worse['max']:.0f}) of {n_test} "
-                     f"| {s['before']:.3f} → {s['after_mean']:.3f} m ({s['after_min']:.3f}–{s['after_max']:.3f}) |")
-    lines += ["", "Per seed:", "", "| split | form | seed | with | without | worse |", "|---|---|---|---|---|---|"]
-    for r in sorted(flight_rows, key=lambda r: (r["split"], r["form"], r["seed"])):
-        lines.append(f"| {r['split']} | {r['form']} | {r['seed']} | {r['mean_rmse_3d']:.3f} | "
-                     f"{r['mean_rmse_3d_without']:.3f} | {r['worse_flights']} |")
-    lines += per_flight_lines([r for r in flight_rows if r["split"] == "within-0426"])
-    anchors = [r for r in rows if r["split"] == "anchors"]
-    if anchors:
-        lines += ["", "## Leave-anchor-out: TDOA error spread on the unseen anchor's pairs", "",
-                  "Before → as the model runs (it does not correct an anchor it was not trained on) / "
-                  "if the network extrapolated to it.", "",
-                  "| anchor | " + " | ".join(f"{f}: before → as run / extrapolated" for f in sorted({r['form'] for r in anchors}))
-                  + " |", "|---|" + "---|" * len({r["form"] for r in anchors})]
-        for k in sorted({r["anchor"] for r in anchors}):
-            cells = []
-            for form in sorted({r["form"] for r in anchors}):
-                hit = [r for r in anchors if r["anchor"] == k and r["form"] == form]
-                cells.append(_anchor_cell(hit[0]) if hit else "")
-            lines.append(f"| {k} | " + " | ".join(cells) + " |")
-    choice = choose_form(rows)
-    if choice["forms"]:
-        lines += ["", "## The choice, by the rule fixed above", "",
-                  "| form | accuracy: mean over the day and mode splits | unseen anchors widened | anchor check |",
-                  "|---|---|---|---|"]
-        for form, c in sorted(choice["forms"].items(), key=lambda kv: kv[1]["accuracy_m"]):
-            lines.append(f"| {form} | {c['accuracy_m']:.3f} m | {c['anchors_widened']} of {c['anchors_run']} "
-                         f"| {'passes' if c['passes_anchor_check'] else 'fails'} |")
-        lines += ["", f"Shipped: **{choice['ship']}**, trained on labels without each flight's constant tag offset "
-                  "(the untranslated rows; benchmarks/tag_offset.py)" + ("" if choice["anchor_check_met"] else
-                  " — the most accurate form; no form within "
-                  f"{ACCURACY_TOLERANCE_M:.2f} m of it passes the anchor check, which stays failing.")]
-    region = [r for r in rows if r["split"] == "region"]
-    planned = {("anchors", form, k) for form in {r["form"] for r in rows} for k in range(8)}
-    missing = sorted(planned - {("anchors", r["form"], r["anchor"]) for r in anchors})
-    if missing:
-        by_form = {form: [str(k) for _, f, k in missing if f == form] for form in sorted({f for _, f, _ in missing})}
-        lines += ["", "Not run: " + "; ".join(f"the {form} form without anchor {', '.join(ks)}"
-                                               for form, ks in by_form.items()) + "."]
-    if not region:
-        lines += ["", "## Leave-region-out", "", "Not run yet (the protocol's last split)."]
-    if region:
-        lines += ["", "## Leave-region-out: TDOA error spread where the tag flew outside the training band", "",
-                  "Samples, and the share of them outside the model's trained region, in brackets. " + GATED_NOTE, "",
-                  "| form | seed | before → after |", "|---|---|---|"]
-        for r in sorted(region, key=lambda r: (r["form"], r["seed"])):
-            lines.append(f"| {r['form']} | {r['seed']} | {r['tdoa']['std_before']:.3f} → {r['tdoa']['std_after']:.3f}"
-                         f"{_gated(r['tdoa'])} m ({r['tdoa']['n']} samples{_flagged(r['tdoa'])}) |")
-        clamped = clamp_lines(region, "seeds")
-        lines += ["", *clamped] if clamped else []
-    lines += sector_lines([r for r in rows if r["split"] == "sector"])
-    doc.parent.mkdir(parents=True, exist_ok=True)
-    doc.write_text("\n".join(lines) + "\n")
-    print(f"wrote {doc}")
-
-
-def per_flight_lines(rows: list[dict]) -> list[str]:
-    """Per form and test flight: the 3D RMSE with and without the correction (mean over
-    seeds) and on how many seeds the correction made it worse."""
-    if not rows:
-        return []
-    lines = ["", f"Per flight, {SPLIT_WORDS[rows[0]['split']]}: mean over seeds.", "",
-             "| form | flight | with | without | worse on seeds |", "|---|---|---|---|---|"]
-    for form in sorted({r["form"] for r in rows}):
-        runs = [f for r in rows if r["form"] == form for f in r["flights"]]
-        for flight in sorted({f["flight"] for f in runs}):
-            hit = [f for f in runs if f["flight"] == flight]
-            worse = sum(f["rmse_3d"] > f["rmse_3d_without"] for f in hit)
-            lines.append(f"| {form} | {flight} | {np.mean([f['rmse_3d'] for f in hit]):.3f} | "
-                         f"{np.mean([f['rmse_3d_without'] for f in hit]):.3f} | {worse} of {len(hit)} |")
-    return lines
-
-
-GATED_NOTE = ("After the slash, the spread if the correction abstained outside that region (session 58; "
-              "not kept, docs/notebook/bias.md).")
-
-
-def _gated(tdoa: dict) -> str:
-    """The spread with the correction zeroed outside the trained region, if measured."""
-    return f" / {tdoa['std_after_gated']:.3f}" if "std_after_gated" in tdoa else ""
-
-
-def _flagged(tdoa: dict, before: str = "; ", after: str = "") -> str:
-    """The share of the test samples outside the model's trained region, if measured
-    (rows of runs before session 57 lack it)."""
-    share = tdoa.get("outside_trained_region")
-    return "" if share is None else f"{before}{share:.0%} outside{after}"
-
-
-def sector_lines(sector: list[dict]) -> list[str]:
-    """The sector split's table: per form and quarter, the spread before → after for
-    each seed, and whether the correction narrowed it in every quarter and seed."""
-    if not sector:
-        return []
-    seeds = sorted({r["seed"] for r in sector})
-    lines = ["", "## Leave-sector-out: TDOA error spread in the quarter of the circle left out of training", "",
-             "Quarters by the tag's bearing about the origin: 0 from −180°, 1 from −90°, 2 from 0°, 3 from 90°. "
-             "In brackets: the share of the quarter's test samples outside the model's trained region. " + GATED_NOTE,
-             "",
-             "| form | quarter | " + " | ".join(f"seed {s}: before → after" for s in seeds) + " |",
-             "|---|---|" + "---|" * len(seeds)]
-    for form in sorted({r["form"] for r in sector}):
-        for k in range(SECTORS):
-            cells = []
-            for seed in seeds:
-                hit = [r["tdoa"] for r in sector if (r["form"], r["sector"], r["seed"]) == (form, k, seed)]
-                cells.append(f"{hit[0]['std_before']:.3f} → {hit[0]['std_after']:.3f}{_gated(hit[0])} m"
-                             f"{_flagged(hit[0], ' (', ')')}" if hit else "not run")
-            lines.append(f"| {form} | {k} | " + " | ".join(cells) + " |")
-    lines.append("")
-    for form in sorted({r["form"] for r in sector}):
-        runs = [r["tdoa"] for r in sector if r["form"] == form]
-        narrowed = sum(t["std_after"] < t["std_before"] for t in runs)
-        gated = [t for t in runs if "std_after_gated" in t]
-        lines.append(f"- {form}: narrowed in {narrowed} of {len(runs)} quarters × seeds "
-                     f"({'passes' if narrowed == len(runs) == SECTORS * len(seeds) else 'does not pass'} "
-                     "the rule fixed above)"
-                     + (f"; abstaining outside the trained region, in {sum(t['std_after_gated'] < t['std_before'] for t in gated)}"
-                        f" of {len(gated)}, mean {np.mean([t['std_after'] for t in gated]):.3f} → "
-                        f"{np.mean([t['std_after_gated'] for t in gated]):.3f} m." if gated else "."))
-    lines += clamp_lines(sector, "quarters × seeds")
-    return lines
-
-
-def clamp_lines(rows: list[dict], runs: str) -> list[str]:
-    """Per form, what holding each link's bias within its trained range did (session 58)."""
-    lines = []
-    for form in sorted({r["form"] for r in rows}):
-        held = [r["tdoa"] for r in rows if r["form"] == form and "std_after_clamped" in r["tdoa"]]
-        if held:
-            lines.append(
-                f"- {form}, each link's bias held within its trained range (not kept, docs/notebook/bias.md): "
-                f"narrowed in {sum(t['std_after_clamped'] < t['std_before'] for t in held)} of {len(held)} {runs}, "
-                f"mean {np.mean([t['std_after'] for t in held]):.4f} → "
-                f"{np.mean([t['std_after_clamped'] for t in held]):.4f} m; a link held in "
-                f"{min(t['clamped_share'] for t in held):.1%}–{max(t['clamped_share'] for t in held):.1%} "
-                "of the measurements.")
-    return lines
+def write_pages(rows: list[dict], doc: Path = PAGE, entry: Path | None = ENTRY_PAGE) -> None:
+    """The notebook page (with this module's protocol) and, unless `entry` is None,
+    docs/bias.md's estimates."""
+    write_doc(rows, doc, protocol=__doc__.split("The protocol is fixed here, before any result is looked at:\n")[1].strip())
+    if entry is not None:
+        write_estimates(rows, entry)
 
 
 if __name__ == "__main__":

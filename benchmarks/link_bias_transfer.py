@@ -41,7 +41,8 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from bias_validation import SECTORS, bearing_sector, test_flights  # noqa: E402
+from bias_validation import bearing_sector, test_flights  # noqa: E402
+from bias_validation_results import SECTORS  # noqa: E402
 
 from rig.bias.train import split_flights  # noqa: E402
 

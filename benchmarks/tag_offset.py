@@ -307,7 +307,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--splits", nargs="+", default=list(bv.FLIGHT_SPLITS))
-    parser.add_argument("--validation-json", type=Path, default=ROOT / "out" / "bias_validation.json",
+    parser.add_argument("--validation-json", type=Path, default=bv.RESULTS,
                         help="bias_validation.py's results, for the link form's closed loop")
     parser.add_argument("--json", type=Path, default=ROOT / "out" / "tag_offset.json")
     parser.add_argument("--workers", type=int, default=2)
