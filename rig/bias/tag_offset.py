@@ -5,9 +5,10 @@ the unit vector from the tag to the anchor). TDOA and IMU cannot tell it from th
 really being δ away, so a correction that carries one moves every estimate by −δ,
 whatever the flight. On the shared flights each flight's own δ differs (mostly a pattern
 of anchor delays, which a flight around a circle cannot tell from an offset; not the
-ground truth's height, which the downward laser checks), so the shipped correction is
-trained on labels with each flight's δ removed (`rig train --untranslated`;
-docs/notebook/bias.md, "The tag's constant offset").
+ground truth's height, which the downward laser checks). `rig train --untranslated`
+trains on labels with each flight's δ removed, so that the correction carries none; the
+shipped correction was trained so in sessions 59–62 and is trained on the labels as
+measured since (docs/notebook/bias.md, "The labels on the pinned branch").
 """
 
 from __future__ import annotations

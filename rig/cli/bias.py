@@ -157,5 +157,6 @@ def register_train(sub) -> None:
                         "the simulator's learned_bias beside its link_bias (restarts chosen by --select-by mse)")
     p.add_argument("--untranslated", action="store_true",
                    help="remove each flight's constant tag offset from its labels, so the correction carries none "
-                        "(no flight can tell one from where the tag really is; how the shipped model is made)")
+                        "(no flight can tell one from where the tag really is; shipped in sessions 59-62, not "
+                        "kept since: docs/notebook/bias.md)")
     p.set_defaults(func=cmd_train)

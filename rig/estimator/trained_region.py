@@ -5,9 +5,9 @@ The network's link features start with the anchor's position relative to the tag
 the world frame), so a link whose relative position lies far from every one it was
 trained on asks the network to extrapolate. The shipped model learnt from flights that
 all circle the room's centre at about 1.5 m; held out of training, a quarter of that
-circle had its TDOA error narrowed in 6 of 12 runs of the shipped recipe and widened
-in 6, and abstaining outside the region did no better (6 of 12;
-docs/notebook/bias-validation.md, docs/notebook/bias.md). So the region does not switch the correction off;
+circle had its TDOA error narrowed in 8 of 12 runs of the shipped recipe and widened
+in 4, and abstaining outside the region did not narrow more of them (10 of 12, but the
+mean spread 0.278 → 0.282 m; docs/notebook/bias-validation.md). So the region does not switch the correction off;
 `rig evaluate` reports how much of a flight lay outside it, the share of the
 measurements whose correction was an extrapolation, so that a user knows when to
 compare with `--no-nn` or to train on flights there.
