@@ -47,3 +47,22 @@ def test_the_estimates_table_needs_its_markers(tmp_path: Path, rows: list[dict])
     with pytest.raises(ValueError, match="markers"):
         results.write_estimates(rows, page)
     assert page.read_text() == "# no table here\n"
+
+
+def _rows(form: str, rmse: float, worse: int) -> list[dict]:
+    """One row per day and mode split and seed: every seed alike."""
+    return [{"split": split, "form": form, "seed": seed, "test": ["f"], "mean_rmse_3d": rmse,
+             "mean_rmse_3d_without": 0.3, "worse_flights": worse, "tdoa": {"std_before": 0.3, "std_after": 0.25}}
+            for split in results.FLIGHT_SPLITS for seed in (0, 1, 2)]
+
+
+@pytest.mark.parametrize("untranslated, worse, met", [(0.214, 1, True),     # within 0.005 m, fewer worse
+                                                      (0.216, 1, False),    # 0.006 m less accurate
+                                                      (0.214, 2, False)])   # as many flights worse
+def test_session_59s_rule_on_the_rows(untranslated: float, worse: int, met: bool) -> None:
+    rows = _rows("link", 0.210, 2) + _rows(results.UNTRANSLATED, untranslated, worse)
+    verdict = results.untranslated_verdict(rows)
+    assert verdict is not None and verdict["rule_met"] is met
+    assert verdict["worse_flights"] == {"link": 8.0, results.UNTRANSLATED: 4.0 * worse}
+    assert results.untranslated_verdict(rows[:-1]) is not None        # a seed short still has every split
+    assert results.untranslated_verdict([r for r in rows if r["split"] != "day-0426"]) is None
