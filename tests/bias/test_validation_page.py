@@ -16,8 +16,8 @@ from rigtest import ROOT
 from rig.bias.train import MKL_BRANCH
 
 sys.path.insert(0, str(ROOT / "benchmarks"))
-import bias_validation as bv  # noqa: E402
-import bias_validation_results as results  # noqa: E402
+import bias_validation as bv
+import bias_validation_results as results
 
 
 @pytest.fixture(scope="module")
