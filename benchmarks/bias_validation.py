@@ -328,6 +328,8 @@ def main() -> None:
     args.doc = args.doc or (PAGE if kept else args.json.with_suffix(".md"))
     entry = ENTRY_PAGE if kept else None
     if args.from_json:
+        if not args.json.is_file():
+            parser.error(f"--from-json: {args.json} does not exist (run without --from-json to make it)")
         write_pages(json.loads(args.json.read_text())["rows"], args.doc, entry)
         return
     cached_samples()         # built once, before the workers read it
