@@ -21,10 +21,15 @@ class AnchorPosition(Effect):
             world.anchor_positions[self.anchor] = world.anchor_positions[self.anchor] + self.offset
 
 
+# The farthest a Crazyflie-class tag's antenna can sit from the body origin (m): the
+# airframe is about 0.1 m across and the UWB deck sits a few centimetres above it.
+AIRFRAME_M = 0.15
+
+
 class LeverArm(Effect):
     """The UWB antenna sits at `offset_m` from the body origin (body frame)."""
 
-    name, stage, bounds = "lever_arm", WORLD, {"offset_m": 0.5}
+    name, stage, bounds = "lever_arm", WORLD, {"offset_m": AIRFRAME_M}
 
     def __init__(self, offset_m=(0.0, 0.0, 0.0)):
         self.offset = _vec3(offset_m, "offset_m")
