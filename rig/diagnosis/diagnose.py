@@ -344,7 +344,8 @@ def diagnose(rec: Recording, progress=None, link_bias: bool = True) -> Diagnosis
             tdoa_left = remainder(as_recorded.z, [t for t in selected if t.candidate.effect != "nlos"])
         for fit in shapes:
             findings.append(_shape_finding(problem, fit))
-            model.append(fit.effect())
+            if not findings[-1].beyond_bound:
+                model.append(fit.effect())
         z_named, z_own = remainder(channel.z, selected), {}
         named_theta = {id(t): t.theta for t in selected}
         terms = list(selected)
@@ -507,14 +508,17 @@ def _estimated(problem: Problem, channel: Channel, term: Term, in_place_of: dict
 
 def _shape_finding(problem: Problem, fit: nlos_mixture.NlosShapeFit) -> Finding:
     """An NLOS found by its shape: its fit is the likelihood of the anchor's residuals
-    inside the region (a noise-level effect, like the floor's)."""
+    inside the region (a noise-level effect, like the floor's). Its mean excess is the
+    mixture's own, not bounded by the fit: beyond the catalog's bound it is not
+    explained, like any other fit, and not simulated."""
     inside = fit.region.contains(problem.tag_positions()) & (problem.anchor_sign(fit.anchor) != 0)
     effect = fit.effect()
     return Finding("nlos", "tdoa", [fit.anchor], rounded_floats(effect.params()), round(fit.evidence, 2),
                    fit.nll_before, fit.nll_after,
                    {"time": _span(problem.times("tdoa")[inside]), "region": fit.region.to_json(),
                     "anchors": [fit.anchor], "found_by": "shape (a positive exponential tail)",
-                    "fit_unit": "mean negative log-likelihood per sample (a noise-level effect)"})
+                    "fit_unit": "mean negative log-likelihood per sample (a noise-level effect)"},
+                   beyond_bound=bool(effect.beyond_bound()))
 
 
 def _uncertainty(term: Term) -> tuple[dict, list[str]]:
