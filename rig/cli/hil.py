@@ -177,6 +177,11 @@ def cmd_bench(args: argparse.Namespace) -> int:
         raise CliError(f"rig bench measures {' and '.join(bench.TARGETS)}, not {', '.join(map(repr, unknown))}")
     rec = load_any(args.recording)
     baseline = None if args.update_baseline else bench.load_baseline(args.baseline)
+    if baseline is not None:
+        try:
+            bench.check_same_recording(baseline, args.recording)
+        except ValueError as exc:
+            raise CliError(str(exc)) from None
     start, duration = (args.start, args.duration) if baseline is None else bench.run_settings(baseline)
     binaries = {"native": args.program, "qemu": args.firmware}
     current = []
@@ -189,7 +194,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
                 write_junit(args.junit_xml, "rig.bench", [(target, [Check("replay", False, str(exc))], 0.0)])
             raise BoardError(str(exc)) from exc
-    document = bench.baseline_document(current, str(args.recording), start, duration)
+    document = bench.baseline_document(current, args.recording, start, duration)
     if baseline is None:
         write_json(args.baseline, document)
         for f in current:

@@ -10,7 +10,9 @@ nanoseconds depend on the machine and its load, so theirs is loose.
 
 from __future__ import annotations
 
+import hashlib
 import logging
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -82,9 +84,33 @@ def compare(current: list[Figures], baseline: dict, thresholds: dict[str, float]
     return rows
 
 
-def baseline_document(current: list[Figures], recording: str, start: float | None, duration: float) -> dict:
-    return {"recording": recording, "start": start, "duration": duration,
+def baseline_document(current: list[Figures], recording: Path, start: float | None, duration: float) -> dict:
+    """The figures, and what they were measured on: the recording by its bytes (a path
+    relative to the working directory when it lies under it, so the committed
+    baseline names no machine's checkout) and the segment."""
+    return {"recording": _shown(recording), "recording_sha256": recording_digest(recording),
+            "start": start, "duration": duration,
             "targets": {f.target: {"unit": f.unit, "values": f.values} for f in current}}
+
+
+def recording_digest(recording: Path) -> str | None:
+    """The recording's bytes, as a baseline identifies them (None: not a file)."""
+    return hashlib.sha256(recording.read_bytes()).hexdigest() if recording.is_file() else None
+
+
+def check_same_recording(baseline: dict, recording: Path) -> None:
+    """Figures compare only on the recording the baseline was measured on: another one
+    (or the same file regenerated) is refused, naming both."""
+    measured_on = baseline.get("recording_sha256")
+    if measured_on is not None and measured_on != recording_digest(recording):
+        raise ValueError(f"the baseline was measured on {baseline.get('recording')}, and {recording} is not that "
+                         f"recording (its bytes differ): replay the baseline's recording, or measure a new baseline "
+                         f"with --update-baseline")
+
+
+def _shown(path: Path) -> str:
+    relative = os.path.relpath(path.resolve(), Path.cwd())
+    return str(path) if relative.startswith("..") else relative
 
 
 def load_baseline(path: Path) -> dict:

@@ -1,6 +1,7 @@
 """`rig bench` catches a slowdown: a baseline measured on the firmware as built, then the
 same estimator sources compiled without optimisation (a real, injected slowdown) must
-fail the comparison, while the unchanged firmware passes it."""
+fail the comparison, while the unchanged firmware passes it; and figures of another
+recording are refused, not compared."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ from pathlib import Path
 import pytest
 from rigtest import run_rig
 
+from rig.data import paths
 from rig.estimator import native
 
 pytestmark = pytest.mark.slow        # left out of `make test-fast`
@@ -33,6 +35,11 @@ def test_bench_passes_unchanged_firmware_and_catches_an_injected_slowdown(tmp_pa
     assert same.returncode == 0, same.stdout + same.stderr
     rows = json.loads((tmp_path / "same.json").read_text())["comparison"]
     assert len(rows) == 6 and all(r["compared"] and not r["regressed"] for r in rows)
+
+    other = paths.data_dir() / "flights" / "0426-traj1"
+    elsewhere = run_rig("bench", str(other), "--targets", "qemu", "--baseline", str(baseline))
+    assert elsewhere.returncode not in (0, 1), elsewhere.stdout + elsewhere.stderr     # refused, not compared
+    assert f"{other} is not that recording" in elsewhere.stderr
 
     junit = tmp_path / "junit.xml"
     slow = run_rig("bench", "--targets", "qemu", "--baseline", str(baseline), "--firmware", str(_slow_firmware()),
