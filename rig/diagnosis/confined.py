@@ -163,16 +163,20 @@ def find_region(positions: np.ndarray, s: np.ndarray, involved: np.ndarray) -> f
     return scan.best(np.where(tstat > NLOS_MIN_T, tstat, -np.inf))
 
 
-def nlos_shape(excess: np.ndarray, outside: np.ndarray, mean_shift: float) -> tuple[float, float]:
+def nlos_shape(excess: np.ndarray, outside: np.ndarray, mean_shift: float,
+               largest_excess: float = np.inf) -> tuple[float, float]:
     """Fraction and mean excess of an exponential NLOS mixture from its mean shift and
     the extra second moment of the signed residuals inside the region (robustly
-    trimmed); falls back to 'every sample, by the mean shift' when unidentifiable."""
+    trimmed); falls back to 'every sample, by the mean shift' when unidentifiable.
+    The mean excess stays within `largest_excess` (the effect's physical bound), the
+    mean shift kept: a small shift over a wide spread would read as a rare excess of
+    metres."""
     limit = 6 * mad_scale(outside) if len(outside) else np.inf
     inside, outside = excess[np.abs(excess) < limit], outside[np.abs(outside) < limit]
     if mean_shift <= 0 or len(inside) < MIN_SAMPLES or len(outside) < MIN_SAMPLES:
         return 1.0, max(mean_shift, 0.0)
     extra = np.mean((inside - np.mean(inside)) ** 2) - np.var(outside)    # f m² (2 − f)
-    mean_excess = max(mean_shift, (extra + mean_shift ** 2) / (2 * mean_shift))
+    mean_excess = max(mean_shift, min((extra + mean_shift ** 2) / (2 * mean_shift), largest_excess))
     return float(min(1.0, mean_shift / mean_excess)), float(mean_excess)
 
 

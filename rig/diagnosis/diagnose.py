@@ -449,7 +449,7 @@ def _effect_of(problem: Problem, channel: Channel, term: Term, theta: np.ndarray
     k, shift = c.fixed["anchor"], float(theta[0])
     sign, inside = problem.anchor_sign(k), term.columns[:, 0] != 0
     signed = sign * channel.residual          # before any effect
-    fraction, mean_excess = nlos_shape(signed[inside], signed[(sign != 0) & ~inside], shift)
+    fraction, mean_excess = nlos_shape(signed[inside], signed[(sign != 0) & ~inside], shift, c.bound)
     return fx.make_effect("nlos", {"anchor": k, "fraction": fraction, "mean_excess_m": mean_excess,
                                    "region": term.extra["region"]})
 

@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
-from rig.diagnosis.confined import find_region
+from rig.diagnosis.confined import find_region, nlos_shape
 from rig.diagnosis.region_scan import GRID_BINS, BoxScan
 
 N = 3000
@@ -54,3 +55,18 @@ def test_only_the_samples_of_the_anchor_count() -> None:
     s[~involved] += 5.0                  # another anchor's ranges: not this one's region
     region = find_region(positions, s, involved)
     assert region is None or region.high[0] <= 0.0
+
+
+def test_an_nlos_shape_keeps_its_mean_shift_within_the_physical_excess() -> None:
+    """A small mean shift over a much wider spread inside the region reads, by moments,
+    as a rare excess of metres; held at the bound, the fraction grows to keep the shift."""
+    rng = np.random.default_rng(0)
+    outside = rng.normal(0.0, 0.1, 2000)
+    inside = rng.normal(0.0, 0.6, 2000)
+    shift = 0.03
+    free = nlos_shape(inside, outside, shift)
+    held = nlos_shape(inside, outside, shift, largest_excess=1.0)
+    assert free[1] > 1.0
+    assert held[1] == 1.0 and held[0] * held[1] == pytest.approx(shift)
+    wide = nlos_shape(inside, outside, 1.4, largest_excess=1.0)        # a shift beyond the bound stays beyond
+    assert wide == (1.0, 1.4)
