@@ -22,10 +22,8 @@ benchmarks/tag_offset.py decided it by its own rule. Forms tried and removed are
 run here; their figures are in docs/notebook/bias.md and their tags run them into this
 JSON (not ranked either): offset (session 60, experiment/tag-offset-constant), the form
 carrying its training flights' median tag offset as one constant, and huber (session 62,
-experiment/huber-loss), the untranslated form trained on the Huber loss. And distilled
-(session 65): the link form, its three restarts not chosen among but averaged, one
-network trained on their mean prediction (`TrainConfig.distill`); judged against the
-link form by its own rule (bias_validation_results.distilled_verdict), not ranked.
+experiment/huber-loss), the untranslated form trained on the Huber loss, and distilled
+(session 65, experiment/distill), the link form's restarts distilled into one network.
 
 The protocol is fixed here, before any result is looked at:
 - splits, by flight (samples 20 ms apart are not independent):
@@ -114,7 +112,6 @@ from rig.estimator.bias_net import link_features  # noqa: E402
 from rig.estimator.trained_region import outside_share  # noqa: E402
 
 from bias_validation_results import (  # noqa: E402
-    DISTILLED,
     ENTRY_PAGE,
     FLIGHT_SPLITS,
     PAGE,
@@ -124,7 +121,6 @@ from bias_validation_results import (  # noqa: E402
     UNTRANSLATED,
     WITHIN_0426_FOLDS,
     choose_form,
-    distilled_verdict,
     row_key,
     summary,
     write_doc,
@@ -133,7 +129,7 @@ from bias_validation_results import (  # noqa: E402
 
 CACHE = ROOT / "out" / "cache" / "all.npz"
 TDOA3 = [f"0425-traj{k}" for k in range(13, 24)] + ["0426-traj5", "0426-traj6"]
-FORMS = {"link": "7", "shared": "shared", "pair": "14", UNTRANSLATED: "7", DISTILLED: "7"}   # form -> rig train's feature set
+FORMS = {"link": "7", "shared": "shared", "pair": "14", UNTRANSLATED: "7"}   # form -> rig train's feature set
 VALIDATION_SHARE = 0.15
 
 
@@ -219,8 +215,7 @@ def clamped_correction(net, samples: Samples, trained: Samples) -> tuple[np.ndar
 
 def form_config(form: str, **kwargs) -> TrainConfig:
     """The training configuration of a form of this page."""
-    return TrainConfig.with_features(FORMS[form], untranslated=form == UNTRANSLATED, distill=form == DISTILLED,
-                                     **kwargs)
+    return TrainConfig.with_features(FORMS[form], untranslated=form == UNTRANSLATED, **kwargs)
 
 
 def flight_split_samples(split_name: str, seed: int) -> tuple[Samples, Split]:
@@ -366,10 +361,9 @@ def main() -> None:
             print(json.dumps({**brief, "tdoa": row["tdoa"]}), flush=True)
             args.json.parent.mkdir(parents=True, exist_ok=True)
             args.json.write_text(json.dumps({"rows": rows, "summary": summary(rows)}, indent=1) + "\n")
-    for entry in summary(rows):
-        print(json.dumps(entry))
+    for line in summary(rows):
+        print(json.dumps(line))
     print(json.dumps(choose_form(rows)))
-    print(json.dumps({"distilled": distilled_verdict(rows)}))
     write_pages(rows, args.doc, entry)
 
 

@@ -31,13 +31,9 @@ ACCURACY_TOLERANCE_M = 0.01
 UNTRANSLATED = "untranslated"
 UNTRANSLATED_TOLERANCE_M = 0.005
 # and rows of forms tried and removed, if a tag runs them into the JSON (session 60's
-# "offset": experiment/tag-offset-constant; session 62's "huber": experiment/huber-loss)
-# the link form with its restarts distilled into one network (session 65): judged by
-# distilled_verdict against the link form, not ranked among the forms
-DISTILLED = "distilled"
-NOT_RANKED = (UNTRANSLATED, "offset", "huber", DISTILLED)
-DISTILLED_GAIN_M = 0.003             # how much more accurate it must be
-DISTILLED_SPLIT_TOLERANCE_M = 0.005  # and no day or mode split worse than this
+# "offset": experiment/tag-offset-constant; session 62's "huber": experiment/huber-loss;
+# session 65's "distilled": experiment/distill)
+NOT_RANKED = (UNTRANSLATED, "offset", "huber", "distilled")
 
 
 def merge_folds(rows: list[dict]) -> list[dict]:
@@ -132,29 +128,6 @@ def untranslated_verdict(rows: list[dict]) -> dict | None:
         worse[form] = float(sum(e["worse_flights"]["mean"] for e in entries))
     met = accuracy[UNTRANSLATED] <= accuracy["link"] + UNTRANSLATED_TOLERANCE_M and worse[UNTRANSLATED] < worse["link"]
     return {"accuracy_m": accuracy, "worse_flights": worse, "rule_met": met}
-
-
-def distilled_verdict(rows: list[dict]) -> dict | None:
-    """Session 65's rule, fixed before its run: the distilled restarts replace the chosen
-    restart only if, over the four day and mode splits and seeds 0-2, (a) their accuracy
-    (as choose_form's) is at least DISTILLED_GAIN_M below the link form's, (b) they make
-    no more flights worse (the sum over the splits of the sum over seeds), and (c) no
-    split's mean 3D RMSE over seeds is more than DISTILLED_SPLIT_TOLERANCE_M above the
-    link form's. None until both have every split on seeds 0-2."""
-    by_form = {}
-    for form in ("link", DISTILLED):
-        runs = [r for r in rows if r["form"] == form and r["split"] in FLIGHT_SPLITS and r["seed"] in (0, 1, 2)]
-        if {(r["split"], r["seed"]) for r in runs} != {(s, k) for s in FLIGHT_SPLITS for k in (0, 1, 2)}:
-            return None
-        split_mean = {s: float(np.mean([r["mean_rmse_3d"] for r in runs if r["split"] == s])) for s in FLIGHT_SPLITS}
-        by_form[form] = {"accuracy_m": float(np.mean(list(split_mean.values()))), "splits": split_mean,
-                         "worse_flights": int(sum(r["worse_flights"] for r in runs))}
-    link, distilled = by_form["link"], by_form[DISTILLED]
-    met = {"a_gain": distilled["accuracy_m"] <= link["accuracy_m"] - DISTILLED_GAIN_M,
-           "b_worse": distilled["worse_flights"] <= link["worse_flights"],
-           "c_splits": all(distilled["splits"][s] <= link["splits"][s] + DISTILLED_SPLIT_TOLERANCE_M
-                           for s in FLIGHT_SPLITS)}
-    return {**by_form, "met": met, "rule_met": all(met.values())}
 
 
 def shipped_recipe(rows: list[dict]) -> str:

@@ -39,18 +39,14 @@ class TrainConfig:
     # (rig.bias.tag_offset): the correction then carries none, as no flight can tell one
     # from where the tag really is
     untranslated: bool = False
-    # keep not one restart but one network trained on the restarts' mean prediction (its
-    # initialisation the next restart's): the board runs one network, the ensemble's
-    # average is what it learns (session 65, docs/notebook/bias.md)
-    distill: bool = False
 
     def __post_init__(self) -> None:
         if self.restarts < 1:
             raise ValueError(f"restarts must be at least 1, got {self.restarts}")
         if self.max_epochs < 1:
             raise ValueError(f"max_epochs must be at least 1, got {self.max_epochs}")
-        if not 0 <= self.first_restart <= RESTART_STRIDE - self.restarts - self.distill:
-            raise ValueError(f"restarts {self.first_restart}..{self.first_restart + self.restarts - 1 + self.distill} "
+        if not 0 <= self.first_restart <= RESTART_STRIDE - self.restarts:
+            raise ValueError(f"restarts {self.first_restart}..{self.first_restart + self.restarts - 1} "
                              f"are outside 0..{RESTART_STRIDE - 1}")
         if self.select_by not in SELECT_BY:
             raise ValueError(f"select_by must be one of {SELECT_BY}, got {self.select_by!r}")

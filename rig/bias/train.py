@@ -202,36 +202,18 @@ def train(train_set: Samples, validation_set: Samples, config: TrainConfig = Tra
     data = (*tensors(train_set), *tensors(validation_set))
     seen = np.unique(np.concatenate([train_set.id_a, train_set.id_b]).astype(int))
     tic = time.perf_counter()
-    runs, models = [], []
+    runs = []
     for restart in range(config.first_restart, config.first_restart + config.restarts):
         model, run = _train_once(torch, data, config, restart, progress)
         net = _to_bias_net(model, in_mean, in_scale, out_scale, out_offset, config.form, seen)
         if score is not None:
             run["validation_rmse_3d"] = score(net)
         runs.append((net, run))
-        models.append(model)
-    if config.distill:
-        model, best = _distilled(torch, data, models, config, progress)
-        net, key = _to_bias_net(model, in_mean, in_scale, out_scale, out_offset, config.form, seen), "distilled"
-    else:
-        key = "validation_mse" if score is None else "validation_rmse_3d"
-        net, best = min(runs, key=lambda pair: pair[1][key])
+    key = "validation_mse" if score is None else "validation_rmse_3d"
+    net, best = min(runs, key=lambda pair: pair[1][key])
     info = {**best, "selected_by": key, "seconds": time.perf_counter() - tic, "config": asdict(config),
             "restarts": [{k: v for k, v in run.items() if k != "history"} for _, run in runs]}
     return net, info
-
-
-def _distilled(torch, data: tuple, teachers: list, config: TrainConfig, progress=None) -> tuple:
-    """One network trained on the teachers' mean prediction over the training samples
-    (early stopping on the validation labels as measured), from the initialisation of the
-    restart after them."""
-    xt, _, xv, yv = data
-    with torch.no_grad():
-        for teacher in teachers:
-            teacher.eval()
-        mean = torch.stack([teacher(xt) for teacher in teachers]).mean(dim=0)
-    model, run = _train_once(torch, (xt, mean, xv, yv), config, config.first_restart + config.restarts, progress)
-    return model, {**run, "distilled": run["validation_mse"]}
 
 
 def closed_loop_rmse(recordings: list, net: BiasNet) -> float:
@@ -321,7 +303,7 @@ def fit(samples: Samples, split: Split, config: TrainConfig = TrainConfig(), exc
     validation_set = samples.select(in_flights(split.validation) & ~hit)
     test_set = samples.select(in_flights(split.test) & (hit if exclude_anchors else True))
     score = None
-    if config.select_by == "rmse_3d" and not exclude_anchors and config.restarts > 1 and not config.distill:
+    if config.select_by == "rmse_3d" and not exclude_anchors and config.restarts > 1:
         from rig.data.importer import load_any
 
         flight_dir = paths.data_dir() / "flights" if flight_dir is None else Path(flight_dir)

@@ -194,25 +194,6 @@ def test_a_score_chooses_the_kept_restart() -> None:
     assert net.predict(probe)[0] == pytest.approx(-info["validation_rmse_3d"], abs=1e-9)
 
 
-def test_distilling_trains_one_network_on_the_restarts_mean() -> None:
-    """The kept network is a fourth, trained on the three restarts' mean prediction: it
-    follows that mean more closely than the restarts follow one another."""
-    data = synthetic_samples(2, 1000, seed=3)
-    train_set, val_set = data.select(data.flight == "sim0"), data.select(data.flight == "sim1")
-    config = TrainConfig(max_epochs=6, restarts=3, seed=2, form="link", distill=True)
-    net, info = train(train_set, val_set, config)
-    assert info["selected_by"] == "distilled" and info["init_seed"] == 2003
-    assert [r["init_seed"] for r in info["restarts"]] == [2000, 2001, 2002]
-    teachers = [train(train_set, val_set, TrainConfig(max_epochs=6, seed=2, form="link", first_restart=k,
-                                                      restarts=1))[0] for k in range(3)]
-    x = train_set.features
-    mean = np.mean([t.predict(x) for t in teachers], axis=0)
-    apart = np.mean([np.std(t.predict(x) - mean) for t in teachers])
-    assert np.std(net.predict(x) - mean) < apart
-    with pytest.raises(ValueError, match="restarts 997..1000"):
-        TrainConfig(restarts=3, first_restart=997, distill=True)
-
-
 def test_split_is_by_flight_and_seeded() -> None:
     names = [f"f{k}" for k in range(35)]
     split = split_flights(names, seed=0)
