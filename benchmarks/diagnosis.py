@@ -28,9 +28,9 @@ from rig.data.importer import load_any  # noqa: E402
 from rig.data.recording import Vec3Series  # noqa: E402
 from rig.diagnosis import compare, imu_spectrum  # noqa: E402
 from rig.diagnosis.channels import left_out_text  # noqa: E402
-from rig.diagnosis.diagnose import vibration_spread  # noqa: E402
 from rig.diagnosis.floor_error import ON_GROUND_M  # noqa: E402
 from rig.diagnosis.identifiability import figures  # noqa: E402
+from rig.diagnosis.imu_spectrum import vibration_spread  # noqa: E402
 from rig.sim import effects as fx  # noqa: E402
 
 

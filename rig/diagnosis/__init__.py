@@ -3,7 +3,7 @@ against a simulation of its own flight (`channels`), where they differ before an
 (`mismatch`), the catalog's effects as fitted (`candidates`), naming them (`selection`),
 what a flight can tell apart (`identifiability`), the shaped searches (`nlos_mixture`,
 `region_scan`, `floor_error`, `imu_spectrum`), robust estimators (`robust`), the
-diagnosis and its findings — the report.json contract (`diagnose`), the comparison
+diagnosis (`diagnose`) and its findings — the report.json contract (`findings`), the comparison
 against a control recording (`compare`), report.md and its plots (`report`), and
 models of several flights combined into a simulation config (`combine`).
 

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rig.diagnosis.diagnose import rounded_floats
+from rig.diagnosis.findings import rounded_floats
 from rig.diagnosis.robust import delay_centre
 from rig.sim.trajectory import GRAVITY
 

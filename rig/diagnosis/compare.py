@@ -39,7 +39,8 @@ from rig.diagnosis import nlos_mixture
 from rig.diagnosis.channels import AXES
 from rig.diagnosis.combine import outside_window
 from rig.diagnosis.confined import NLOS_PRIOR_M
-from rig.diagnosis.diagnose import Diagnosis, diagnose, rounded_floats
+from rig.diagnosis.diagnose import diagnose
+from rig.diagnosis.findings import Diagnosis, rounded_floats
 from rig.diagnosis.floor_error import ON_GROUND_M
 from rig.diagnosis.identifiability import Identifiability
 from rig.diagnosis.robust import MIN_SAMPLES, irls

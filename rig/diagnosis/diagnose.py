@@ -57,21 +57,21 @@ Method, per channel (TDOA, accelerometer, gyroscope), each step's module in brac
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field, replace
-from functools import cached_property
+from dataclasses import replace
 
 import numpy as np
 
-from rig.data.recording import Recording, Vec3Series
+from rig.data.recording import Recording
 from rig.diagnosis import identifiability as ident
-from rig.diagnosis import imu_spectrum, nlos_mixture
+from rig.diagnosis import nlos_mixture
 from rig.diagnosis.alternatives import Alternative, axis_alternatives, in_place_estimates
 from rig.diagnosis.candidates import MIN_EVIDENCE, PENALTY_PER_PARAMETER, Candidate, candidates, link_bias_candidate
-from rig.diagnosis.channels import AXES, GROSS_Z, Channel, Problem
+from rig.diagnosis.channels import AXES, Channel, Problem
 from rig.diagnosis.confined import nlos_candidate, nlos_shape
+from rig.diagnosis.findings import Diagnosis, Finding, Unnamed, rounded_floats
 from rig.diagnosis.floor_error import ON_GROUND_PRIOR, ON_GROUND_SHAPES, floor_multipath, local_noise, on_ground_fits
 from rig.diagnosis.mismatch import locate
-from rig.diagnosis.robust import delay_centre, huber_loss, irls, mad_scale, robust_nll, robust_rms
+from rig.diagnosis.robust import delay_centre, huber_loss, irls, robust_nll, robust_rms
 from rig.diagnosis.selection import LOOK_ALIKES, fresh_terms, select, unnamed_simplest_terms
 from rig.diagnosis.terms import (
     ORDER,
@@ -96,159 +96,6 @@ IDENTIFIED_SD_SHARE = 0.5      # a parameter is identified when its standard err
 # already paid for itself; this says which of its axes carry it (why 2:
 # docs/notebook/diagnosis-experiments.md).
 LOCATED_LOSS = 2.0
-
-
-@dataclass
-class Finding:
-    """One effect the recording supports, as reported (report.json's contract)."""
-
-    effect: str
-    channel: str
-    anchors: list[int]
-    params: dict
-    evidence: float
-    fit_before: float
-    fit_after: float
-    where: dict
-    look_alikes: list = field(default_factory=list)
-    beyond_bound: bool = False      # larger than the effect can physically be: stands for something else, not simulated
-    std_err: dict | None = None     # standard errors of the fitted parameter (None: not a fitted term)
-    not_identified: list = field(default_factory=list)   # its components this trajectory does not identify
-    alternative_to: dict | None = None   # {"effect", "axes"}: in place of those axes of that finding, as good
-    not_named_axes: list = field(default_factory=list)   # a gyroscope scale's axes that did not pay: neutral there
-    not_simulated: bool = False     # within bound, but left out of the model for its sign (terms.model_terms)
-
-    def to_json(self) -> dict:
-        out = {"effect": self.effect, "channel": self.channel, "params": self.params, "evidence": self.evidence,
-               "fit_before": self.fit_before, "fit_after": self.fit_after, "where": self.where}
-        if self.std_err is not None:
-            out["std_err"], out["not_identified"] = self.std_err, self.not_identified
-        if self.anchors:
-            out["anchors"] = self.anchors
-        if self.look_alikes:
-            out["look_alikes"] = self.look_alikes
-        if self.beyond_bound:
-            out["beyond_physical_bound"] = True
-        if self.alternative_to:
-            out["alternative_to"] = self.alternative_to
-        if self.not_named_axes:
-            out["not_named_axes"] = self.not_named_axes
-        if self.not_simulated:
-            out["not_simulated"] = True
-        return out
-
-
-@dataclass
-class Diagnosis:
-    problem: Problem
-    findings: list[Finding]
-    model: list[fx.Effect]
-    residual_before: dict[str, np.ndarray]
-    residual_after: dict[str, np.ndarray]
-    identifiability: list[ident.Identifiability] = field(default_factory=list)
-    cross_talk: dict[int, list[float]] = field(default_factory=dict)     # lever_arm_cross_talk
-    unnamed: list[Unnamed] = field(default_factory=list)                # unnamed_estimates
-    in_place: list[Unnamed] = field(default_factory=list)               # in_place_estimates
-    # the TDOA's standardised residual less the named effects other than NLOS, as
-    # fitted: where an NLOS of this recording or another of the flight is estimated
-    tdoa_left: np.ndarray | None = None
-    mismatch: dict = field(default_factory=dict)       # where recording and simulation differ (mismatch.locate)
-
-    @property
-    def explained(self) -> list[Finding]:
-        """The findings within their effect's physical bounds: what the report names."""
-        return [f for f in self.findings if not f.beyond_bound]
-
-    @property
-    def not_explained(self) -> list[Finding]:
-        """Fits larger than their effect can physically be: they stand for something the
-        catalog does not model (on real flights, the pose-dependent bias of the
-        antennas and the airframe) and say where the residual lies, not what it is."""
-        return [f for f in self.findings if f.beyond_bound]
-
-    def channel_fits(self) -> dict:
-        return {name: {"samples": int(len(r)), "gross_errors_left_out": self.problem.left_out[name],
-                       "unusable_left_out": self.problem.unusable[name],
-                       "noise_scale": float(self.problem.scales[name][0]),
-                       "fit_before": robust_rms(r, self.problem.scales[name]),
-                       "fit_after": robust_rms(self.residual_after[name], self.problem.scales[name])}
-                for name, r in self.residual_before.items()}
-
-    def to_json(self) -> dict:
-        rec = self.problem.rec
-        return {"recording": rec.metadata.get("source", ""), "duration_s": float(rec.truth.t[-1] - rec.truth.t[0]),
-                "findings": [f.to_json() for f in self.explained],
-                "not_explained": [f.to_json() for f in self.not_explained], "channels": self.channel_fits(),
-                "unknown_anchors": self.problem.unknown_anchors,
-                "mismatch": self.mismatch,
-                "model": [e.to_json() for e in self.model] + self.noise_model,
-                "vibration_rms_mps2": self.vibration_rms(),
-                "identifiability": [i.to_json() for i in self.identifiability],
-                "lever_arm_cross_talk": [{"anchor": k, "delay_m_per_m": rounded_floats(v)}
-                                         for k, v in self.cross_talk.items()],
-                "unnamed_estimates": [u.to_json() for u in self.unnamed],
-                "in_place_estimates": [u.to_json() for u in self.in_place]}
-
-    def vibration_rms(self) -> list[float] | None:
-        """The accelerometer's mean vibration RMS per axis over the compared rows: what
-        a rectification's gain multiplies on this flight (None without accelerometer)."""
-        if not len(self.problem.imu_rows["accel"]):
-            return None
-        return self.problem.vibration().reshape(-1, 3).mean(axis=0).tolist()
-
-    @cached_property
-    def noise_model(self) -> list[dict]:
-        """The noise the fitted model leaves, per sample, so `model` simulates data like
-        the recording: the TDOA residual after the effects; for the IMU, the raw
-        samples' spread around their own running mean (imu_spectrum.SLOW_S) per axis:
-        the vibration and sensor noise. Not the spread around the ground truth, whose
-        attitude noise, differentiated, is 10–50 times the gyroscope's own noise. When
-        the readings were low-pass filtered before logging (their spectrum rolls off),
-        the model has the filter (`imu_lowpass`) and the noise before it that comes out
-        of it with that spread; when their spectrum peaks (the airframe's slow shaking),
-        part of that noise goes through the peak (`imu_resonance`)."""
-        out = []
-        if "tdoa" in self.residual_after:
-            out.append({"effect": "tdoa_noise", "params": {"std_m": mad_scale(self.residual_after["tdoa"])}})
-        rec = self.problem.rec
-        if not (len(rec.accel) and len(rec.gyro)):
-            return out
-        sensors = {"accel": rec.accel, "gyro": rec.gyro}
-        fits = {name: imu_spectrum.fit_noise(series) for name, series in sensors.items()}
-        corners = {name: corner for name, (corner, _) in fits.items()}
-        peaks = {name: peak for name, (_, peak) in fits.items()}
-        sizes = {name: imu_noise_sizes(series, corners[name], peaks[name]) for name, series in sensors.items()}
-        out.append({"effect": "imu_noise", "params": {f"{name}_std": white.tolist()
-                                                      for name, (white, _) in sizes.items()}})
-        if any(peaks.values()):
-            params = {}
-            for name, (_, resonant) in sizes.items():
-                peak = peaks[name]
-                params |= {f"{name}_std": resonant.tolist(), f"{name}_hz": peak.hz if peak else 0.0,
-                           f"{name}_q": peak.q if peak else 1.0}
-            out.append({"effect": "imu_resonance", "params": params})
-        if any(corners.values()):
-            out.append({"effect": "imu_lowpass", "params": {"accel_hz": corners["accel"], "gyro_hz": corners["gyro"]}})
-        return out
-
-
-@dataclass
-class Unnamed:
-    """An effect measured as the recording does not report it: a TDOA effect it does
-    not name, as a named one would be (report.json's `unnamed_estimates`), or a
-    look-alike in a named effect's place (`in_place_of` that effect and its axes;
-    `in_place_estimates`)."""
-
-    effect: str
-    anchors: list[int]
-    params: dict
-    std_err: dict
-    in_place_of: dict | None = None
-
-    def to_json(self) -> dict:
-        out = {"effect": self.effect, "params": self.params, "std_err": self.std_err}
-        return out | ({"anchors": self.anchors} if self.anchors else {}) | (
-            {"in_place_of": self.in_place_of} if self.in_place_of else {})
 
 
 def unnamed_estimates(problem: Problem, channel: Channel, as_recorded: Channel, named: list[Term],
@@ -296,38 +143,6 @@ def shared_link_bias(problem: Problem, channel: Channel, as_recorded: Channel, n
     estimate_terms(channel.z, judged, as_recorded.z, free_offset_terms(judged, fresh),
                    unnamed_simplest_terms(fresh, simplest, "tdoa"))
     return term, refit(channel.z, judged)
-
-
-def imu_noise_sizes(series: Vec3Series, corner_hz: float,
-                    peak: imu_spectrum.Resonance | None) -> tuple[np.ndarray, np.ndarray]:
-    """Per axis, the white and the resonant noise before the low-pass that come out
-    of it with the recorded spread (`vibration_spread`), in the proportion the
-    spectrum's fit gives."""
-    own, rate = vibration_spread(series), fx.sample_rate(series.t)
-    if peak is None:
-        return own / imu_spectrum.noise_gain(corner_hz, rate), np.zeros(3)
-    white, resonant = np.sqrt(1.0 - peak.share), np.sqrt(peak.share)
-    seconds = float(series.t[-1] - series.t[0])
-    scale = own / np.maximum(imu_spectrum.chain_spread(rate, seconds, corner_hz, white, peak, resonant), 1e-12)
-    return white * scale, resonant * scale
-
-
-def vibration_spread(series: Vec3Series) -> np.ndarray:
-    """RMS of an IMU series around its own running mean, per axis: what the slow
-    motion of a flight leaves out. Readings GROSS_Z robust deviations out are glitches
-    and left out, as in the comparison. Not the robust spread itself: the shaking
-    comes and goes and its tails are heavy, and noise of the robust spread's size gave
-    a 100 Hz estimator's 10 ms means 0.6–0.7 of the recorded accelerometer spread and
-    0.3–0.5 of the gyroscope's (the RMS: 0.96–0.99 and 0.6–0.85). Per axis: the
-    airframe shakes along some axes several times more than along others."""
-    fast, _ = imu_spectrum.fast_part(series)
-    if len(fast) < 3:
-        return np.zeros(3)
-    rms = []
-    for values in fast.T:
-        kept = values[np.abs(values - np.median(values)) <= GROSS_Z * max(mad_scale(values), 1e-12)]
-        rms.append(np.sqrt(np.mean((kept - np.median(values)) ** 2)) if len(kept) else 0.0)
-    return np.array(rms)
 
 
 def diagnose(rec: Recording, progress=None, link_bias: bool = True) -> Diagnosis:
@@ -593,18 +408,6 @@ def _on_ground_finding(channel: Channel, term: Term, effect: fx.Effect, z_model:
                    round(float(term.net_evidence), 2), robust_rms(without[rows] * scale, scale),
                    robust_rms(z_model[rows] * scale, scale),
                    {"below_height_m": term.extra["height_m"], "time": _span(channel.t[rows]), "anchors": anchors})
-
-
-def rounded_floats(value, digits: int = 6):
-    """`value` with every float inside (lists and dicts included) rounded: parameters as
-    reported (the fit is not more precise than that)."""
-    if isinstance(value, float):
-        return round(value, digits)
-    if isinstance(value, list):
-        return [rounded_floats(v, digits) for v in value]
-    if isinstance(value, dict):
-        return {k: rounded_floats(v, digits) for k, v in value.items()}
-    return value
 
 
 def _span(t: np.ndarray) -> list[float]:

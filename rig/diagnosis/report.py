@@ -19,7 +19,8 @@ from rig.diagnosis import (
 )
 from rig.data.files import write_text_whole  # noqa: E402
 from rig.diagnosis.channels import AXES, GROSS_Z, left_out_text  # noqa: E402
-from rig.diagnosis.diagnose import Diagnosis, Finding, vibration_spread  # noqa: E402
+from rig.diagnosis.findings import Diagnosis, Finding  # noqa: E402
+from rig.diagnosis.imu_spectrum import vibration_spread  # noqa: E402
 from rig.diagnosis.floor_error import ON_GROUND_M  # noqa: E402
 from rig.diagnosis.identifiability import figures  # noqa: E402
 from rig.diagnosis.mismatch import CELL_M  # noqa: E402

@@ -8,9 +8,7 @@ import pytest
 from diagnosis_cases import REAL_FLIGHT, findings, sim_config
 
 from rig.data.importer import load_any
-from rig.diagnosis.diagnose import (
-    diagnose,
-)
+from rig.diagnosis.diagnose import diagnose
 from rig.sim.simulate import Predictor, simulate
 
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from rig.diagnosis.diagnose import Finding
+from rig.diagnosis.findings import Finding
 from rig.diagnosis.floor_error import floor_multipath
 from rig.diagnosis.report import describe
 from rig.sim.effects import TdoaBatch, make_effect

@@ -9,7 +9,8 @@ from __future__ import annotations
 import numpy as np
 
 from rig.diagnosis.candidates import Candidate
-from rig.diagnosis.diagnose import Finding, _beyond
+from rig.diagnosis.diagnose import _beyond
+from rig.diagnosis.findings import Finding
 from rig.diagnosis.report import describe
 from rig.diagnosis.terms import Term, model_terms
 

@@ -39,9 +39,9 @@ from rig.diagnosis.channels import Problem
 from rig.diagnosis.diagnose import (
     diagnose,
     lever_arm_cross_talk,
-    vibration_spread,
 )
 from rig.diagnosis.floor_error import ON_GROUND_M
+from rig.diagnosis.imu_spectrum import vibration_spread
 from rig.diagnosis.report import write as write_report
 from rig.diagnosis.robust import irls
 from rig.sim.effects import make_effect

@@ -41,8 +41,8 @@ from rig.diagnosis.diagnose import (
     identifiability,
     nlos_identifiability,
     unnamed_estimates,
-    vibration_spread,
 )
+from rig.diagnosis.imu_spectrum import vibration_spread
 from rig.diagnosis.report import describe
 from rig.diagnosis.robust import delay_centre, mad_scale, robust_rms
 from rig.diagnosis.selection import fresh_terms, select
