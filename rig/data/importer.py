@@ -104,6 +104,10 @@ def load_any(path: Path, survey: Path | None = None, strict: bool = False) -> Re
         if survey is not None:
             raise LogFormatError(f"{path}: an MCAP recording carries its own anchors; --survey is for flight logs")
         return cache.read_cached(path, strict)
+    if survey is None and path.is_file() and not survey_for(path).is_file():
+        looked = dict.fromkeys([str(path.resolve().parent.parent / "surveys"), str(survey_for(path).parent)])
+        raise SurveyError(f"{path}: no survey of its day: {survey_for(path).name} is not in "
+                          f"{' nor in '.join(looked)} (name one with --survey FILE)")
     # a log is imported once for a given log and survey (the cache's key is both files)
     sources = [path, Path(survey or survey_for(path))]
     rec = cache.load(*sources)
