@@ -23,10 +23,9 @@ run here; their figures are in docs/notebook/bias.md and their tags run them int
 JSON (not ranked either): offset (session 60, experiment/tag-offset-constant), the form
 carrying its training flights' median tag offset as one constant, and huber (session 62,
 experiment/huber-loss), the untranslated form trained on the Huber loss, and distilled
-(session 65, experiment/distill), the link form's restarts distilled into one network.
-And refit (session 65): the link form's chosen restart trained again on the training
-and validation flights together (`rig train --refit`), judged against the link form by
-its own rule (bias_validation_results.recipe_verdict), not ranked.
+(session 65, experiment/distill), the link form's restarts distilled into one network,
+and refit (session 65, experiment/refit), its chosen restart trained again with the
+validation flights.
 
 The protocol is fixed here, before any result is looked at:
 - splits, by flight (samples 20 ms apart are not independent):
@@ -118,14 +117,12 @@ from bias_validation_results import (  # noqa: E402
     ENTRY_PAGE,
     FLIGHT_SPLITS,
     PAGE,
-    REFIT,
     REGION_Z,
     RESULTS,
     SECTORS,
     UNTRANSLATED,
     WITHIN_0426_FOLDS,
     choose_form,
-    recipe_verdict,
     row_key,
     summary,
     write_doc,
@@ -134,7 +131,7 @@ from bias_validation_results import (  # noqa: E402
 
 CACHE = ROOT / "out" / "cache" / "all.npz"
 TDOA3 = [f"0425-traj{k}" for k in range(13, 24)] + ["0426-traj5", "0426-traj6"]
-FORMS = {"link": "7", "shared": "shared", "pair": "14", UNTRANSLATED: "7", REFIT: "7"}   # form -> rig train's feature set
+FORMS = {"link": "7", "shared": "shared", "pair": "14", UNTRANSLATED: "7"}   # form -> rig train's feature set
 VALIDATION_SHARE = 0.15
 
 
@@ -220,7 +217,7 @@ def clamped_correction(net, samples: Samples, trained: Samples) -> tuple[np.ndar
 
 def form_config(form: str, **kwargs) -> TrainConfig:
     """The training configuration of a form of this page."""
-    return TrainConfig.with_features(FORMS[form], untranslated=form == UNTRANSLATED, refit=form == REFIT, **kwargs)
+    return TrainConfig.with_features(FORMS[form], untranslated=form == UNTRANSLATED, **kwargs)
 
 
 def flight_split_samples(split_name: str, seed: int) -> tuple[Samples, Split]:
@@ -369,7 +366,6 @@ def main() -> None:
     for line in summary(rows):
         print(json.dumps(line))
     print(json.dumps(choose_form(rows)))
-    print(json.dumps({REFIT: recipe_verdict(rows, REFIT)}))
     write_pages(rows, args.doc, entry)
 
 

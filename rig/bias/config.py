@@ -39,10 +39,6 @@ class TrainConfig:
     # (rig.bias.tag_offset): the correction then carries none, as no flight can tell one
     # from where the tag really is
     untranslated: bool = False
-    # once a restart is chosen, train it again from its initialisation on the training
-    # and validation flights together, for the epochs it took to its best: the validation
-    # flights are data too (session 65, docs/notebook/bias.md)
-    refit: bool = False
 
     def __post_init__(self) -> None:
         if self.restarts < 1:

@@ -181,12 +181,10 @@ def _anchor_offsets(model, out_scale: float, seen: np.ndarray) -> np.ndarray | N
 
 
 def train(train_set: Samples, validation_set: Samples, config: TrainConfig = TrainConfig(),
-          progress=None, score: Callable[[BiasNet], float] | None = None,
-          fixed_epochs: bool = False) -> tuple[BiasNet, dict]:
+          progress=None, score: Callable[[BiasNet], float] | None = None) -> tuple[BiasNet, dict]:
     """Fit `config.restarts` networks from different initialisations and keep the one with the
     lowest `score` (default: the validation error); returns it with its training history and
-    every restart's result. `fixed_epochs`: each trains for exactly `config.max_epochs`
-    and keeps its last weights (no early stopping)."""
+    every restart's result."""
     torch = import_torch()
     in_mean, in_scale = _standardisation(train_set, config)
     # a difference of link biases has no offset of its own
@@ -206,7 +204,7 @@ def train(train_set: Samples, validation_set: Samples, config: TrainConfig = Tra
     tic = time.perf_counter()
     runs = []
     for restart in range(config.first_restart, config.first_restart + config.restarts):
-        model, run = _train_once(torch, data, config, restart, progress, fixed_epochs)
+        model, run = _train_once(torch, data, config, restart, progress)
         net = _to_bias_net(model, in_mean, in_scale, out_scale, out_offset, config.form, seen)
         if score is not None:
             run["validation_rmse_3d"] = score(net)
@@ -229,8 +227,7 @@ def closed_loop_rmse(recordings: list, net: BiasNet) -> float:
     return float(np.mean([r["rmse_3d"] for r in results]))
 
 
-def _train_once(torch, data: tuple, config: TrainConfig, restart: int, progress=None,
-                fixed_epochs: bool = False) -> tuple:
+def _train_once(torch, data: tuple, config: TrainConfig, restart: int, progress=None) -> tuple:
     """One training run from the initialisation `config.init_seed(restart)`."""
     xt, yt, xv, yv = data
     init_seed = config.init_seed(restart)
@@ -254,15 +251,12 @@ def _train_once(torch, data: tuple, config: TrainConfig, restart: int, progress=
         with torch.no_grad():
             val = float(loss_fn(model(xv), yv)) if len(xv) else float(loss)
         history.append({"epoch": epoch, "validation_mse": val})
-        if fixed_epochs:
-            best, best_epoch, best_state = val, epoch, None
-        elif val < best - 1e-6:
+        if val < best - 1e-6:
             best, best_epoch = val, epoch
             best_state = {k: v.clone() for k, v in model.state_dict().items()}
         elif epoch - best_epoch >= config.patience:
             break
-    if best_state is not None:
-        model.load_state_dict(best_state)
+    model.load_state_dict(best_state)
     return model, {"restart": restart, "init_seed": init_seed, "validation_mse": best,
                    "epochs": len(history), "best_epoch": best_epoch, "history": history}
 
@@ -316,9 +310,6 @@ def fit(samples: Samples, split: Split, config: TrainConfig = TrainConfig(), exc
         recordings = [load_any(flight_dir / name) for name in split.validation]
         score = lambda net: closed_loop_rmse(recordings, net)  # noqa: E731
     net, info = train(train_set, validation_set, config, progress, score)
-    if config.refit:
-        train_set = Samples.concatenate([train_set, validation_set])
-        net, info = _refitted(train_set, validation_set, config, info, progress)
     # it corrects only the anchors it learnt (the C estimator leaves the others alone),
     # and says where it learnt them (`rig evaluate` reports a flight's share outside)
     net = replace(net, anchors=np.union1d(train_set.id_a, train_set.id_b).astype(int).tolist(),
@@ -328,16 +319,6 @@ def fit(samples: Samples, split: Split, config: TrainConfig = TrainConfig(), exc
               "validation": residual_stats(net, validation_set), "test": residual_stats(net, test_set),
               "training": {k: v for k, v in info.items() if k != "history"}, "history": info["history"]}
     return net, report
-
-
-def _refitted(both: Samples, validation_set: Samples, config: TrainConfig, chosen: dict,
-              progress=None) -> tuple[BiasNet, dict]:
-    """The chosen restart trained again on `both` (the training and the validation
-    flights), from its initialisation, for the epochs it took to its best."""
-    again = replace(config, refit=False, first_restart=chosen["restart"], restarts=1,
-                    max_epochs=chosen["best_epoch"] + 1)
-    net, info = train(both, validation_set, again, progress, fixed_epochs=True)
-    return net, {**chosen, "refit": {k: v for k, v in info.items() if k not in ("history", "restarts", "config")}}
 
 
 def provenance_path(model_path: Path) -> Path:

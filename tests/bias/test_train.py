@@ -194,26 +194,6 @@ def test_a_score_chooses_the_kept_restart() -> None:
     assert net.predict(probe)[0] == pytest.approx(-info["validation_rmse_3d"], abs=1e-9)
 
 
-def test_refitting_trains_the_chosen_restart_again_with_the_validation_flights() -> None:
-    """The restart chosen on the validation flight, trained again from its
-    initialisation on both flights for the epochs it took to its best: the same network
-    as training it on both for that many epochs, and it learns the validation flight."""
-    data = synthetic_samples(2, 1000, seed=3)
-    split = Split(["sim0"], ["sim1"], [])
-    chosen, chosen_report = fit(data, split, TrainConfig(max_epochs=6, restarts=2, seed=2, select_by="mse"))
-    net, report = fit(data, split, TrainConfig(max_epochs=6, restarts=2, seed=2, select_by="mse", refit=True))
-    kept = chosen_report["training"]
-    assert report["training"]["restart"] == kept["restart"]
-    assert report["training"]["refit"]["epochs"] == kept["best_epoch"] + 1
-    assert report["samples"]["train"] == len(data)
-    alone, _ = train(data, data.select(data.flight == "sim1"),
-                     TrainConfig(max_epochs=kept["best_epoch"] + 1, seed=2, first_restart=kept["restart"]),
-                     fixed_epochs=True)
-    x, a, b = data.features[:50], data.id_a[:50], data.id_b[:50]
-    assert net.predict(x, a, b) == pytest.approx(alone.predict(x), abs=1e-9)
-    assert not np.allclose(net.predict(x, a, b), chosen.predict(x, a, b))
-
-
 def test_split_is_by_flight_and_seeded() -> None:
     names = [f"f{k}" for k in range(35)]
     split = split_flights(names, seed=0)
