@@ -66,22 +66,3 @@ def test_session_59s_rule_on_the_rows(untranslated: float, worse: int, met: bool
     assert verdict["worse_flights"] == {"link": 8.0, results.UNTRANSLATED: 4.0 * worse}
     assert results.untranslated_verdict(rows[:-1]) is not None        # a seed short still has every split
     assert results.untranslated_verdict([r for r in rows if r["split"] != "day-0426"]) is None
-
-
-@pytest.mark.parametrize("six, worse, met", [(0.206, 2, True),      # 0.004 m better, as many worse
-                                             (0.208, 2, False),     # only 0.002 m better
-                                             (0.206, 3, False)])    # more flights worse
-def test_session_65s_rule_on_the_rows(six: float, worse: int, met: bool) -> None:
-    rows = _rows("link", 0.210, 2) + _rows(results.SIX_RESTARTS, six, worse)
-    verdict = results.recipe_verdict(rows, results.SIX_RESTARTS)
-    assert verdict is not None and verdict["rule_met"] is met
-    assert verdict["link"]["worse_flights"] == 24 and verdict[results.SIX_RESTARTS]["worse_flights"] == 12 * worse
-    assert results.recipe_verdict(rows[:-1], results.SIX_RESTARTS) is None        # every split on every seed
-
-
-def test_session_65s_rule_holds_every_split() -> None:
-    """Better on average is not enough: one split more than 0.005 m worse fails (c)."""
-    rows = _rows("link", 0.210, 2) + [{**r, "mean_rmse_3d": 0.216 if r["split"] == "day-0426" else 0.200}
-                                      for r in _rows(results.SIX_RESTARTS, 0.0, 2)]
-    verdict = results.recipe_verdict(rows, results.SIX_RESTARTS)
-    assert verdict["met"] == {"a_gain": True, "b_worse": True, "c_splits": False} and not verdict["rule_met"]
