@@ -25,9 +25,9 @@ carrying its training flights' median tag offset as one constant, and huber (ses
 experiment/huber-loss), the untranslated form trained on the Huber loss, and distilled
 (session 65, experiment/distill), the link form's restarts distilled into one network,
 refit (session 65, experiment/refit), its chosen restart trained again with the
-validation flights, and six-restarts (session 65, experiment/six-restarts; again in
-session 66 on fresh seeds), the link form choosing among six restarts instead of three,
-judged against the link form by its own rule (bias_validation_results.recipe_verdict).
+validation flights, and six-restarts (session 65, experiment/six-restarts; on fresh
+seeds in session 66, experiment/six-restarts-replication), the link form choosing among
+six restarts instead of three.
 
 The protocol is fixed here, before any result is looked at:
 - splits, by flight (samples 20 ms apart are not independent):
@@ -120,14 +120,11 @@ from bias_validation_results import (  # noqa: E402
     FLIGHT_SPLITS,
     PAGE,
     REGION_Z,
-    REPLICATION_SEEDS,
     RESULTS,
     SECTORS,
-    SIX_RESTARTS,
     UNTRANSLATED,
     WITHIN_0426_FOLDS,
     choose_form,
-    recipe_verdict,
     row_key,
     summary,
     write_doc,
@@ -136,7 +133,7 @@ from bias_validation_results import (  # noqa: E402
 
 CACHE = ROOT / "out" / "cache" / "all.npz"
 TDOA3 = [f"0425-traj{k}" for k in range(13, 24)] + ["0426-traj5", "0426-traj6"]
-FORMS = {"link": "7", "shared": "shared", "pair": "14", UNTRANSLATED: "7", SIX_RESTARTS: "7"}   # form -> rig train's feature set
+FORMS = {"link": "7", "shared": "shared", "pair": "14", UNTRANSLATED: "7"}   # form -> rig train's feature set
 VALIDATION_SHARE = 0.15
 
 
@@ -222,8 +219,6 @@ def clamped_correction(net, samples: Samples, trained: Samples) -> tuple[np.ndar
 
 def form_config(form: str, **kwargs) -> TrainConfig:
     """The training configuration of a form of this page."""
-    if form == SIX_RESTARTS:
-        kwargs["restarts"] = 6
     return TrainConfig.with_features(FORMS[form], untranslated=form == UNTRANSLATED, **kwargs)
 
 
@@ -373,8 +368,6 @@ def main() -> None:
     for line in summary(rows):
         print(json.dumps(line))
     print(json.dumps(choose_form(rows)))
-    for seeds in ((0, 1, 2), REPLICATION_SEEDS):
-        print(json.dumps({SIX_RESTARTS: recipe_verdict(rows, SIX_RESTARTS, seeds)}))
     write_pages(rows, args.doc, entry)
 
 

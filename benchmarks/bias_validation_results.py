@@ -33,16 +33,8 @@ UNTRANSLATED_TOLERANCE_M = 0.005
 # and rows of forms tried and removed, if a tag runs them into the JSON (session 60's
 # "offset": experiment/tag-offset-constant; session 62's "huber": experiment/huber-loss;
 # session 65's "distilled": experiment/distill, "refit": experiment/refit and
-# "six-restarts": experiment/six-restarts)
+# "six-restarts": experiment/six-restarts and, on fresh seeds, experiment/six-restarts-replication)
 NOT_RANKED = (UNTRANSLATED, "offset", "huber", "distilled", "refit", "six-restarts")
-# the link form choosing among six restarts instead of three (session 65): judged by
-# recipe_verdict against the link form
-SIX_RESTARTS = "six-restarts"
-RECIPE_GAIN_M = 0.003             # how much more accurate a new recipe must be
-RECIPE_SPLIT_TOLERANCE_M = 0.005  # and no day or mode split worse than this
-# Session 66: six restarts again, by the same rule, on seeds no run had used (their own
-# cuts and initialisations); seeds 0-2 had missed (a) by 0.00004 m
-REPLICATION_SEEDS = (3, 4, 5)
 
 
 def merge_folds(rows: list[dict]) -> list[dict]:
@@ -137,29 +129,6 @@ def untranslated_verdict(rows: list[dict]) -> dict | None:
         worse[form] = float(sum(e["worse_flights"]["mean"] for e in entries))
     met = accuracy[UNTRANSLATED] <= accuracy["link"] + UNTRANSLATED_TOLERANCE_M and worse[UNTRANSLATED] < worse["link"]
     return {"accuracy_m": accuracy, "worse_flights": worse, "rule_met": met}
-
-
-def recipe_verdict(rows: list[dict], form: str, seeds: tuple[int, ...] = (0, 1, 2)) -> dict | None:
-    """Session 65's rule for a change to the link form's training recipe, fixed before
-    its runs: `form` replaces the link form's recipe only if, over the four day and mode
-    splits and `seeds`, (a) its accuracy (as choose_form's) is at least RECIPE_GAIN_M
-    below the link form's, (b) it makes no more flights worse (summed over splits and
-    seeds), and (c) no split's mean 3D RMSE over seeds is more than
-    RECIPE_SPLIT_TOLERANCE_M above the link form's. None until both have every split on
-    every one of `seeds`. Session 66 applies it unchanged to fresh seeds (REPLICATION_SEEDS)."""
-    by_form = {}
-    for name in ("link", form):
-        runs = [r for r in rows if r["form"] == name and r["split"] in FLIGHT_SPLITS and r["seed"] in seeds]
-        if {(r["split"], r["seed"]) for r in runs} != {(s, k) for s in FLIGHT_SPLITS for k in seeds}:
-            return None
-        split_mean = {s: float(np.mean([r["mean_rmse_3d"] for r in runs if r["split"] == s])) for s in FLIGHT_SPLITS}
-        by_form[name] = {"accuracy_m": float(np.mean(list(split_mean.values()))), "splits": split_mean,
-                         "worse_flights": int(sum(r["worse_flights"] for r in runs))}
-    link, new = by_form["link"], by_form[form]
-    met = {"a_gain": new["accuracy_m"] <= link["accuracy_m"] - RECIPE_GAIN_M,
-           "b_worse": new["worse_flights"] <= link["worse_flights"],
-           "c_splits": all(new["splits"][s] <= link["splits"][s] + RECIPE_SPLIT_TOLERANCE_M for s in FLIGHT_SPLITS)}
-    return {"seeds": list(seeds), **by_form, "met": met, "rule_met": all(met.values())}
 
 
 def shipped_recipe(rows: list[dict]) -> str:

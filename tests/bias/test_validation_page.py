@@ -37,8 +37,7 @@ def test_the_pages_are_rewritten_from_their_kept_results(tmp_path: Path, rows: l
 def test_every_row_is_of_the_protocol_on_the_pinned_branch(rows: list[dict]) -> None:
     assert {r.get("mkl_cbwr") for r in rows} == {MKL_BRANCH}
     assert {r["split"] for r in rows} == {*results.FLIGHT_SPLITS, "within-0426", "anchors", "region", "sector"}
-    ranked = {f for f in bv.FORMS if f not in results.NOT_RANKED}
-    assert ranked <= {r["form"] for r in rows} <= set(bv.FORMS)
+    assert {r["form"] for r in rows} == set(bv.FORMS)
     assert len({results.row_key(r) for r in rows}) == len(rows)
 
 
@@ -50,11 +49,11 @@ def test_the_estimates_table_needs_its_markers(tmp_path: Path, rows: list[dict])
     assert page.read_text() == "# no table here\n"
 
 
-def _rows(form: str, rmse: float, worse: int, seeds: tuple[int, ...] = (0, 1, 2)) -> list[dict]:
+def _rows(form: str, rmse: float, worse: int) -> list[dict]:
     """One row per day and mode split and seed: every seed alike."""
     return [{"split": split, "form": form, "seed": seed, "test": ["f"], "mean_rmse_3d": rmse,
              "mean_rmse_3d_without": 0.3, "worse_flights": worse, "tdoa": {"std_before": 0.3, "std_after": 0.25}}
-            for split in results.FLIGHT_SPLITS for seed in seeds]
+            for split in results.FLIGHT_SPLITS for seed in (0, 1, 2)]
 
 
 @pytest.mark.parametrize("untranslated, worse, met", [(0.214, 1, True),     # within 0.005 m, fewer worse
@@ -67,34 +66,3 @@ def test_session_59s_rule_on_the_rows(untranslated: float, worse: int, met: bool
     assert verdict["worse_flights"] == {"link": 8.0, results.UNTRANSLATED: 4.0 * worse}
     assert results.untranslated_verdict(rows[:-1]) is not None        # a seed short still has every split
     assert results.untranslated_verdict([r for r in rows if r["split"] != "day-0426"]) is None
-
-
-@pytest.mark.parametrize("six, worse, met", [(0.206, 2, True),      # 0.004 m better, as many worse
-                                             (0.208, 2, False),     # only 0.002 m better
-                                             (0.206, 3, False)])    # more flights worse
-def test_session_65s_rule_on_the_rows(six: float, worse: int, met: bool) -> None:
-    rows = _rows("link", 0.210, 2) + _rows(results.SIX_RESTARTS, six, worse)
-    verdict = results.recipe_verdict(rows, results.SIX_RESTARTS)
-    assert verdict is not None and verdict["rule_met"] is met
-    assert verdict["link"]["worse_flights"] == 24 and verdict[results.SIX_RESTARTS]["worse_flights"] == 12 * worse
-    assert results.recipe_verdict(rows[:-1], results.SIX_RESTARTS) is None        # every split on every seed
-
-
-def test_session_65s_rule_holds_every_split() -> None:
-    """Better on average is not enough: one split more than 0.005 m worse fails (c)."""
-    rows = _rows("link", 0.210, 2) + [{**r, "mean_rmse_3d": 0.216 if r["split"] == "day-0426" else 0.200}
-                                      for r in _rows(results.SIX_RESTARTS, 0.0, 2)]
-    verdict = results.recipe_verdict(rows, results.SIX_RESTARTS)
-    assert verdict["met"] == {"a_gain": True, "b_worse": True, "c_splits": False} and not verdict["rule_met"]
-
-
-def test_session_66s_replication_reads_only_its_own_seeds() -> None:
-    """The same rule on fresh seeds: the rows of seeds 0-2 (here a clear pass) take no part."""
-    fresh = results.REPLICATION_SEEDS
-    rows = (_rows("link", 0.210, 2) + _rows(results.SIX_RESTARTS, 0.200, 0)
-            + _rows("link", 0.210, 2, fresh) + _rows(results.SIX_RESTARTS, 0.208, 2, fresh))
-    assert results.recipe_verdict(rows, results.SIX_RESTARTS)["rule_met"]
-    verdict = results.recipe_verdict(rows, results.SIX_RESTARTS, fresh)
-    assert verdict["seeds"] == [3, 4, 5] and not verdict["met"]["a_gain"] and not verdict["rule_met"]
-    assert verdict["link"]["worse_flights"] == 24
-    assert results.recipe_verdict(rows[:-1], results.SIX_RESTARTS, fresh) is None
