@@ -15,11 +15,14 @@ from which the injected flight tells it from its look-alikes, along its directio
 (rig.diagnosis.identifiability), is marked "below what the flight tells apart": its own signal
 beyond the look-alikes does not pay for it, and it is found only as a change of the
 flight's own effect of that kind or reported in its look-alike's place.
-Each case is judged twice: as the suite judges it, and as a check that reads the two
-reports' findings and nothing else would (an effect a report does not name neutral
-there, an NLOS's change the difference of the two reports' mean shifts; judge_alone).
-Over the real flights that ran the issue's whole catalog, it prints the share of the
-ways to draw 8 of its 12 cases in which at least 7 are found, both ways.
+Each case is judged three ways (JUDGES): as the suite judges it; as a check that reads
+the two reports' findings and nothing else would (an effect a report does not name
+neutral there, an NLOS's change the difference of the two reports' mean shifts;
+judge_alone), counting the fits a report lists as not explained (beyond their effect's
+physical bound) as named; and so, but reading report.json's `findings` alone, with
+what it leaves not explained as not named. Over the real flights that ran the issue's
+whole catalog, it prints the share of the ways to draw 8 of its 12 cases in which at
+least 7 are found, each way.
 The findings themselves go to OUT with `.findings.json` for a suffix; `--rejudge` judges
 those again without diagnosing (after a change to the judging). `--variants` runs other
 sizes, signs, anchors and axes of the catalog effects (VARIANTS) on six real flights
@@ -161,15 +164,23 @@ def _listed(diagnosis) -> dict:
             "in_place": report["in_place_estimates"]}
 
 
+# How a case is judged, and the key of its verdict in the rows: as the suite judges;
+# by the two reports alone, the fits not explained counted; by their `findings` alone.
+JUDGES = {"suite": "found", "reports": "found_alone", "findings": "found_in_findings"}
+
+
 def judge(found: dict, control: dict, name: str, params: dict, check, real: bool,
           samples: compare.TdoaSamples | None, control_samples: compare.TdoaSamples | None,
-          alone: bool = False) -> tuple[bool, str]:
-    """`found`: the injected flight's findings, keyed; `control`: its control's, as
-    listed. `alone`: as a check that reads the two reports' findings and nothing else
-    would judge (see judge_alone)."""
+          how: str = "suite") -> tuple[bool, str]:
+    """`found`: the injected flight's fits (findings and those not explained), keyed;
+    `control`: its control's, as listed. `how`: one of JUDGES (see judge_alone for
+    "reports"; "findings" judges so after leaving out on both recordings every fit
+    beyond its effect's physical bound, which report.json lists as not explained)."""
     own = cases.keyed(control["findings"])
+    if how == "findings":
+        found, own = within_bound(found), within_bound(own)
     try:
-        if alone:
+        if how != "suite":
             judge_alone(found, own, name, params, check, real, samples)
         else:
             cases.check_case(found, own, name, params, check, real=real, samples=samples,
@@ -178,6 +189,11 @@ def judge(found: dict, control: dict, name: str, params: dict, check, real: bool
         return True, "found"
     except AssertionError as error:
         return False, str(error).split(";")[0][:160]
+
+
+def within_bound(keyed: dict) -> dict:
+    """The fits report.json lists as findings: those within their effect's physical bound."""
+    return {key: fit for key, fit in keyed.items() if not fit.get("beyond_physical_bound")}
 
 
 def judge_alone(found: dict, own: dict, name: str, params: dict, check, real: bool,
@@ -243,18 +259,20 @@ def main() -> None:
             samples = listed_samples and compare.TdoaSamples.from_json(listed_samples)
             control, _, _, control_samples = results[(flight, "control")]
             control_samples = control_samples and compare.TdoaSamples.from_json(control_samples)
-            (ok, how), (alone_ok, alone_how) = [
-                judge(cases.keyed(found["findings"]), own or control, name, params, check, flight != "sim", samples,
-                      control_samples, alone) for alone in (False, True)]
+            verdicts = {how: judge(cases.keyed(found["findings"]), own or control, name, params, check,
+                                   flight != "sim", samples, control_samples, how) for how in JUDGES}
+            (ok, detail), (alone_ok, alone_detail) = verdicts["suite"], verdicts["reports"]
             below = None if shown is None else shown.below
-            rows[label] = {"found": ok, "detail": how, "found_alone": alone_ok, "below_told_apart": below}
-            print(f"{flight:12s} {label:28s} {'found ' if ok else 'MISSED'} {'' if ok else how}"
+            rows[label] = {**{JUDGES[how]: v[0] for how, v in verdicts.items()}, "detail": detail,
+                           "below_told_apart": below}
+            print(f"{flight:12s} {label:28s} {'found ' if ok else 'MISSED'} {'' if ok else detail}"
                   + (f" [{describe(shown)}]" if below else "")
-                  + (f" [by the reports alone: {'found' if alone_ok else alone_how}]" if alone_ok != ok else ""))
-        summary[flight] = {"found": sum(r["found"] for r in rows.values()),
-                           "found_alone": sum(r["found_alone"] for r in rows.values()), "of": len(rows), "cases": rows}
+                  + (f" [by the reports alone: {'found' if alone_ok else alone_detail}]" if alone_ok != ok else "")
+                  + (" [not in `findings`]" if alone_ok and not verdicts["findings"][0] else ""))
+        summary[flight] = {**{key: sum(r[key] for r in rows.values()) for key in JUDGES.values()},
+                           "of": len(rows), "cases": rows}
         print(f"{flight}: {summary[flight]['found']} of {len(rows)} (by the reports alone "
-              f"{summary[flight]['found_alone']})")
+              f"{summary[flight]['found_alone']}, by their findings alone {summary[flight]['found_in_findings']})")
     real = [flight for flight in flights if flight != "sim"]
     per_effect = {label: sum(summary[f]["cases"][label]["found"] for f in real) for label in chosen}
     below = {label: below_told_apart([summary[f]["cases"][label] for f in real]) for label in chosen}
@@ -262,12 +280,14 @@ def main() -> None:
         print(f"{label:28s} found on {found:2d} of {len(real)} real flights"
               + (f"; below what the flight tells apart on {below[label]['flights']}, found on "
                  f"{below[label]['found']} of those" if below[label] and below[label]["flights"] else ""))
-    draws = {how: draws_finding_most([summary[f]["cases"] for f in real], how) for how in ("found", "found_alone")}
+    draws = {key: draws_finding_most([summary[f]["cases"] for f in real], key) for key in JUDGES.values()}
     print(f"real: {sum(per_effect.values())} of {len(real) * len(chosen)} "
-          f"(by the reports alone {sum(summary[f]['found_alone'] for f in real)})")
+          f"(by the reports alone {sum(summary[f]['found_alone'] for f in real)}, "
+          f"by their findings alone {sum(summary[f]['found_in_findings'] for f in real)})")
     if all(draws.values()):
         print(f"draws of {DRAWN} of the issue's catalog finding at least {DRAWN - 1}: {draws['found']:.0%} "
-              f"(by the reports alone {draws['found_alone']:.0%})")
+              f"(by the reports alone {draws['found_alone']:.0%}, by their findings alone "
+              f"{draws['found_in_findings']:.0%})")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps({"flights": summary, "real_flights_per_effect": per_effect,
                                     "below_told_apart_per_effect": below, "draws_finding_most": draws}, indent=1))
