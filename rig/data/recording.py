@@ -19,7 +19,7 @@ from mcap.reader import make_reader
 from mcap.exceptions import EndOfFile
 from mcap.records import Channel, Message, Metadata
 from mcap.stream_reader import StreamReader
-from mcap.writer import CompressionType, IndexType, Writer
+from mcap.writer import MCAP0_MAGIC, CompressionType, IndexType, Writer
 
 from rig.data.errors import RecordingError
 from rig.data.survey import Anchor
@@ -361,6 +361,10 @@ def _read_topics_checked(path: Path, topics: Iterable[str] | None
         raise RecordingError(f"recording {path} does not exist")
     if path.stat().st_size == 0:
         raise RecordingError(f"recording {path} is empty (0 bytes)")
+    with open(path, "rb") as stream:
+        if stream.read(len(MCAP0_MAGIC)) != MCAP0_MAGIC:
+            raise RecordingError(f"{path} is not an MCAP file: it does not begin with MCAP's magic bytes "
+                                 f"({path.stat().st_size} bytes)")
     wanted = set(topics) if topics is not None else None
     try:
         return (*_read_whole(path, wanted), True)

@@ -167,6 +167,18 @@ def test_a_recording_cut_before_its_first_chunk_or_empty_is_a_clear_error(tmp_pa
     assert proc.returncode == 2 and f"recording {empty} is empty (0 bytes)" in proc.stderr
 
 
+@pytest.mark.parametrize("content", [b"garbage", bytes(range(256)) * 12])
+def test_a_file_that_is_not_mcap_is_named_so(tmp_path: Path, content: bytes) -> None:
+    """Too short for MCAP's magic, or other bytes where it should be: said so, not a
+    parser's message about unpacking."""
+    other = tmp_path / "other.mcap"
+    other.write_bytes(content)
+    proc = run_rig("evaluate", str(other))
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert f"{other} is not an MCAP file: it does not begin with MCAP's magic bytes ({len(content)} bytes)" \
+        in proc.stderr
+
+
 def test_cli_reports_a_missing_file_without_traceback(tmp_path: Path) -> None:
     proc = run_rig("import", str(tmp_path / "nope"), "--survey", str(tmp_path / "nope.txt"), "-o",
                    str(tmp_path / "o.mcap"))
