@@ -189,7 +189,9 @@ def _not_explained_lines(diagnosis: Diagnosis) -> list[str]:
              "The mismatch these fits remove is real, but each is larger than its effect can physically be, so "
              "none is a finding and the re-simulation leaves them out (report.json's `not_explained`). They say "
              "where the residual lies; on real flights it is mostly the part of the UWB's pose-dependent bias "
-             "that the link bias every link shares does not carry: each anchor's own, and each place's.", ""]
+             "that the link bias every link shares does not carry: each anchor's own, and each place's. "
+             "A change to the flight (an anchor moved, an effect injected) of one of these kinds shows only as a "
+             "change of its fit here: compare with a recording of the flight before it (`--control`).", ""]
     for f in diagnosis.not_explained:
         place = f"anchor {', '.join(map(str, f.anchors))}" if f.anchors else f"the {f.channel} channel"
         article = "an" if f.effect[0] in "aeiou" else "a"

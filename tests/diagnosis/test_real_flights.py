@@ -157,7 +157,7 @@ def test_a_fit_beyond_its_physical_bound_is_not_explained_never_a_finding(tmp_pa
     for listed in report["findings"]:
         assert not make_effect(listed["effect"], listed["params"]).beyond_bound(), listed
     markdown = (tmp_path / "report.md").read_text()
-    assert "## Not explained" in markdown
+    assert "## Not explained" in markdown and "(`--control`)" in markdown      # how a change to them shows
     assert len(re.findall(r"\n- on [^\n]*, as an? \w+ would \(evidence", markdown)) == len(report["not_explained"])
     assert "as a anchor" not in markdown and "as a antenna" not in markdown
 
