@@ -11,8 +11,14 @@ delay per anchor and a lever arm, and adds in turn:
 - `link`: the calibrated link bias (rig.sim.effects.link), with one gain;
 - `kind`: sin(el_t) for the ceiling anchors and for the floor ones, each with its own
   coefficient; el_t is the anchor's elevation seen from the tag.
-It prints the lever arm under each model. It is a quick look and runs in seconds: the
-diagnosis fits with Huber weights, priors and many more candidates.
+It prints the lever arm under each model. For the first model it also prints:
+- how much of the lever arm's columns the delays explain (`delays_explain`);
+- the lever arm fitted without delays (`without_delays`);
+- the lever arm's standard error two ways. `se_white_m` treats the samples as
+  independent. `se_blocks_m` sums the fit's scores over BLOCK_S blocks first, since
+  most of the TDOA error varies slowly.
+It is a quick look and runs in seconds: the diagnosis fits with Huber weights, priors
+and many more candidates.
 """
 
 from __future__ import annotations
@@ -38,6 +44,7 @@ MODELS = {"base": [], "link": ["link"], "link+kind": ["link", "kind"]}
 CEILING_Z_M = 1.5           # an anchor above this height is a ceiling anchor
 MAX_ERROR_M = 1.0
 MIN_HEIGHT_M = 0.3
+BLOCK_S = 0.5               # the TDOA error's slow part varies over about this (issue 58)
 
 
 def link_columns(position: np.ndarray, rotation, anchors: np.ndarray) -> dict[str, np.ndarray]:
@@ -55,8 +62,9 @@ def link_columns(position: np.ndarray, rotation, anchors: np.ndarray) -> dict[st
     return {"lever": lever, "link": bias[:, None], "kind": np.column_stack([sin_el * ceiling, sin_el * ~ceiling])}
 
 
-def flight_problem(flight: str) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
-    """The TDOA error, the delays' columns and the other columns (each link B's less link A's)."""
+def flight_problem(flight: str) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray], np.ndarray]:
+    """The TDOA error, the delays' columns, the other columns (each link B's less link
+    A's) and the samples' times."""
     rec = load_any(paths.data_dir() / "flights" / flight)
     predicted = Predictor(rec).tdoa([])
     error = rec.tdoa.distance_diff - predicted.value
@@ -68,7 +76,7 @@ def flight_problem(flight: str) -> tuple[np.ndarray, np.ndarray, dict[str, np.nd
     side_a = link_columns(position, rotation, np.array([positions[int(k)] for k in id_a]))
     side_b = link_columns(position, rotation, np.array([positions[int(k)] for k in id_b]))
     delays = np.column_stack([(id_b == k).astype(float) - (id_a == k) for k in sorted(positions)])
-    return error[keep], delays, {name: side_b[name] - side_a[name] for name in side_a}
+    return error[keep], delays, {name: side_b[name] - side_a[name] for name in side_a}, rec.tdoa.t[keep]
 
 
 def fit(error: np.ndarray, delays: np.ndarray, columns: dict[str, np.ndarray], extra: list[str]) -> dict:
@@ -84,6 +92,26 @@ def fit(error: np.ndarray, delays: np.ndarray, columns: dict[str, np.ndarray], e
     return out
 
 
+def lever_arm_conditioning(error: np.ndarray, delays: np.ndarray, lever: np.ndarray, t: np.ndarray) -> dict:
+    """How far the delays leave the lever arm its own signal, and its standard error with
+    independent samples and with the scores summed over BLOCK_S blocks (a sandwich)."""
+    design = np.column_stack([delays, lever])
+    coef, *_ = np.linalg.lstsq(design, error, rcond=None)
+    residual = error - design @ coef
+    bread = np.linalg.pinv(design.T @ design)
+    scores = design * residual[:, None]
+    block = np.floor((t - t[0]) / BLOCK_S).astype(int)
+    summed = np.zeros((block.max() + 1, design.shape[1]))
+    np.add.at(summed, block, scores)
+    white = np.sqrt(np.diag(bread) * np.var(residual))[-3:]
+    blocks = np.sqrt(np.diag(bread @ (summed.T @ summed) @ bread))[-3:]
+    explained = lever - delays @ np.linalg.lstsq(delays, lever, rcond=None)[0]
+    alone, *_ = np.linalg.lstsq(lever, error - error.mean(), rcond=None)
+    return {"delays_explain": np.round(1 - explained.var(axis=0) / lever.var(axis=0), 3).tolist(),
+            "without_delays": np.round(alone, 3).tolist(), "se_white_m": np.round(white, 3).tolist(),
+            "se_blocks_m": np.round(blocks, 3).tolist()}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--flights", nargs="+", default=FLIGHTS)
@@ -91,11 +119,14 @@ def main() -> None:
     args = parser.parse_args()
     results = {}
     for flight in args.flights:
-        error, delays, columns = flight_problem(flight)
+        error, delays, columns, t = flight_problem(flight)
         results[flight] = {name: fit(error, delays, columns, extra) for name, extra in MODELS.items()}
+        results[flight]["base"].update(lever_arm_conditioning(error, delays, columns["lever"], t))
         cells = [f"{name}: lever {fitted['lever']}"
                  + "".join(f" {n} {fitted[n]}" for n in MODELS[name]) for name, fitted in results[flight].items()]
-        print(f"{flight:12s} " + " | ".join(cells), flush=True)
+        base = results[flight]["base"]
+        print(f"{flight:12s} " + " | ".join(cells) + f" || delays explain {base['delays_explain']}, without delays "
+              f"{base['without_delays']}, se white {base['se_white_m']}, se blocks {base['se_blocks_m']}", flush=True)
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(results, indent=1) + "\n")
     print(f"wrote {args.json}")
