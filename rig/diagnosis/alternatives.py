@@ -140,5 +140,6 @@ def _in_place(z: np.ndarray, z_simplest: np.ndarray, term: Term, alike: Term, ax
         return full
 
     fitted = Term(alike.candidate, alike.columns, theta=on_axes(stand_in.theta, 0.0), evidence=evidence,
-                  estimate=on_axes(stand_in.estimate, 0.0), std_err=on_axes(stand_in.std_err, alike.candidate.prior))
+                  estimate=on_axes(stand_in.estimate, 0.0), std_err=on_axes(stand_in.std_err, alike.candidate.prior),
+                  std_err_white=on_axes(stand_in.std_err_white, alike.candidate.prior))
     return Alternative(fitted, term, axes, z_with)

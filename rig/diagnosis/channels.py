@@ -72,6 +72,12 @@ class Channel:
     def z(self) -> np.ndarray:
         return self.residual / self.scale
 
+    def slow_error_times(self) -> np.ndarray | None:
+        """The rows' times where the channel's error varies slowly (TDOA: its standard
+        errors count that, rig.diagnosis.terms.estimate_terms); None for the IMU
+        channels, whose rows are block means that share little noise."""
+        return self.t if self.name == "tdoa" else None
+
     def folds(self) -> np.ndarray:
         edges = np.quantile(self.t, np.linspace(0, 1, FOLDS + 1))
         return np.clip(np.searchsorted(edges, self.t, side="right") - 1, 0, FOLDS - 1)

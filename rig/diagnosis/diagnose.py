@@ -90,7 +90,7 @@ from rig.sim import effects as fx
 
 log = logging.getLogger(__name__)
 
-IDENTIFIED_SD_SHARE = 0.5      # a parameter is identified when its standard error is below this share of its prior
+IDENTIFIED_SD_SHARE = 0.5      # a parameter is identified when its white standard error is below this share of its prior
 # A named IMU effect is located on an axis when zeroing that axis raises the robust
 # loss by more than this (half a chi-square: about 2 standard errors). The effect has
 # already paid for itself; this says which of its axes carry it (why 2:
@@ -118,7 +118,8 @@ def unnamed_estimates(problem: Problem, channel: Channel, as_recorded: Channel, 
         if term.key in named_keys or term.candidate.effect == "nlos":
             continue
         terms = [Term(t.candidate, t.columns, t.extra) for t in parametric if rank_of(t) <= rank_of(term)] + [term]
-        estimate_terms(channel.z, terms, as_recorded.z, free_offset_terms(terms, fresh), simplest_unnamed)
+        estimate_terms(channel.z, terms, as_recorded.z, free_offset_terms(terms, fresh), simplest_unnamed,
+                       channel.slow_error_times())
         out.append(_estimated(problem, channel, term))
     return out
 
@@ -141,7 +142,7 @@ def shared_link_bias(problem: Problem, channel: Channel, as_recorded: Channel, n
     if not term.supported:
         return None
     estimate_terms(channel.z, judged, as_recorded.z, free_offset_terms(judged, fresh),
-                   unnamed_simplest_terms(fresh, simplest, "tdoa"))
+                   unnamed_simplest_terms(fresh, simplest, "tdoa"), channel.slow_error_times())
     return term, refit(channel.z, judged)
 
 
@@ -338,13 +339,15 @@ def _shape_finding(problem: Problem, fit: nlos_mixture.NlosShapeFit) -> Finding:
 
 def _uncertainty(term: Term) -> tuple[dict, list[str]]:
     """The estimate's standard errors, keyed like its parameter (an NLOS term fits the
-    mean shift, fraction × mean excess), and the components whose standard error is
-    more than IDENTIFIED_SD_SHARE of the prior: the trajectory does not tell them
-    apart from the simpler explanations, and their values are mostly the prior's."""
+    mean shift, fraction × mean excess), and the components that the trajectory does
+    not tell apart from the simpler explanations, their values mostly the prior's:
+    those whose standard error with independent samples is more than
+    IDENTIFIED_SD_SHARE of the prior (a slow error makes a measurement less precise,
+    not a trajectory less telling)."""
     c = term.candidate
     name = "mean_shift_m" if c.effect == "nlos" else c.param
     sd = term.std_err
-    vague = np.flatnonzero(sd > IDENTIFIED_SD_SHARE * c.prior)
+    vague = np.flatnonzero(term.std_err_white > IDENTIFIED_SD_SHARE * c.prior)
     sd = sd * c.value_slope(term.estimate)      # in the parameter's unit
     if c.size == 1:
         return {name: rounded_floats(float(sd[0]))}, [name] if len(vague) else []

@@ -153,8 +153,9 @@ def _markdown(diagnosis: Diagnosis, report: dict, images: list[tuple[str, str]])
                  if f.look_alikes else "")
         unnamed_axes = {f"[{AXES.index(axis)}]" for axis in f.not_named_axes}     # an IMU finding has one parameter
         unclear = [label for label in f.not_identified if label[label.find("["):] not in unnamed_axes]
-        vague = (" Not identified by this trajectory (standard error most of the prior's, the value is mostly "
-                 "the prior's): " + ", ".join(unclear) + "." if unclear else "")
+        vague = (" Not identified by this trajectory (even with independent samples the standard error would "
+                 "be most of the prior's; the value is mostly the prior's): " + ", ".join(unclear) + "."
+                 if unclear else "")
         if f.not_named_axes:
             vague += (" Not named on " + ", ".join(f.not_named_axes) + " (those axes do not pay for themselves): "
                       "neutral there.")
@@ -164,7 +165,9 @@ def _markdown(diagnosis: Diagnosis, report: dict, images: list[tuple[str, str]])
     lines += ["", "Evidence is the robust loss an effect removes given the others but its richer look-alikes "
               "(about half a chi-square); larger is stronger. Parameters are estimated given the simpler "
               "explanations only, so they compare between recordings of the same flight; report.json gives "
-              "each one's standard error (`std_err`). Look-alikes: an "
+              "each one's standard error (`std_err`). On TDOA the evidence counts the samples as independent, "
+              "while most of the error varies slowly, so it overstates how sure a finding is; the standard "
+              "errors count the slow error. Look-alikes: an "
               "anchor displacement along the line of sight reads as a delay, and a second-order antenna "
               "pattern over a small range of viewing angles as a displacement; an accelerometer scale on z "
               "reads as a bias in hover, and far from the zero of the recording's clock a drift as a time offset "

@@ -178,7 +178,7 @@ def select(problem: Problem, channel: Channel, pool: list[Candidate]
     if confine_in_time(channel, named, positions):
         named = name_terms(z, named, terms, simplest)      # leaves them fitted jointly
     unnamed = unnamed_simplest_terms(terms, named, channel.name)
-    estimate_terms(z, named, z_before_shapes, free_offset_terms(named, terms), unnamed)
+    estimate_terms(z, named, z_before_shapes, free_offset_terms(named, terms), unnamed, channel.slow_error_times())
     _note_look_alikes(z, named, terms)
     return named, channel, shapes
 

@@ -12,6 +12,7 @@ import numpy as np
 
 from rig.diagnosis.candidates import MIN_EVIDENCE, PENALTY_PER_PARAMETER, Candidate
 from rig.diagnosis.robust import (
+    HUBER_C,
     delay_centre,
     delay_centre_slope,
     huber_loss,
@@ -34,6 +35,8 @@ class Term:
     theta: np.ndarray | None = None                  # in the model: the named terms fitted jointly
     estimate: np.ndarray | None = None               # as reported: given the simpler explanations
     std_err: np.ndarray | None = None                # of the estimate (posterior standard deviation)
+    # the same with the samples counted as independent: what the trajectory alone measures
+    std_err_white: np.ndarray | None = None
     evidence: float = 0.0
     window_cost: bool = False                        # confined in time: its two ends are parameters too
     look_alikes: list = field(default_factory=list)  # (key, evidence) of candidates that did nearly as well
@@ -233,10 +236,13 @@ def rank_of(term: Term) -> int:
 
 
 def estimate_terms(z: np.ndarray, terms: list[Term], z_simplest: np.ndarray | None = None,
-              nuisance: list[Term] = (), simplest_unnamed: list[Term] = ()) -> None:
+              nuisance: list[Term] = (), simplest_unnamed: list[Term] = (), times: np.ndarray | None = None) -> None:
     """Each named term's estimate given the simpler explanations: its value in the
     joint fit of the named terms of its rank or a simpler one (see select), and its
-    standard error in that fit; the simplest (rank 0) on `z_simplest` if given. The
+    standard error in that fit; the simplest (rank 0) on `z_simplest` if given. With
+    the rows' `times` (a channel whose error varies slowly: TDOA), the standard error
+    counts the error's correlation over time (`posterior_cov`); `std_err_white` is
+    the one with independent samples either way. The
     `nuisance` terms (rank 0, not named) are fitted along and not reported; so are
     the `simplest_unnamed` ones (rank 0) for the richer terms, whose estimates then do
     not depend on which of the simplest effects a recording names (naming a time
@@ -252,11 +258,15 @@ def estimate_terms(z: np.ndarray, terms: list[Term], z_simplest: np.ndarray | No
         theta = irls(z_rank, x, prior)
         family = {id(t) for t in delay_family(nested)}
         gauge = np.concatenate([(np.arange(t.columns.shape[1]) == 0) & (id(t) in family) for t in nested])
-        cov = _about_centre(posterior_cov(z_rank, x, prior, theta, gauge), theta, gauge)
+        normal = posterior_normal(z_rank, x, prior, theta, gauge)
+        white = np.linalg.inv(normal)
+        slow = white if times is None else with_slow_error(normal, z_rank, x, theta, times)
+        white, slow = (_about_centre(cov, theta, gauge) for cov in (white, slow))
         for t, part in zip(reported, _slices(nested)):        # the nuisance terms come last
             if rank_of(t) == rank:
                 m = t.param_map()
-                t.estimate, t.std_err = theta[part], np.sqrt(np.diag(m @ cov[part, part] @ m.T))
+                t.estimate = theta[part]
+                t.std_err, t.std_err_white = (np.sqrt(np.diag(m @ cov[part, part] @ m.T)) for cov in (slow, white))
     _centre_gauge(terms, "estimate")
 
 
@@ -287,18 +297,59 @@ def _about_centre(cov: np.ndarray, theta: np.ndarray, gauge: np.ndarray) -> np.n
     return to_reported @ cov @ to_reported.T
 
 
-def posterior_cov(z: np.ndarray, x: np.ndarray, prior: np.ndarray, theta: np.ndarray,
-                  gauge: np.ndarray | None = None) -> np.ndarray:
-    """Covariance of the parameters of a Huber fit with Gaussian priors, from its
-    weighted normal equations (z is standardised: unit noise). Where the data do not
-    separate a parameter from the others its variance approaches its prior's. The
-    `gauge` parameters (a family of delays) are pinned by their sum: the common delay
-    TDOA cannot see does not blur each one (`_about_centre` then takes them relative
-    to their reported centre)."""
+def posterior_normal(z: np.ndarray, x: np.ndarray, prior: np.ndarray, theta: np.ndarray,
+                     gauge: np.ndarray | None = None) -> np.ndarray:
+    """The weighted normal equations of a Huber fit with Gaussian priors: the inverse
+    of the parameters' covariance (z is standardised: unit noise). Where the data do
+    not separate a parameter from the others its variance approaches its prior's.
+    The `gauge` parameters (a family of delays) are pinned by their sum: the common
+    delay TDOA cannot see does not blur each one (`_about_centre` then takes them
+    relative to their reported centre)."""
     normal = weighted_normal(z, x, theta)[0] + np.diag(1.0 / prior ** 2)
     if gauge is not None and gauge.any():
         normal += GAUGE_WEIGHT * np.outer(gauge, gauge).astype(float)
-    return np.linalg.inv(normal)
+    return normal
+
+
+def posterior_cov(z: np.ndarray, x: np.ndarray, prior: np.ndarray, theta: np.ndarray,
+                  gauge: np.ndarray | None = None) -> np.ndarray:
+    """The covariance of `posterior_normal`, with the samples counted as independent."""
+    return np.linalg.inv(posterior_normal(z, x, prior, theta, gauge))
+
+
+# A slow error's standard error is measured by deleting one stretch of the flight at a
+# time: stretches of a tenth of a 25–52 s flight are 2.5–5 s long, several times as
+# long as the TDOA error stays correlated (most of it varies over about 0.5 s).
+JACKKNIFE_BLOCKS = 10
+
+
+def with_slow_error(normal: np.ndarray, z: np.ndarray, x: np.ndarray, theta: np.ndarray,
+                    times: np.ndarray) -> np.ndarray:
+    """The posterior covariance (the inverse of `posterior_normal`'s `normal`), raised
+    to the delete-a-block jackknife's where that is larger: the fit's spread when
+    each of JACKKNIFE_BLOCKS stretches of the flight is left out in turn, which
+    counts an error that is correlated within a stretch. Each refit is one Newton
+    step from `theta` on the Huber loss (its curvature counts the rows within the
+    threshold; the priors and the gauge, `normal` less the rows' weighted Gram,
+    stay). Only what it adds is kept (its positive part), so where the error is
+    not slow the covariance stays the posterior's."""
+    cov = np.linalg.inv(normal)
+    residual = z - x @ theta
+    psi = np.clip(residual, -HUBER_C, HUBER_C)
+    inside = (np.abs(residual) <= HUBER_C).astype(float)
+    fixed = normal - weighted_normal(z, x, theta)[0]
+    block = np.minimum(((times - times.min()) / max(np.ptp(times), 1e-9) * JACKKNIFE_BLOCKS).astype(int),
+                       JACKKNIFE_BLOCKS - 1)
+    curvature = fixed + (x * inside[:, None]).T @ x
+    shifts = []
+    for b in np.unique(block):
+        rows = block == b
+        left = curvature - (x[rows] * inside[rows, None]).T @ x[rows]
+        shifts.append(-np.linalg.solve(left, x[rows].T @ psi[rows]))
+    shifts = np.array(shifts) - np.mean(shifts, axis=0)
+    k = len(shifts)
+    values, vectors = np.linalg.eigh((k - 1) / k * shifts.T @ shifts - cov)
+    return cov + (vectors * np.maximum(values, 0.0)) @ vectors.T
 
 
 def without_axes(term: Term, axes: list[int]) -> list[Term]:
