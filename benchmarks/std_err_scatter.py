@@ -21,12 +21,16 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from rig.data.files import write_json  # noqa: E402
 DEFAULT = [ROOT / "out" / "concealed.findings.json", ROOT / "out" / "held-out.findings.json"]
 TDOA_EFFECTS = {"time_offset", "clock_drift", "anchor_delay", "lever_arm", "anchor_position", "antenna_pattern",
                 "link_bias"}
@@ -118,8 +122,7 @@ def main() -> None:
     ratios = [r["ratio"] for key, r in rows.items() if key != "std_err_change"]
     print(f"ratio over {len(ratios)} day × quantity: median {np.median(ratios):.1f}, "
           f"range {min(ratios):.1f}–{max(ratios):.1f}")
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps(rows, indent=1) + "\n")
+    write_json(args.json, rows)
     print(f"wrote {args.json}")
 
 
