@@ -34,7 +34,7 @@ class Term:
     extra: dict = field(default_factory=dict)       # during, region, ...
     theta: np.ndarray | None = None                  # in the model: the named terms fitted jointly
     estimate: np.ndarray | None = None               # as reported: given the simpler explanations
-    std_err: np.ndarray | None = None                # of the estimate (posterior standard deviation)
+    std_err: np.ndarray | None = None                # of the estimate, counting a slow error (with_slow_error)
     # the same with the samples counted as independent: what the trajectory alone measures
     std_err_white: np.ndarray | None = None
     evidence: float = 0.0
@@ -241,7 +241,7 @@ def estimate_terms(z: np.ndarray, terms: list[Term], z_simplest: np.ndarray | No
     joint fit of the named terms of its rank or a simpler one (see select), and its
     standard error in that fit; the simplest (rank 0) on `z_simplest` if given. With
     the rows' `times` (a channel whose error varies slowly: TDOA), the standard error
-    counts the error's correlation over time (`posterior_cov`); `std_err_white` is
+    counts the error's correlation over time (`with_slow_error`); `std_err_white` is
     the one with independent samples either way. The
     `nuisance` terms (rank 0, not named) are fitted along and not reported; so are
     the `simplest_unnamed` ones (rank 0) for the richer terms, whose estimates then do
@@ -287,7 +287,7 @@ GAUGE_WEIGHT = 1e6             # pins the sum of a delay family: TDOA sees delay
 def _about_centre(cov: np.ndarray, theta: np.ndarray, gauge: np.ndarray) -> np.ndarray:
     """The covariance of the parameters with the `gauge` ones (a family of delays) taken
     relative to their reported centre (`delay_centre`), not to their mean, which
-    `posterior_cov` pins: the two differ once a delay lies beyond the centre's spread,
+    `posterior_normal` pins: the two differ once a delay lies beyond the centre's spread,
     which then hardly moves with it."""
     family = np.flatnonzero(gauge)
     if not len(family):
@@ -309,12 +309,6 @@ def posterior_normal(z: np.ndarray, x: np.ndarray, prior: np.ndarray, theta: np.
     if gauge is not None and gauge.any():
         normal += GAUGE_WEIGHT * np.outer(gauge, gauge).astype(float)
     return normal
-
-
-def posterior_cov(z: np.ndarray, x: np.ndarray, prior: np.ndarray, theta: np.ndarray,
-                  gauge: np.ndarray | None = None) -> np.ndarray:
-    """The covariance of `posterior_normal`, with the samples counted as independent."""
-    return np.linalg.inv(posterior_normal(z, x, prior, theta, gauge))
 
 
 # A slow error's standard error is measured by deleting one stretch of the flight at a
