@@ -61,6 +61,16 @@ def _angles(span: list[float]) -> str:
     return f"{span[0]:.0f}…{span[1]:.0f}°"
 
 
+def _std_err_text(finding: Finding) -> str:
+    """Its standard errors, as report.json gives them (on TDOA counting the slow error)."""
+    if not finding.std_err:
+        return ""
+    parts = [("of its mean shift " if name == "mean_shift_m" else "")
+             + (f"[{', '.join(f'{v:.2g}' for v in value)}]" if isinstance(value, list) else f"{value:.2g}")
+             for name, value in finding.std_err.items()]
+    return f" (standard error {'; '.join(parts)})"
+
+
 def describe(finding: Finding) -> str:
     params = {k: (np.round(v, 3).tolist() if isinstance(v, list) else v) for k, v in finding.params.items()}
     if isinstance(params.get("meters"), dict):
@@ -74,7 +84,7 @@ def describe(finding: Finding) -> str:
         box = params["region"]
         params["region"] = ", ".join(f"{axis} {low:.2f}…{high:.2f}" for axis, low, high
                                      in zip("xyz", box["min"], box["max"])) + " m"
-    text = PLAIN.get(finding.effect, finding.effect + " {}").format(**params)
+    text = PLAIN.get(finding.effect, finding.effect + " {}").format(**params) + _std_err_text(finding)
     largest = finding.where.get("largest") if finding.effect == "link_bias" else None
     if largest:
         k = largest["anchor"]
