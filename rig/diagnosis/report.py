@@ -71,6 +71,20 @@ def _std_err_text(finding: Finding) -> str:
     return f" (standard error {'; '.join(parts)})"
 
 
+def _beyond_by(finding: Finding) -> str:
+    """How far its largest component lies beyond the effect's physical bound, in its
+    standard errors: a fit beyond by less than two may be the flight's slow error."""
+    param = next(iter(finding.std_err or {}), None)
+    bound = fx.EFFECTS[finding.effect].bounds.get(param) if finding.effect in fx.EFFECTS else None
+    if bound is None or param not in finding.params:
+        return ""
+    values, errors = np.abs(np.ravel(finding.params[param])), np.ravel(finding.std_err[param])
+    k = int(np.argmax(values))
+    if values[k] <= bound:
+        return ""
+    return f" ({values[k]:.3g} against {bound:.3g}, {(values[k] - bound) / max(errors[k], 1e-12):.1f} standard errors beyond)"
+
+
 def describe(finding: Finding) -> str:
     params = {k: (np.round(v, 3).tolist() if isinstance(v, list) else v) for k, v in finding.params.items()}
     if isinstance(params.get("meters"), dict):
@@ -98,8 +112,8 @@ def describe(finding: Finding) -> str:
         text += (f", from {start:.1f} s to {end:.1f} s only" if elsewhere is None
                  else f" from {start:.1f} s to {end:.1f} s and {elsewhere:.3f} m elsewhere")
     if finding.beyond_bound:
-        text += (" — beyond what this effect can physically be: it stands for something the catalog does not "
-                 "model, and the re-simulation leaves it out")
+        text += (" — beyond what this effect can physically be" + _beyond_by(finding) + ": it stands for "
+                 "something the catalog does not model, and the re-simulation leaves it out")
     if finding.not_simulated:
         text += (" — not re-simulated: fitted jointly with the other named effects it would go below zero, "
                  "which it cannot physically be, so they share its shape on this flight")
