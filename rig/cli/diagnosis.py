@@ -53,7 +53,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
 def print_diagnosis(result, report: dict) -> None:
     """The channels' mismatch, the findings, the IMU's noise and the largest changes against a control."""
     from rig.diagnosis import compare
-    from rig.diagnosis.report import SENSORS, change_text, describe
+    from rig.diagnosis.report import SENSORS, change_text
+    from rig.diagnosis.wording import describe
     from rig.sim import effects as fx
 
     for name, c in report["channels"].items():

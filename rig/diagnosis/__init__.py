@@ -4,7 +4,8 @@ against a simulation of its own flight (`channels`), where they differ before an
 what a flight can tell apart (`identifiability`), the shaped searches (`nlos_mixture`,
 `region_scan`, `floor_error`, `imu_spectrum`), robust estimators (`robust`), the
 diagnosis (`diagnose`) and its findings — the report.json contract (`findings`), the comparison
-against a control recording (`compare`), report.md and its plots (`report`), and
+against a control recording (`compare`), a finding in words (`wording`), report.md and
+its plots (`report`), and
 models of several flights combined into a simulation config (`combine`).
 
 May import: `rig.data`, `rig.estimator`, `rig.sim`. matplotlib only in `report`.

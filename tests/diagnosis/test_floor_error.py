@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 
 from rig.diagnosis.findings import Finding
 from rig.diagnosis.floor_error import floor_multipath
-from rig.diagnosis.report import describe
+from rig.diagnosis.wording import describe
 from rig.sim.effects import TdoaBatch, make_effect
 
 pytestmark = pytest.mark.slow        # left out of `make test-fast`

@@ -5,7 +5,7 @@ beyond its physical bound says by how many of them."""
 from __future__ import annotations
 
 from rig.diagnosis.findings import Finding
-from rig.diagnosis.report import describe
+from rig.diagnosis.wording import describe
 
 
 def _finding(effect: str, params: dict, std_err: dict | None) -> Finding:

@@ -43,7 +43,7 @@ from rig.diagnosis.diagnose import (
     unnamed_estimates,
 )
 from rig.diagnosis.imu_spectrum import vibration_spread
-from rig.diagnosis.report import describe
+from rig.diagnosis.wording import describe
 from rig.diagnosis.robust import delay_centre, mad_scale, robust_rms
 from rig.diagnosis.selection import fresh_terms, select
 from rig.diagnosis.terms import Term, estimate_terms, free_offset_terms

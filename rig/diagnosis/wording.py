@@ -1,0 +1,107 @@
+"""How a finding reads in words, in report.md and in `rig diagnose`'s output: the
+sentence for each effect of the catalog with its parameters, their standard errors,
+and how far a fit lies beyond its effect's physical bound."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from rig.diagnosis.findings import Finding
+from rig.sim import effects as fx
+
+PLAIN = {
+    "time_offset": "the UWB timestamps are late by {seconds:.3f} s against the IMU and ground-truth clock",
+    "clock_drift": "the UWB clock runs fast by {ppm:.0f} ppm against the IMU clock",
+    "anchor_position": "anchor {anchor} is really {offset_m} m from where the survey puts it",
+    "anchor_delay": "every range from anchor {anchor} reads {meters:+.3f} m long (antenna delay; relative to the "
+                    "anchors' common delay, which TDOA cannot see)",
+    "antenna_pattern": "anchor {anchor}'s ranges are biased with the viewing angle (antenna pattern {coeffs_m} m)",
+    "nlos": "ranges to anchor {anchor} carry an excess delay (NLOS: {fraction:.0%} of them, {mean_excess_m:.3f} m "
+            "on average) while the tag is inside {region}",
+    "multipath_floor": "below {height_m} m the TDOA noise grows by {std_m:.3f} m{upper} (floor multipath)",
+    "on_ground_delay": "with the tag on the floor (below {height_m} m{fade}) the ranges read longer than in flight, "
+                       "per anchor: {meters} m (the floor in the direct paths; relative to each other)",
+    "imu_accel_bias": "the accelerometer reads {bias_mps2} m/s² too high",
+    "imu_gyro_bias": "the gyroscope reads {bias_rps} rad/s too high",
+    "imu_accel_scale": "the accelerometer's scale factors are {scale}",
+    "imu_vibration_rectification": "the accelerometer reads {gain} × the RMS of its vibration too high (vibration "
+                                   "rectification: a bias that follows the rotors' shaking and is gone with the "
+                                   "motors off)",
+    "imu_gyro_scale": "the gyroscope's scale factors are {scale}",
+    "lever_arm": "the UWB antenna sits at {offset_m} m from the body origin (body frame)",
+    "link_bias": "every tag–anchor link's range carries the link bias calibrated on the shared flights (the "
+                 "antennas' patterns, the airframe, the received power) at {gain:.2f} × its calibrated size",
+}
+
+
+def per_anchor(values: dict[str, float], unit: str = "") -> str:
+    """'0: +1.84, 1: -1.22' (metres by anchor id), each with `unit` after it."""
+    return ", ".join(f"{k}: {v:+.2f}{unit}" for k, v in values.items())
+
+
+def _angles(span: list[float]) -> str:
+    return f"{span[0]:.0f}…{span[1]:.0f}°"
+
+
+def _std_err_text(finding: Finding) -> str:
+    """Its standard errors, as report.json gives them (on TDOA counting the slow error)."""
+    if not finding.std_err:
+        return ""
+    parts = [("of its mean shift " if name == "mean_shift_m" else "")
+             + (f"[{', '.join(f'{v:.2g}' for v in value)}]" if isinstance(value, list) else f"{value:.2g}")
+             for name, value in finding.std_err.items()]
+    return f" (standard error {'; '.join(parts)})"
+
+
+def _beyond_by(finding: Finding) -> str:
+    """How far its largest component lies beyond the effect's physical bound, in its
+    standard errors: a fit beyond by less than two may be the flight's slow error."""
+    param = next(iter(finding.std_err or {}), None)
+    bound = fx.EFFECTS[finding.effect].bounds.get(param) if finding.effect in fx.EFFECTS else None
+    if bound is None or param not in finding.params:
+        return ""
+    values, errors = np.abs(np.ravel(finding.params[param])), np.ravel(finding.std_err[param])
+    k = int(np.argmax(values))
+    if values[k] <= bound:
+        return ""
+    return f" ({values[k]:.3g} against {bound:.3g}, {(values[k] - bound) / max(errors[k], 1e-12):.1f} standard errors beyond)"
+
+
+def describe(finding: Finding) -> str:
+    params = {k: (np.round(v, 3).tolist() if isinstance(v, list) else v) for k, v in finding.params.items()}
+    if isinstance(params.get("meters"), dict):
+        params["meters"] = per_anchor(params["meters"])
+    if params.get("fade_m"):
+        params["fade"] = f", fading out over the {params['fade_m']} m above"
+    params.setdefault("fade", "")          # a step: whole below its height, none above
+    upper = params.get("upper_height_m")
+    params["upper"] = "" if upper is None else f", on top of {params['upper_std_m']:.3f} m below {upper} m"
+    if isinstance(params.get("region"), dict):
+        box = params["region"]
+        params["region"] = ", ".join(f"{axis} {low:.2f}…{high:.2f}" for axis, low, high
+                                     in zip("xyz", box["min"], box["max"])) + " m"
+    text = PLAIN.get(finding.effect, finding.effect + " {}").format(**params) + _std_err_text(finding)
+    largest = finding.where.get("largest") if finding.effect == "link_bias" else None
+    if largest:
+        k = largest["anchor"]
+        text += (f"; it varies most on anchor {k}'s links ({finding.where['spread_m'][str(k)]:.3f} m), reading "
+                 f"{largest['sign']}est with the tag at azimuth {_angles(largest['tag_azimuth_deg'])} and elevation "
+                 f"{_angles(largest['tag_elevation_deg'])} in the anchor's frame (the anchor at elevation "
+                 f"{_angles(largest['anchor_elevation_in_body_deg'])} from the tag)")
+    if "during" in finding.params:
+        start, end = finding.params["during"]
+        elsewhere = finding.params.get("outside_m")
+        text += (f", from {start:.1f} s to {end:.1f} s only" if elsewhere is None
+                 else f" from {start:.1f} s to {end:.1f} s and {elsewhere:.3f} m elsewhere")
+    if finding.beyond_bound:
+        text += (" — beyond what this effect can physically be" + _beyond_by(finding) + ": it stands for "
+                 "something the catalog does not model, and the re-simulation leaves it out")
+    if finding.not_simulated:
+        text += (" — not re-simulated: fitted jointly with the other named effects it would go below zero, "
+                 "which it cannot physically be, so they share its shape on this flight")
+    if finding.alternative_to:
+        named = finding.alternative_to["effect"]
+        axes = f" on {', '.join(finding.alternative_to['axes'])}" if "axes" in finding.alternative_to else ""
+        text += (f" — nearly as good an explanation as the {named}{axes}, in its place: this flight cannot tell "
+                 f"the two apart (the re-simulation has the {named})")
+    return text
