@@ -5,8 +5,8 @@ what a flight can tell apart (`identifiability`), the shaped searches (`nlos_mix
 `region_scan`, `floor_error`, `imu_spectrum`), robust estimators (`robust`), the
 diagnosis (`diagnose`) and its findings — the report.json contract (`findings`), the comparison
 against a control recording (`compare`), a finding in words (`wording`), report.md and
-its plots (`report`), and
-models of several flights combined into a simulation config (`combine`).
+its plots (`report`), and models of several flights combined into a simulation config
+(`combine`).
 
 May import: `rig.data`, `rig.estimator`, `rig.sim`. matplotlib only in `report`.
 """
