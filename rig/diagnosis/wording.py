@@ -43,12 +43,17 @@ def _angles(span: list[float]) -> str:
     return f"{span[0]:.0f}…{span[1]:.0f}°"
 
 
+def _two_figures(value: float) -> str:
+    """A standard error to two significant figures, without an exponent (540, not 5.4e+02)."""
+    return f"{value:.0f}" if abs(value) >= 100 else f"{value:.2g}"
+
+
 def _std_err_text(finding: Finding) -> str:
     """Its standard errors, as report.json gives them (on TDOA counting the slow error)."""
     if not finding.std_err:
         return ""
     parts = [("of its mean shift " if name == "mean_shift_m" else "")
-             + (f"[{', '.join(f'{v:.2g}' for v in value)}]" if isinstance(value, list) else f"{value:.2g}")
+             + (f"[{', '.join(map(_two_figures, value))}]" if isinstance(value, list) else _two_figures(value))
              for name, value in finding.std_err.items()]
     return f" (standard error {'; '.join(parts)})"
 

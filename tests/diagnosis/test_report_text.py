@@ -17,6 +17,8 @@ def test_a_fitted_finding_gives_its_standard_errors() -> None:
     assert describe(lever).endswith("(standard error [0.13, 0.12, 0.27])")
     delay = _finding("anchor_delay", {"anchor": 3, "meters": 0.24}, {"meters": 0.0671})
     assert "(standard error 0.067)" in describe(delay)
+    drift = _finding("clock_drift", {"ppm": -287.0}, {"ppm": 543.2})
+    assert "(standard error 543)" in describe(drift)
 
 
 def test_an_nlos_gives_its_mean_shifts_and_a_noise_level_finding_none() -> None:
