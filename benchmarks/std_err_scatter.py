@@ -13,8 +13,10 @@ differ: obstacles, mode, path), never many times it. It reads the untouched flig
 flights' and the held-out eight's), takes each flight's estimate wherever the report
 lists it (a finding, not explained, or an unnamed estimate), and prints per day and
 quantity the scatter (standard deviation over the flights), the median reported
-standard error and their ratio. With `--before` (findings of the same cases made by
-other code), it also prints how the untouched flights' TDOA standard errors changed.
+standard error and their ratio. It also counts, per effect, the untouched flights'
+fits beyond their physical bound and how many of those lie beyond it by more than
+two standard errors. With `--before` (findings of the same cases made by other code),
+it also prints how the untouched flights' TDOA standard errors changed.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from rig.data.files import write_json  # noqa: E402
+from rig.diagnosis.wording import beyond_bound_by  # noqa: E402
 DEFAULT = [ROOT / "out" / "concealed.findings.json", ROOT / "out" / "held-out.findings.json"]
 TDOA_EFFECTS = {"time_offset", "clock_drift", "anchor_delay", "lever_arm", "anchor_position", "antenna_pattern",
                 "link_bias"}
@@ -100,6 +103,23 @@ def print_change(ratios: dict[str, list[float]]) -> dict:
     return out
 
 
+def beyond_counts(paths: list[Path]) -> dict[str, dict[str, int]]:
+    """Per effect: the untouched flights' fits beyond bound, and of them those beyond
+    by more than two standard errors."""
+    counts: dict[str, dict[str, int]] = defaultdict(lambda: {"beyond": 0, "by_two_std_errs": 0})
+    for path in paths:
+        for listed in _controls(path).values():
+            for fit in listed["findings"]:
+                beyond = fit.get("beyond_physical_bound") and beyond_bound_by(fit["effect"], fit["params"],
+                                                                             fit.get("std_err"))
+                if beyond:
+                    counts[fit["effect"]]["beyond"] += 1
+                    counts[fit["effect"]]["by_two_std_errs"] += int(beyond[2] > 2.0)
+    for effect, n in sorted(counts.items()):
+        print(f"beyond bound, {effect:16s} {n['beyond']:4d} fits, by more than two standard errors {n['by_two_std_errs']:4d}")
+    return dict(counts)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("findings", nargs="*", type=Path, default=DEFAULT)
@@ -120,6 +140,7 @@ def main() -> None:
             print(f"{day} {quantity:12s} flights {len(pairs):2d}  scatter {scatter:.3f}  "
                   f"median std_err {error:.3f}  ratio {scatter / error:.1f}")
     ratios = [r["ratio"] for key, r in rows.items() if key != "std_err_change"]
+    rows["beyond_bound"] = beyond_counts(args.findings)
     print(f"ratio over {len(ratios)} day × quantity: median {np.median(ratios):.1f}, "
           f"range {min(ratios):.1f}–{max(ratios):.1f}")
     write_json(args.json, rows)

@@ -58,18 +58,25 @@ def _std_err_text(finding: Finding) -> str:
     return f" (standard error {'; '.join(parts)})"
 
 
-def _beyond_by(finding: Finding) -> str:
-    """How far its largest component lies beyond the effect's physical bound, in its
-    standard errors: a fit beyond by less than two may be the flight's slow error."""
-    param = next(iter(finding.std_err or {}), None)
-    bound = fx.EFFECTS[finding.effect].bounds.get(param) if finding.effect in fx.EFFECTS else None
-    if bound is None or param not in finding.params:
-        return ""
-    values, errors = np.abs(np.ravel(finding.params[param])), np.ravel(finding.std_err[param])
+def beyond_bound_by(effect: str, params: dict, std_err: dict | None) -> tuple[float, float, float] | None:
+    """(value, bound, standard errors beyond) of a fit's largest component, if it lies
+    beyond its effect's physical bound; None where it does not or has no standard
+    error of its bounded parameter. Beyond by less than two may be the flight's slow
+    error."""
+    param = next(iter(std_err or {}), None)
+    bound = fx.EFFECTS[effect].bounds.get(param) if effect in fx.EFFECTS else None
+    if bound is None or param not in params:
+        return None
+    values, errors = np.abs(np.ravel(params[param])), np.ravel(std_err[param])
     k = int(np.argmax(values))
     if values[k] <= bound:
-        return ""
-    return f" ({values[k]:.3g} against {bound:.3g}, {(values[k] - bound) / max(errors[k], 1e-12):.1f} standard errors beyond)"
+        return None
+    return float(values[k]), float(bound), float((values[k] - bound) / max(errors[k], 1e-12))
+
+
+def _beyond_by(finding: Finding) -> str:
+    beyond = beyond_bound_by(finding.effect, finding.params, finding.std_err)
+    return "" if beyond is None else f" ({beyond[0]:.3g} against {beyond[1]:.3g}, {beyond[2]:.1f} standard errors beyond)"
 
 
 def describe(finding: Finding) -> str:

@@ -47,3 +47,10 @@ def test_the_change_of_standard_errors_between_two_runs(tmp_path: Path) -> None:
     ratios = std_err_scatter.std_err_change([_run(tmp_path / "after.json", 0.2)], [_run(tmp_path / "before.json", 0.05)])
     assert sorted(ratios) == ["anchor_delay", "lever_arm"]
     assert ratios["lever_arm"] == pytest.approx([4.0] * 12) and ratios["anchor_delay"] == pytest.approx([4.0] * 4)
+
+
+def test_fits_beyond_bound_are_counted_by_how_many_standard_errors(tmp_path: Path) -> None:
+    """Lever arms of 0.1, 0.3, 0.2 and 0.9 m, each ± 0.05, against the airframe's 0.15 m:
+    three beyond it, two by more than two standard errors (0.3 and 0.9)."""
+    counts = std_err_scatter.beyond_counts([_run(tmp_path / "a.json", 0.05)])
+    assert counts == {"lever_arm": {"beyond": 3, "by_two_std_errs": 2}}
