@@ -100,13 +100,19 @@ class Change:
     # reported in a look-alike's place on one only: the other's estimate in that place
     control_in_place: dict | None = None
     recording_in_place: dict | None = None
+    # the control is the same flight: the two recordings share its slow error
+    shares_slow_error: bool = False
 
     @property
     def std_errs(self) -> float | None:
         """The change in the recording's standard errors, its largest component's (None
-        where either is missing). Conservative for a recording that shares its noise
-        with the control (effects injected into it), whose difference is less noisy."""
-        errors = (self.recording or {}).get("std_err") or {}
+        where either is missing). Against a control of the same flight, which shares
+        its slow error, in the standard errors of independent samples
+        (`std_err_independent`) where the recording has them. Conservative for a
+        recording that shares its noise with the control (effects injected into it),
+        whose difference is less noisy."""
+        recording = self.recording or {}
+        errors = (self.shares_slow_error and recording.get("std_err_independent")) or recording.get("std_err") or {}
         ratios = [np.abs(np.asarray(self.change[field], float) - neutral(self.effect))
                   / np.maximum(np.asarray(error, float), 1e-12)
                   for field, error in errors.items() if self.change and field in self.change]
@@ -348,7 +354,7 @@ def changes(findings: list[dict], control: list[dict], identifiability: Sequence
             cross_talk: dict[int, list[float]] | None = None, samples: TdoaSamples | None = None,
             control_unnamed: Sequence[dict] = (), recording_unnamed: Sequence[dict] = (),
             control_samples: TdoaSamples | None = None, control_in_place: Sequence[dict] = (),
-            recording_in_place: Sequence[dict] = ()) -> list[Change]:
+            recording_in_place: Sequence[dict] = (), same_flight: bool = False) -> list[Change]:
     """Every effect reported on either recording, as it changed; the recording's
     findings first, by their evidence, then those on the control only. One reported
     in a look-alike's place (`alternative_to`) counts too: it carries that
@@ -359,7 +365,8 @@ def changes(findings: list[dict], control: list[dict], identifiability: Sequence
     TDOA `samples` and `control_samples`, an NLOS gets its change; with either's
     `unnamed_estimates`, an effect named on the other only changes from or to its
     estimate there; with their `in_place_estimates`, one reported in a look-alike's
-    place on one only, from or to the other's estimate in that place."""
+    place on one only, from or to the other's estimate in that place. Of the `same_flight`,
+    a change is measured in the standard errors of independent samples (Change.std_errs)."""
     named = {key(f): f for f in findings}
     own = {key(f): f for f in control}
     own_below, named_below = ({key(u): u for u in listed} for listed in (control_unnamed, recording_unnamed))
@@ -368,6 +375,7 @@ def changes(findings: list[dict], control: list[dict], identifiability: Sequence
                   control_samples, control_in_place, recording_in_place) for k in order]
     lever = lever_arm_change(named, own)
     for c in out:
+        c.shares_slow_error = same_flight
         if c.change is None:
             continue
         c.shown = shown(identifiability, c.effect, c.anchors, c.change)
@@ -432,5 +440,5 @@ def diagnose_against(rec: Recording, control_rec: Recording, control_name: str, 
                                      diagnosis.cross_talk, TdoaSamples.of(diagnosis),
                                      control_report.get("unnamed_estimates", ()), report["unnamed_estimates"],
                                      TdoaSamples.of(control), control_report.get("in_place_estimates", ()),
-                                     report["in_place_estimates"])]
+                                     report["in_place_estimates"], same_flight=differs is None)]
     return AgainstControl(diagnosis, control, against)

@@ -281,7 +281,7 @@ def _finding(problem: Problem, channel: Channel, term: Term, effect: fx.Effect, 
     rows = np.any(term.columns != 0, axis=1)
     scale = channel.scale[rows]
     z_without = z_with + term.columns @ theta
-    std_err, not_identified = _uncertainty(term)
+    std_err, independent, not_identified = _uncertainty(term)
     return Finding(effect.name, channel.name, term.candidate.anchors, rounded_floats(effect.params()),
                    round(float(term.evidence), 2),
                    robust_rms(z_without[rows] * scale, scale), robust_rms(z_with[rows] * scale, scale),
@@ -289,7 +289,7 @@ def _finding(problem: Problem, channel: Channel, term: Term, effect: fx.Effect, 
                    [{"candidate": key, "evidence": gain} for key, gain in term.look_alikes],
                    (not simulated and not for_sign) or _beyond(term.candidate, term.param_map() @ term.estimate),
                    std_err, not_identified, not_named_axes=[AXES[j] for j in sorted(term.dropped)],
-                   not_simulated=for_sign)
+                   not_simulated=for_sign, std_err_independent=independent)
 
 
 def _beyond(c: Candidate, values: np.ndarray) -> bool:
@@ -319,7 +319,7 @@ def _estimated(problem: Problem, channel: Channel, term: Term, in_place_of: dict
     does not report as a finding."""
     return Unnamed(term.candidate.effect, term.candidate.anchors,
                    rounded_floats(_effect_of(problem, channel, term, term.estimate).params()),
-                   _uncertainty(term)[0], in_place_of)
+                   *_uncertainty(term)[:2], in_place_of=in_place_of)
 
 
 def _shape_finding(problem: Problem, fit: nlos_mixture.NlosShapeFit) -> Finding:
@@ -337,21 +337,24 @@ def _shape_finding(problem: Problem, fit: nlos_mixture.NlosShapeFit) -> Finding:
                    beyond_bound=bool(effect.beyond_bound()))
 
 
-def _uncertainty(term: Term) -> tuple[dict, list[str]]:
+def _uncertainty(term: Term) -> tuple[dict, dict, list[str]]:
     """The estimate's standard errors, keyed like its parameter (an NLOS term fits the
-    mean shift, fraction × mean excess), and the components that the trajectory does
+    mean shift, fraction × mean excess), the same with the samples counted as
+    independent (for a change between two recordings of one flight, which share its
+    slow error), and the components that the trajectory does
     not tell apart from the simpler explanations, their values mostly the prior's:
     those whose standard error with independent samples is more than
     IDENTIFIED_SD_SHARE of the prior (a slow error makes a measurement less precise,
     not a trajectory less telling)."""
     c = term.candidate
     name = "mean_shift_m" if c.effect == "nlos" else c.param
-    sd = term.std_err
     vague = np.flatnonzero(term.std_err_white > IDENTIFIED_SD_SHARE * c.prior)
-    sd = sd * c.value_slope(term.estimate)      # in the parameter's unit
+    slope = c.value_slope(term.estimate)        # to the parameter's unit
     if c.size == 1:
-        return {name: rounded_floats(float(sd[0]))}, [name] if len(vague) else []
-    return {name: rounded_floats(sd.tolist())}, [f"{name}[{i}]" for i in vague]
+        return ({name: rounded_floats(float(term.std_err[0] * slope[0]))},
+                {name: rounded_floats(float(term.std_err_white[0] * slope[0]))}, [name] if len(vague) else [])
+    return ({name: rounded_floats((term.std_err * slope).tolist())},
+            {name: rounded_floats((term.std_err_white * slope).tolist())}, [f"{name}[{i}]" for i in vague])
 
 
 def _floor_finding(problem: Problem, residual: np.ndarray) -> Finding | None:

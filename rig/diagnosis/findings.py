@@ -37,12 +37,15 @@ class Finding:
     alternative_to: dict | None = None   # {"effect", "axes"}: in place of those axes of that finding, as good
     not_named_axes: list = field(default_factory=list)   # a gyroscope scale's axes that did not pay: neutral there
     not_simulated: bool = False     # within bound, but left out of the model for its sign (terms.model_terms)
+    std_err_independent: dict | None = None   # std_err with the samples counted as independent
 
     def to_json(self) -> dict:
         out = {"effect": self.effect, "channel": self.channel, "params": self.params, "evidence": self.evidence,
                "fit_before": self.fit_before, "fit_after": self.fit_after, "where": self.where}
         if self.std_err is not None:
             out["std_err"], out["not_identified"] = self.std_err, self.not_identified
+        if self.std_err_independent is not None:
+            out["std_err_independent"] = self.std_err_independent
         if self.anchors:
             out["anchors"] = self.anchors
         if self.look_alikes:
@@ -163,10 +166,13 @@ class Unnamed:
     anchors: list[int]
     params: dict
     std_err: dict
+    std_err_independent: dict | None = None   # std_err with the samples counted as independent
     in_place_of: dict | None = None
 
     def to_json(self) -> dict:
         out = {"effect": self.effect, "params": self.params, "std_err": self.std_err}
+        if self.std_err_independent is not None:
+            out["std_err_independent"] = self.std_err_independent
         return out | ({"anchors": self.anchors} if self.anchors else {}) | (
             {"in_place_of": self.in_place_of} if self.in_place_of else {})
 

@@ -36,6 +36,18 @@ def test_a_change_is_the_recordings_parameters_less_the_controls() -> None:
     assert scale.std_errs == pytest.approx(3.0)                            # measured from one, not zero
 
 
+def test_against_the_same_flight_a_change_is_measured_in_independent_samples_standard_errors() -> None:
+    """Two recordings of one flight share its slow TDOA error: their change is measured
+    in `std_err_independent`; against another flight, in `std_err`, which counts it."""
+    recording = [_finding("anchor_delay", {"anchor": 5, "meters": 0.30}, std_err={"meters": 0.08},
+                          std_err_independent={"meters": 0.02})]
+    control = [_finding("anchor_delay", {"anchor": 5, "meters": 0.18})]
+    assert changes(recording, control)[0].std_errs == pytest.approx(1.5)
+    assert changes(recording, control, same_flight=True)[0].std_errs == pytest.approx(6.0)
+    older = [_finding("anchor_delay", {"anchor": 5, "meters": 0.30}, std_err={"meters": 0.08})]
+    assert changes(older, control, same_flight=True)[0].std_errs == pytest.approx(1.5)    # a report without it
+
+
 def test_a_delay_confined_to_a_window_on_one_recording_is_compared_outside_it() -> None:
     confined = {"anchor": 2, "meters": 0.5, "during": [10.0, 20.0], "outside_m": 0.1}
     got = change("anchor_delay", [2], _finding("anchor_delay", confined),
