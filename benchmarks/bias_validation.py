@@ -146,6 +146,7 @@ from rig.estimator.trained_region import outside_share  # noqa: E402
 from bias_validation_results import (  # noqa: E402
     ENTRY_PAGE,
     ESTIMATE_SPLITS,
+    INSTALLATION,
     FLIGHT_SPLITS,
     PAGE,
     REGION_Z,
@@ -162,7 +163,7 @@ from bias_validation_results import (  # noqa: E402
 
 CACHE = ROOT / "out" / "cache" / "all.npz"
 TDOA3 = [f"0425-traj{k}" for k in range(13, 24)] + ["0426-traj5", "0426-traj6"]
-FORMS = {"link": "7", "shared": "shared", "pair": "14", UNTRANSLATED: "7"}   # form -> rig train's feature set
+FORMS = {"link": "7", "shared": "shared", "pair": "14", UNTRANSLATED: "7", INSTALLATION: "7"}   # form -> feature set
 VALIDATION_SHARE = 0.15
 
 
@@ -217,7 +218,7 @@ def tdoa_spread(net, samples: Samples, trained: Samples | None = None) -> dict:
     of them outside where the model was trained (its trained_region). With the samples
     it `trained` on, a link model's spread with each link's bias clamped to the range it
     took on them too (session 58)."""
-    correction = net.quantized().predict(samples.features, samples.id_a, samples.id_b)
+    correction = corrections(net.quantized(), samples)
     after = samples.label - correction
     f = samples.features
     out = {"std_before": float(np.std(samples.label)), "std_after": float(np.std(after)), "n": len(samples),
@@ -232,6 +233,21 @@ def tdoa_spread(net, samples: Samples, trained: Samples | None = None) -> dict:
     if trained is not None and net.form == "link" and len(samples):
         clamped, share = clamped_correction(net.quantized(), samples, trained)
         out["std_after_clamped"], out["clamped_share"] = float(np.std(samples.label - clamped)), share
+    return out
+
+
+def corrections(net, samples: Samples) -> np.ndarray:
+    """The model's correction of each sample, with the delays of its flight's installation
+    if the model carries them (as `rig evaluate` applies them)."""
+    if not net.installations:
+        return net.predict(samples.features, samples.id_a, samples.id_b)
+    from rig.data.survey import parse_survey
+
+    out = np.zeros(len(samples))
+    for name in sorted(set(samples.flight.tolist())):
+        rows = samples.flight == name
+        anchors = parse_survey(paths.survey_for(paths.data_dir() / "flights" / name))
+        out[rows] = net.for_installation(anchors).predict(samples.features[rows], samples.id_a[rows], samples.id_b[rows])
     return out
 
 
@@ -250,7 +266,8 @@ def clamped_correction(net, samples: Samples, trained: Samples) -> tuple[np.ndar
 
 def form_config(form: str, **kwargs) -> TrainConfig:
     """The training configuration of a form of this page."""
-    return TrainConfig.with_features(FORMS[form], untranslated=form == UNTRANSLATED, **kwargs)
+    return TrainConfig.with_features(FORMS[form], untranslated=form == UNTRANSLATED,
+                                     installation_delays=form == INSTALLATION, **kwargs)
 
 
 def flight_split_samples(split_name: str, seed: int) -> tuple[Samples, Split]:

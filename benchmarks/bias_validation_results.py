@@ -20,6 +20,7 @@ RESULTS = PAGE.with_suffix(".json")        # every row the page shows, kept besi
 ENTRY_PAGE = ROOT / "docs" / "bias.md"     # its table of estimates is written from the rows
 
 FLIGHT_SPLITS = ("day-0426", "day-0425", "mode-tdoa3", "mode-tdoa2")   # the splits the rule weighs
+ESTIMATE_SPLITS = ("within-0426", "day-0422")       # flight splits that estimate a held-out check, weighing nothing
 WITHIN_0426_FOLDS = {"a": ["0426-traj1", "0426-traj4", "0426-traj5", "0426-traj8"],
                      "b": ["0426-traj2", "0426-traj3", "0426-traj6", "0426-traj7"]}
 REGION_Z = (1.3, 1.7)            # the training band of the region split (tag height, m)
@@ -34,7 +35,11 @@ UNTRANSLATED_TOLERANCE_M = 0.005
 # "offset": experiment/tag-offset-constant; session 62's "huber": experiment/huber-loss;
 # session 65's "distilled": experiment/distill, "refit": experiment/refit and
 # "six-restarts": experiment/six-restarts and, on fresh seeds, experiment/six-restarts-replication)
-NOT_RANKED = (UNTRANSLATED, "offset", "huber", "distilled", "refit", "six-restarts")
+# the link form with anchor delays kept per installation (`rig train --installation-delays`):
+# session 68's rule (installation_verdict) decides whether it replaces the link form's recipe
+INSTALLATION = "installation"
+NEW_DAY_SPLITS = ("day-0426", "day-0425", "day-0422")
+NOT_RANKED = (UNTRANSLATED, INSTALLATION, "offset", "huber", "distilled", "refit", "six-restarts")
 
 
 def merge_folds(rows: list[dict]) -> list[dict]:
@@ -131,9 +136,37 @@ def untranslated_verdict(rows: list[dict]) -> dict | None:
     return {"accuracy_m": accuracy, "worse_flights": worse, "rule_met": met}
 
 
+def installation_verdict(rows: list[dict]) -> dict | None:
+    """Session 68's rule (bias_validation.py's docstring), on these rows: the installation
+    recipe replaces the link form's only if (a) its within-0426 estimate for the issue's
+    0426 check is at most TARGET_0426_M and it makes no more of those flights worse, (b)
+    it makes fewer flights worse over the new-day splits, and (c) its accuracy is within
+    UNTRANSLATED_TOLERANCE_M of the link form's. None until both have every split."""
+    needed = set(FLIGHT_SPLITS) | set(NEW_DAY_SPLITS) | {"within-0426"}
+    figures = {}
+    for form in ("link", INSTALLATION):
+        entries = {e["split"]: e for e in summary([r for r in rows if r["form"] == form and r["split"] in needed])}
+        if set(entries) != needed:
+            return None
+        within = entries["within-0426"]
+        figures[form] = {
+            "estimate_0426_m": HELD_OUT_0426_WITHOUT_M * within["mean_rmse_3d"]["mean"] / within["mean_rmse_3d_without"]["mean"],
+            "worse_within_0426": within["worse_flights"]["mean"],
+            "worse_new_days": float(sum(entries[s]["worse_flights"]["mean"] for s in NEW_DAY_SPLITS)),
+            "accuracy_m": float(np.mean([entries[s]["mean_rmse_3d"]["mean"] for s in FLIGHT_SPLITS]))}
+    new, old = figures[INSTALLATION], figures["link"]
+    checks = {"a": new["estimate_0426_m"] <= TARGET_0426_M and new["worse_within_0426"] <= old["worse_within_0426"],
+              "b": new["worse_new_days"] < old["worse_new_days"],
+              "c": new["accuracy_m"] <= old["accuracy_m"] + UNTRANSLATED_TOLERANCE_M}
+    return {"figures": figures, "checks": checks, "rule_met": all(checks.values())}
+
+
 def shipped_recipe(rows: list[dict]) -> str:
     """The rows that stand for the shipped model: the chosen form, or its untranslated
-    labels if session 59's rule keeps them."""
+    labels if session 59's rule keeps them, or its installation delays if session 68's does."""
+    installation = installation_verdict(rows)
+    if installation and installation["rule_met"]:
+        return INSTALLATION
     verdict = untranslated_verdict(rows)
     return UNTRANSLATED if verdict and verdict["rule_met"] else choose_form(rows)["ship"]
 
@@ -144,6 +177,7 @@ def row_key(row: dict) -> tuple:
 
 SPLIT_WORDS = {"day-0426": "trained on 0422 + 0425, tested on the 0426 flights",
                "day-0425": "trained on 0426 + 0422, tested on the 0425 flights",
+               "day-0422": "trained on 0425 + 0426, tested on the 0422 flights",
                "mode-tdoa3": "trained on TDOA2 flights, tested on the TDOA3 flights",
                "mode-tdoa2": "trained on TDOA3 flights, tested on the TDOA2 flights",
                "within-0426": "trained on every other flight, 0426 flights among them, tested on 0426 flights (two folds)",
@@ -191,7 +225,8 @@ def write_doc(rows: list[dict], doc: Path, protocol: str) -> None:
     for r in sorted(flight_rows, key=lambda r: (r["split"], r["form"], r["seed"])):
         lines.append(f"| {r['split']} | {r['form']} | {r['seed']} | {r['mean_rmse_3d']:.3f} | "
                      f"{r['mean_rmse_3d_without']:.3f} | {r['worse_flights']} |")
-    lines += per_flight_lines([r for r in flight_rows if r["split"] == "within-0426"])
+    for split in ESTIMATE_SPLITS:
+        lines += per_flight_lines([r for r in flight_rows if r["split"] == split])
     anchors = [r for r in rows if r["split"] == "anchors"]
     if anchors:
         lines += ["", "## Leave-anchor-out: TDOA error spread on the unseen anchor's pairs", "",
@@ -349,7 +384,8 @@ ESTIMATES_BEGIN, ESTIMATES_END = "<!-- estimates: begin -->", "<!-- estimates: e
 
 def _gain(entry: dict) -> str:
     m, w = entry["mean_rmse_3d"], entry["mean_rmse_3d_without"]["mean"]
-    return f"{w:.3f} → {m['mean']:.3f} m ({m['min']:.3f}–{m['max']:.3f}), {1 - m['mean'] / w:.0%} lower"
+    change = 1 - m["mean"] / w
+    return f"{w:.3f} → {m['mean']:.3f} m ({m['min']:.3f}–{m['max']:.3f}), {abs(change):.0%} {'lower' if change >= 0 else 'higher'}"
 
 
 def _worse(entry: dict, n_test: int) -> str:
@@ -376,10 +412,12 @@ def estimate_lines(rows: list[dict]) -> list[str]:
                      f"{HELD_OUT['within-0426']}. Our gain, if it held on their {HELD_OUT_0426_WITHOUT_M:.3f} m, "
                      f"gives {expected:.3f} m: {'above' if expected > TARGET_0426_M else 'under'} the "
                      f"{TARGET_0426_M:.2f} m asked |")
-    days = [f"{_gain(entries[s])} on {s[4:]}, {_worse(entries[s], n_test[s])}" for s in ("day-0426", "day-0425")
-            if s in entries]
+    day_splits = [s for s in ("day-0426", "day-0425", "day-0422") if s in entries]
+    days = [f"{_gain(entries[s])} on {s[4:]}, {_worse(entries[s], n_test[s])}" for s in day_splits]
+    if "day-0422" in entries:
+        days.append("on 0422 made worse: " + _worse_flights([r for r in flight_rows if r["split"] == "day-0422"]))
     if days:
-        lines.append(f"| a new day (day-0426, day-0425) | {'; '.join(days)} | {HELD_OUT['day']} |")
+        lines.append(f"| a new day ({', '.join(day_splits)}) | {'; '.join(days)} | {HELD_OUT['day']} |")
     modes = [f"{word}: {_gain(entries[s])}, {_worse(entries[s], n_test[s])}"
              for s, word in (("mode-tdoa3", "TDOA2 → TDOA3"), ("mode-tdoa2", "TDOA3 → TDOA2")) if s in entries]
     if modes:
