@@ -17,7 +17,7 @@ Forms (rig train --features): link, the link form's 7 features; shared, the link
 the features every anchor shares, with a bounded range offset per anchor; pair, the
 paper's 14-feature network. Also untranslated (session 59): the link form on labels
 without each flight's constant tag offset (`rig train --untranslated`), as the shipped
-model is trained; reported on every split but not ranked among the forms, since
+model was trained in sessions 59–62; reported on every split but not ranked among the forms, since
 benchmarks/tag_offset.py decided it by its own rule. Forms tried and removed are not
 run here; their figures are in docs/notebook/bias.md and their tags run them into this
 JSON (not ranked either): offset (session 60, experiment/tag-offset-constant), the form
@@ -27,26 +27,10 @@ experiment/huber-loss), the untranslated form trained on the Huber loss, and dis
 refit (session 65, experiment/refit), its chosen restart trained again with the
 validation flights, and six-restarts (session 65, experiment/six-restarts; on fresh
 seeds in session 66, experiment/six-restarts-replication), the link form choosing among
-six restarts instead of three.
-
-Also installation (session 68; its rule below was written before its first run, after
-the link form's day-0422 rows were seen): anchor delays as a calibration of the
-installation they were measured on, not as physics carried to every room. The link
-network is trained on labels without each training and validation flight's own delay
-per anchor (least squares, TDOA ≈ d[B] − d[A]); the model keeps, per installation
-(the anchors' surveyed positions, to the millimetre) among its training and validation
-flights, the median of those flights' delays, bounded by a DW1000 antenna delay
-(±0.3 m), and applies them only to a recording of that installation. On any other it
-corrects the pose-dependent part alone. Why: the issue measured that delays carried
-from one day to another made the estimate worse (anchor 6: −0.07 m on 0426, +0.12 m on
-0607), and day-0422 (below) is the shared flights' case of it. Its rule, against the
-link form on the same seeds: kept only if (a) its within-0426 estimate for the issue's
-0426 check, 0.276 m × its within-0426 mean over the no-correction mean, is at most
-0.20 m and it makes no more within-0426 flights worse (mean over seeds); (b) it makes
-fewer flights worse over the three new-day splits (day-0426 + day-0425 + day-0422,
-each the mean over seeds; the link form: 4.0); and (c) its accuracy, the mean over the
-four day and mode splits as the forms' rule weighs them, is within 0.005 m of the link
-form's. It is not ranked among the forms.
+six restarts instead of three, and installation (session 68,
+experiment/installation-delays), the link network trained without each flight's anchor
+delays, which the model kept per installation (its survey) and applied only to a
+recording of that installation.
 
 The protocol is fixed here, before any result is looked at:
 - splits, by flight (samples 20 ms apart are not independent):
@@ -146,7 +130,6 @@ from rig.estimator.trained_region import outside_share  # noqa: E402
 from bias_validation_results import (  # noqa: E402
     ENTRY_PAGE,
     ESTIMATE_SPLITS,
-    INSTALLATION,
     FLIGHT_SPLITS,
     PAGE,
     REGION_Z,
@@ -163,7 +146,7 @@ from bias_validation_results import (  # noqa: E402
 
 CACHE = ROOT / "out" / "cache" / "all.npz"
 TDOA3 = [f"0425-traj{k}" for k in range(13, 24)] + ["0426-traj5", "0426-traj6"]
-FORMS = {"link": "7", "shared": "shared", "pair": "14", UNTRANSLATED: "7", INSTALLATION: "7"}   # form -> feature set
+FORMS = {"link": "7", "shared": "shared", "pair": "14", UNTRANSLATED: "7"}   # form -> rig train's feature set
 VALIDATION_SHARE = 0.15
 
 
@@ -218,7 +201,7 @@ def tdoa_spread(net, samples: Samples, trained: Samples | None = None) -> dict:
     of them outside where the model was trained (its trained_region). With the samples
     it `trained` on, a link model's spread with each link's bias clamped to the range it
     took on them too (session 58)."""
-    correction = corrections(net.quantized(), samples)
+    correction = net.quantized().predict(samples.features, samples.id_a, samples.id_b)
     after = samples.label - correction
     f = samples.features
     out = {"std_before": float(np.std(samples.label)), "std_after": float(np.std(after)), "n": len(samples),
@@ -233,21 +216,6 @@ def tdoa_spread(net, samples: Samples, trained: Samples | None = None) -> dict:
     if trained is not None and net.form == "link" and len(samples):
         clamped, share = clamped_correction(net.quantized(), samples, trained)
         out["std_after_clamped"], out["clamped_share"] = float(np.std(samples.label - clamped)), share
-    return out
-
-
-def corrections(net, samples: Samples) -> np.ndarray:
-    """The model's correction of each sample, with the delays of its flight's installation
-    if the model carries them (as `rig evaluate` applies them)."""
-    if not net.installations:
-        return net.predict(samples.features, samples.id_a, samples.id_b)
-    from rig.data.survey import parse_survey
-
-    out = np.zeros(len(samples))
-    for name in sorted(set(samples.flight.tolist())):
-        rows = samples.flight == name
-        anchors = parse_survey(paths.survey_for(paths.data_dir() / "flights" / name))
-        out[rows] = net.for_installation(anchors).predict(samples.features[rows], samples.id_a[rows], samples.id_b[rows])
     return out
 
 
@@ -266,8 +234,7 @@ def clamped_correction(net, samples: Samples, trained: Samples) -> tuple[np.ndar
 
 def form_config(form: str, **kwargs) -> TrainConfig:
     """The training configuration of a form of this page."""
-    return TrainConfig.with_features(FORMS[form], untranslated=form == UNTRANSLATED,
-                                     installation_delays=form == INSTALLATION, **kwargs)
+    return TrainConfig.with_features(FORMS[form], untranslated=form == UNTRANSLATED, **kwargs)
 
 
 def flight_split_samples(split_name: str, seed: int) -> tuple[Samples, Split]:

@@ -34,12 +34,9 @@ UNTRANSLATED_TOLERANCE_M = 0.005
 # and rows of forms tried and removed, if a tag runs them into the JSON (session 60's
 # "offset": experiment/tag-offset-constant; session 62's "huber": experiment/huber-loss;
 # session 65's "distilled": experiment/distill, "refit": experiment/refit and
-# "six-restarts": experiment/six-restarts and, on fresh seeds, experiment/six-restarts-replication)
-# the link form with anchor delays kept per installation (`rig train --installation-delays`):
-# session 68's rule (installation_verdict) decides whether it replaces the link form's recipe
-INSTALLATION = "installation"
-NEW_DAY_SPLITS = ("day-0426", "day-0425", "day-0422")
-NOT_RANKED = (UNTRANSLATED, INSTALLATION, "offset", "huber", "distilled", "refit", "six-restarts")
+# "six-restarts": experiment/six-restarts and, on fresh seeds, experiment/six-restarts-replication;
+# session 68's "installation": experiment/installation-delays)
+NOT_RANKED = (UNTRANSLATED, "offset", "huber", "distilled", "refit", "six-restarts", "installation")
 
 
 def merge_folds(rows: list[dict]) -> list[dict]:
@@ -136,37 +133,9 @@ def untranslated_verdict(rows: list[dict]) -> dict | None:
     return {"accuracy_m": accuracy, "worse_flights": worse, "rule_met": met}
 
 
-def installation_verdict(rows: list[dict]) -> dict | None:
-    """Session 68's rule (bias_validation.py's docstring), on these rows: the installation
-    recipe replaces the link form's only if (a) its within-0426 estimate for the issue's
-    0426 check is at most TARGET_0426_M and it makes no more of those flights worse, (b)
-    it makes fewer flights worse over the new-day splits, and (c) its accuracy is within
-    UNTRANSLATED_TOLERANCE_M of the link form's. None until both have every split."""
-    needed = set(FLIGHT_SPLITS) | set(NEW_DAY_SPLITS) | {"within-0426"}
-    figures = {}
-    for form in ("link", INSTALLATION):
-        entries = {e["split"]: e for e in summary([r for r in rows if r["form"] == form and r["split"] in needed])}
-        if set(entries) != needed:
-            return None
-        within = entries["within-0426"]
-        figures[form] = {
-            "estimate_0426_m": HELD_OUT_0426_WITHOUT_M * within["mean_rmse_3d"]["mean"] / within["mean_rmse_3d_without"]["mean"],
-            "worse_within_0426": within["worse_flights"]["mean"],
-            "worse_new_days": float(sum(entries[s]["worse_flights"]["mean"] for s in NEW_DAY_SPLITS)),
-            "accuracy_m": float(np.mean([entries[s]["mean_rmse_3d"]["mean"] for s in FLIGHT_SPLITS]))}
-    new, old = figures[INSTALLATION], figures["link"]
-    checks = {"a": new["estimate_0426_m"] <= TARGET_0426_M and new["worse_within_0426"] <= old["worse_within_0426"],
-              "b": new["worse_new_days"] < old["worse_new_days"],
-              "c": new["accuracy_m"] <= old["accuracy_m"] + UNTRANSLATED_TOLERANCE_M}
-    return {"figures": figures, "checks": checks, "rule_met": all(checks.values())}
-
-
 def shipped_recipe(rows: list[dict]) -> str:
     """The rows that stand for the shipped model: the chosen form, or its untranslated
-    labels if session 59's rule keeps them, or its installation delays if session 68's does."""
-    installation = installation_verdict(rows)
-    if installation and installation["rule_met"]:
-        return INSTALLATION
+    labels if session 59's rule keeps them."""
     verdict = untranslated_verdict(rows)
     return UNTRANSLATED if verdict and verdict["rule_met"] else choose_form(rows)["ship"]
 
@@ -416,8 +385,13 @@ def estimate_lines(rows: list[dict]) -> list[str]:
     days = [f"{_gain(entries[s])} on {s[4:]}, {_worse(entries[s], n_test[s])}" for s in day_splits]
     if "day-0422" in entries:
         days.append("on 0422 made worse: " + _worse_flights([r for r in flight_rows if r["split"] == "day-0422"]))
+    held_out = HELD_OUT["day"]
+    pair_0422 = summary([r for r in rows if r["form"] == "pair" and r["split"] == "day-0422"])
+    if pair_0422:
+        held_out += (f"; trained here on 0425 + 0426, the pair form goes {_gain(pair_0422[0])} on 0422: "
+                     "0422 is the harsher case")
     if days:
-        lines.append(f"| a new day ({', '.join(day_splits)}) | {'; '.join(days)} | {HELD_OUT['day']} |")
+        lines.append(f"| a new day ({', '.join(day_splits)}) | {'; '.join(days)} | {held_out} |")
     modes = [f"{word}: {_gain(entries[s])}, {_worse(entries[s], n_test[s])}"
              for s, word in (("mode-tdoa3", "TDOA2 → TDOA3"), ("mode-tdoa2", "TDOA3 → TDOA2")) if s in entries]
     if modes:

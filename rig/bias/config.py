@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from rig.estimator.bias_net import DELAY_BOUND_M, FORMS, shape
+from rig.estimator.bias_net import FORMS, shape
 
 FEATURES_FROM = ("estimate", "truth")   # the tag pose the features are computed from
 
@@ -39,10 +39,6 @@ class TrainConfig:
     # (rig.bias.tag_offset): the correction then carries none, as no flight can tell one
     # from where the tag really is
     untranslated: bool = False
-    # link form: each training and validation flight's own anchor delays removed from its
-    # labels, and kept per installation in the model (rig.bias.delays): applied only to a
-    # recording of an installation they were measured on
-    installation_delays: bool = False
 
     def __post_init__(self) -> None:
         if self.restarts < 1:
@@ -61,8 +57,6 @@ class TrainConfig:
             raise ValueError(f"the {self.form} form's features are 0..{n_in - 1}, got {self.features}")
         if self.anchor_offsets and self.form != "link":
             raise ValueError("anchor offsets belong to the link form")
-        if self.installation_delays and (self.form != "link" or self.anchor_offsets):
-            raise ValueError("installation delays belong to the link form without anchor offsets of its own")
 
     @classmethod
     def with_features(cls, name: str, **kwargs) -> "TrainConfig":
@@ -80,7 +74,7 @@ class TrainConfig:
 
 # Physical bound of an anchor's own range offset: a DW1000 antenna delay miscalibrated by
 # 1 ns is 0.3 m; more is not a delay.
-ANCHOR_OFFSET_BOUND_M = DELAY_BOUND_M
+ANCHOR_OFFSET_BOUND_M = 0.3
 
 # Without the anchors' orientation: drop the tag's azimuth and elevation in each anchor's
 # frame (features 6, 7, 10, 11); the anchors seen from the tag's body frame stay.

@@ -30,7 +30,6 @@ import numpy as np
 
 from rig.bias.config import ANCHOR_OFFSET_BOUND_M, TrainConfig
 from rig.bias.dataset import Samples
-from rig.bias.delays import flight_delays, installations, undelayed
 from rig.bias.tag_offset import untranslated
 from rig.data import paths
 from rig.data.files import write_text_whole
@@ -291,9 +290,7 @@ def fit(samples: Samples, split: Split, config: TrainConfig = TrainConfig(), exc
     involving them and the test set is exactly the test flights' measurements that do. The
     validation flights' recordings (for selecting a restart in closed loop) are read from
     `flight_dir`, by default the shared flights. With `config.untranslated`, every
-    flight's labels lose their own constant tag offset first; with
-    `config.installation_delays`, the training and validation flights' labels lose their
-    own anchor delays, which the model keeps per installation (rig.bias.delays)."""
+    flight's labels lose their own constant tag offset first."""
     exclude_anchors = list(exclude_anchors)
     absent = sorted(set(exclude_anchors) - set(samples.id_a.tolist()) - set(samples.id_b.tolist()))
     if absent:
@@ -302,11 +299,6 @@ def fit(samples: Samples, split: Split, config: TrainConfig = TrainConfig(), exc
         samples = untranslated(samples)
     hit = involves(samples, exclude_anchors) if exclude_anchors else np.zeros(len(samples), bool)
     in_flights = lambda names: np.isin(samples.flight, names)  # noqa: E731
-    flight_dir = paths.data_dir() / "flights" if flight_dir is None else Path(flight_dir)
-    known = None
-    if config.installation_delays:
-        delays = flight_delays(samples.select(in_flights(split.train + split.validation) & ~hit))
-        samples, known = undelayed(samples, delays), installations(delays, flight_dir)
     train_set = samples.select(in_flights(split.train) & ~hit)
     validation_set = samples.select(in_flights(split.validation) & ~hit)
     test_set = samples.select(in_flights(split.test) & (hit if exclude_anchors else True))
@@ -314,14 +306,14 @@ def fit(samples: Samples, split: Split, config: TrainConfig = TrainConfig(), exc
     if config.select_by == "rmse_3d" and not exclude_anchors and config.restarts > 1:
         from rig.data.importer import load_any
 
+        flight_dir = paths.data_dir() / "flights" if flight_dir is None else Path(flight_dir)
         recordings = [load_any(flight_dir / name) for name in split.validation]
-        score = lambda net: closed_loop_rmse(recordings, replace(net, installations=known))  # noqa: E731
+        score = lambda net: closed_loop_rmse(recordings, net)  # noqa: E731
     net, info = train(train_set, validation_set, config, progress, score)
     # it corrects only the anchors it learnt (the C estimator leaves the others alone),
     # and says where it learnt them (`rig evaluate` reports a flight's share outside)
     net = replace(net, anchors=np.union1d(train_set.id_a, train_set.id_b).astype(int).tolist(),
-                  region=TrainedRegion.from_features(train_set.features, train_set.id_a, train_set.id_b),
-                  installations=known)
+                  region=TrainedRegion.from_features(train_set.features, train_set.id_a, train_set.id_b))
     report = {"split": asdict(split), "exclude_anchors": exclude_anchors, "anchors": net.anchors,
               "samples": {"train": len(train_set), "validation": len(validation_set), "test": len(test_set)},
               "validation": residual_stats(net, validation_set), "test": residual_stats(net, test_set),

@@ -36,8 +36,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     try:
         config = TrainConfig.with_features(feature_set, seed=args.seed, restarts=args.restarts,
                                            select_by=args.select_by, max_epochs=args.max_epochs,
-                                           untranslated=args.untranslated,
-                                           installation_delays=args.installation_delays)
+                                           untranslated=args.untranslated)
     except ValueError as exc:
         raise CliError(str(exc)) from exc
     try:
@@ -160,7 +159,4 @@ def register_train(sub) -> None:
                    help="remove each flight's constant tag offset from its labels, so the correction carries none "
                         "(no flight can tell one from where the tag really is; shipped in sessions 59-62, not "
                         "kept since: docs/notebook/bias.md)")
-    p.add_argument("--installation-delays", action="store_true",
-                   help="learn the anchor delays per installation (its survey) apart from the network, and apply "
-                        "them only to recordings of an installation they were measured on (link form)")
     p.set_defaults(func=cmd_train)

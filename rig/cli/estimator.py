@@ -32,9 +32,6 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     result = evaluate(rec, robust=not args.no_robust, use_nn=not args.no_nn, model_path=args.model)
     result["recording"] = str(args.recording)
     config = ("robust" if not args.no_robust else "plain") + (" + bias network" if result["config"]["bias_net"] else "")
-    if "installation_delays" in result["config"]:
-        config += (" with this installation's anchor delays" if result["config"]["installation_delays"]
-                   else "; an installation it has no anchor delays for: the network alone")
     print(f"{args.recording}: C estimator ({config}), {result['flight_seconds']:.1f} s replayed in "
           f"{result['estimator_seconds'] * 1e3:.1f} ms of estimator time")
     print_accuracy(result)

@@ -14,13 +14,6 @@ in metres is out_scale * y + out_offset (the link form's offset cancels in the
 difference: 0). A link model may add each anchor's own range offset (`anchor_offset`,
 zero for an anchor it never saw): TDOA bias = g(B) + d[B] − g(A) − d[A].
 
-A link model may instead carry anchor delays per installation (`installations`): each
-anchor's delay as measured on the flights of one installation, identified by its
-anchors' surveyed positions. A recording of that installation is corrected with them
-(`for_installation`), any other with the network alone: a delay is a calibration of
-the installation it was measured on, and carried to another one it made the estimate
-worse (docs/notebook/bias.md).
-
 A model knows the anchors it was trained on (`anchors`) and does not correct a
 measurement with another one: a network that tells anchors apart by their position
 only extrapolates to a new anchor, and widened the error there
@@ -32,8 +25,7 @@ board does not use it.
 from __future__ import annotations
 
 import json
-from collections.abc import Iterable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -101,7 +93,6 @@ class BiasNet:
     anchor_offset: np.ndarray | None = None   # link form: (ANCHORS,) range offset per anchor id (m)
     anchors: list[int] | None = None          # the anchor ids it was trained on (None: it corrects every one)
     region: TrainedRegion | None = None       # where it was trained (reported by `rig evaluate`, not used onboard)
-    installations: list["Installation"] | None = None   # link form: anchor delays of the installations it knows
 
     def __post_init__(self) -> None:
         if self.form not in FORMS:
@@ -119,11 +110,6 @@ class BiasNet:
                 raise ValueError("its anchor offsets are not all finite")
             if not np.any(self.anchor_offset):
                 self.anchor_offset = None
-        if self.installations:
-            if self.form != "link" or self.anchor_offset is not None:
-                raise ValueError("installations' delays belong to a link model without anchor offsets of its own")
-        else:
-            self.installations = None
 
     def _check_layers(self) -> None:
         """The form's layer shapes, and finite numbers everywhere: a diverged training or a
@@ -192,16 +178,6 @@ class BiasNet:
             return bias
         return np.where(self.trained_on(id_a) & self.trained_on(id_b), bias, 0.0)
 
-    def for_installation(self, anchors: Iterable) -> "BiasNet":
-        """The model as it corrects a recording with these anchors (each with `id` and
-        `position`): with the delays of the installation they are, if it knows it, as
-        anchor offsets; otherwise the network alone."""
-        if not self.installations:
-            return self
-        surveyed = {int(a.id): np.asarray(a.position, float) for a in anchors}
-        known = next((i for i in self.installations if i.matches(surveyed)), None)
-        return replace(self, installations=None, anchor_offset=None if known is None else known.offsets())
-
     def quantized(self) -> "BiasNet":
         """The same network with weights rounded exactly as `pack` stores them."""
         weights = []
@@ -210,8 +186,7 @@ class BiasNet:
             weights.append(q.astype(np.float64) * scale[:, None])
         offsets = None if self.anchor_offset is None else self.anchor_offset.astype(np.float32).astype(float)
         return BiasNet(weights, [b.copy() for b in self.biases], self.in_mean, self.in_scale,
-                       self.out_scale, self.out_offset, self.form, offsets, self.anchors, self.region,
-                       self.installations)
+                       self.out_scale, self.out_offset, self.form, offsets, self.anchors, self.region)
 
     def pack(self) -> np.ndarray:
         """One NET_DTYPE record, laid out like the C bias_net_t."""
@@ -246,7 +221,6 @@ class BiasNet:
             **({"anchor_offset": self.anchor_offset.tolist()} if self.anchor_offset is not None else {}),
             **({"anchors": self.anchors} if self.anchors is not None else {}),
             **({"trained_region": self.region.to_json()} if self.region is not None else {}),
-            **({"installations": [i.to_json() for i in self.installations]} if self.installations else {}),
         }
 
     @classmethod
@@ -255,8 +229,7 @@ class BiasNet:
                    np.array(obj["in_mean"], float), np.array(obj["in_scale"], float),
                    float(obj["out_scale"]), float(obj["out_offset"]), obj.get("form", "pair"),
                    obj.get("anchor_offset"), obj.get("anchors"),
-                   TrainedRegion.from_json(obj["trained_region"]) if "trained_region" in obj else None,
-                   [Installation.from_json(i) for i in obj.get("installations", [])])
+                   TrainedRegion.from_json(obj["trained_region"]) if "trained_region" in obj else None)
 
     def save(self, path: Path) -> None:
         write_text_whole(path, json.dumps(self.to_json()) + "\n")      # a failed write keeps the old model
@@ -271,51 +244,6 @@ class BiasNet:
             raise ModelFileError(f"{path} is not a bias model: it lacks {exc}") from exc
         except (ValueError, TypeError, AttributeError) as exc:   # JSONDecodeError is a ValueError
             raise ModelFileError(f"{path} is not a usable bias model: {exc}") from exc
-
-
-# An anchor's delay is at most a DW1000 antenna delay miscalibrated by 1 ns (0.3 m): more
-# is not a delay.
-DELAY_BOUND_M = 0.3
-# A recording is of an installation when each of its anchors lies this close to where
-# the installation's survey put it: surveys of one room on two days differ by millimetres.
-SAME_PLACE_M = 0.0005
-
-
-@dataclass
-class Installation:
-    """The anchor delays measured on one installation: its anchors as surveyed (id →
-    position, m) and each one's range delay (id → m)."""
-
-    anchors: dict[int, np.ndarray]
-    delays: dict[int, float]
-
-    def __post_init__(self) -> None:
-        self.anchors = {int(k): np.asarray(v, float).reshape(3) for k, v in self.anchors.items()}
-        self.delays = {int(k): float(v) for k, v in self.delays.items()}
-        if not set(self.delays) <= set(self.anchors) or any(not 0 <= k < ANCHORS for k in self.anchors):
-            raise ValueError(f"an installation's delays are of its own anchors, ids 0..{ANCHORS - 1}")
-        values = np.array(list(self.delays.values()))
-        if not np.isfinite(values).all() or np.any(np.abs(values) > DELAY_BOUND_M):
-            raise ValueError(f"an anchor delay is finite and within ±{DELAY_BOUND_M} m, not {sorted(values)}")
-
-    def matches(self, surveyed: dict[int, np.ndarray]) -> bool:
-        """Whether anchors (id → position) are this installation's, each where it was surveyed."""
-        return set(surveyed) == set(self.anchors) and all(
-            np.linalg.norm(surveyed[k] - self.anchors[k]) <= SAME_PLACE_M for k in surveyed)
-
-    def offsets(self) -> np.ndarray:
-        out = np.zeros(ANCHORS)
-        for k, d in self.delays.items():
-            out[k] = d
-        return out
-
-    def to_json(self) -> dict:
-        return {"anchors": {str(k): v.tolist() for k, v in sorted(self.anchors.items())},
-                "delays_m": {str(k): v for k, v in sorted(self.delays.items())}}
-
-    @classmethod
-    def from_json(cls, obj: dict) -> "Installation":
-        return cls(obj["anchors"], obj["delays_m"])
 
 
 def _quantize_rows(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

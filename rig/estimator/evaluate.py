@@ -118,7 +118,7 @@ def make_estimator(rec: Recording, params: native.EstimatorParams, model: BiasNe
             log.warning("anchor id %d is outside the estimator's range 0..%d; ignored", anchor.id,
                         native.MAX_ANCHORS - 1)
     if model is not None and params.use_bias_net:
-        est.set_bias_net(model.for_installation(rec.anchors).pack())
+        est.set_bias_net(model.pack())
     return est
 
 
@@ -178,8 +178,6 @@ def evaluate(rec: Recording, *, robust: bool = True, use_nn: bool = True, model_
     result["flight_seconds"] = float(run.t[-1] - run.t[0]) if len(run.t) else 0.0
     result["config"] = {"robust": robust, "bias_net": model is not None, "params": params.as_dict(),
                         "start_s": run.t_start}
-    if model is not None and model.installations:
-        result["config"]["installation_delays"] = model.for_installation(rec.anchors).anchor_offset is not None
     if model is not None and model.region is not None:
         result["outside_trained_region"] = extrapolated_share(rec, run.t, position, model)
     return result

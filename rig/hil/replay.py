@@ -274,7 +274,7 @@ def configure(link: BoardLink, rec: Recording, params: native.EstimatorParams, m
             log.warning("anchor id %d is outside the board's range 0..%d; ignored", a.id, hello.max_anchors - 1)
     _acked(link, [protocol.anchor(a.id, a.position, a.quaternion) for a in anchors], "anchors", session)
     if model is not None and params.use_bias_net:
-        image = model.for_installation(rec.anchors).pack().tobytes()
+        image = model.pack().tobytes()
         if len(image) != hello.net_size:
             raise LinkError(f"{link.name}: the board's network is {hello.net_size} bytes, the model {len(image)}")
         _acked(link, protocol.net_chunks(image) + [protocol.net_commit(len(image))], "bias network", session)
