@@ -35,6 +35,12 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     print(f"{args.recording}: C estimator ({config}), {result['flight_seconds']:.1f} s replayed in "
           f"{result['estimator_seconds'] * 1e3:.1f} ms of estimator time")
     print_accuracy(result)
+    if result["config"]["bias_net"] and "score_error" not in result:
+        from rig.bias.effect import correction_effect
+        from rig.estimator.evaluate import load_model
+
+        result["correction_effect"] = effect = correction_effect(rec, load_model(args.model))
+        print_correction_effect(effect)
     # the update rejects by its gate or by a robust weight near zero; the rest of the
     # reasons refuse a measurement before it reaches the update (counted apart)
     by_reason = result["rejected_by_reason"]
@@ -45,6 +51,19 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
           f"resets {result['resets']}; diverged: {'yes' if result['diverged'] else 'no'}")
     write_json(args.json, result)
     return EXIT_FAILED if result["diverged"] else EXIT_OK
+
+
+def print_correction_effect(effect: dict | None, most: int = 5) -> None:
+    """The correction's effect on the TDOA errors, and the pairs it makes worse, the worst first."""
+    if effect is None:
+        return
+    rms, pairs = effect["tdoa_error_rms_m"], effect["per_pair"]
+    worse = [f"{k} ({pairs[k]['before']:.3f} → {pairs[k]['after']:.3f} m)" for k in effect["worse_pairs"][:most]]
+    more = len(effect["worse_pairs"]) - len(worse)
+    print(f"bias correction on the TDOA errors (against the ground truth): RMS {rms['before']:.3f} → "
+          f"{rms['after']:.3f} m; " + (f"larger on anchor pairs {', '.join(worse)}"
+                                       + (f" and {more} more" if more > 0 else "") + " (compare with --no-nn)"
+                                       if worse else f"smaller on every one of the {len(pairs)} anchor pairs"))
 
 
 def cmd_size(args: argparse.Namespace) -> int:
