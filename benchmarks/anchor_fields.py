@@ -15,7 +15,6 @@ mean field of the 0425 and 0426 flights (slope 1: the same bias; 0: none of it).
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -26,6 +25,7 @@ sys.path.insert(0, str(ROOT))
 
 from rig.bias.train import load_or_build_dataset  # noqa: E402
 from rig.data import paths  # noqa: E402
+from rig.data.files import write_json  # noqa: E402
 from rig.data.survey import parse_survey  # noqa: E402
 
 CACHE = ROOT / "out" / "cache" / "all.npz"
@@ -96,8 +96,7 @@ def main() -> None:
         for day, f in days.items():
             print(f"{k} | {day} | {f['first_harmonic_m']:.3f} at {f['first_harmonic_phase_deg']:+.0f}° | "
                   f"{f['second_harmonic_m']:.3f} | {f['slope_on_reference_median']:.2f}")
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(result, indent=1) + "\n")
+    write_json(args.out, result)
     print(f"wrote {args.out}")
 
 
