@@ -135,6 +135,7 @@ from bias_validation_results import (  # noqa: E402
     REGION_Z,
     RESULTS,
     SECTORS,
+    TDOA3,
     UNTRANSLATED,
     WITHIN_0426_FOLDS,
     choose_form,
@@ -145,7 +146,6 @@ from bias_validation_results import (  # noqa: E402
 )
 
 CACHE = ROOT / "out" / "cache" / "all.npz"
-TDOA3 = [f"0425-traj{k}" for k in range(13, 24)] + ["0426-traj5", "0426-traj6"]
 FORMS = {"link": "7", "shared": "shared", "pair": "14", UNTRANSLATED: "7"}   # form -> rig train's feature set
 VALIDATION_SHARE = 0.15
 
