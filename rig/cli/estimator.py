@@ -36,11 +36,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
           f"{result['estimator_seconds'] * 1e3:.1f} ms of estimator time")
     print_accuracy(result)
     if result["config"]["bias_net"] and "score_error" not in result:
-        from rig.bias.effect import correction_effect
-        from rig.estimator.evaluate import load_model
-
-        result["correction_effect"] = effect = correction_effect(rec, load_model(args.model))
-        print_correction_effect(effect)
+        add_correction_effect(result, rec, args.model)
     # the update rejects by its gate or by a robust weight near zero; the rest of the
     # reasons refuse a measurement before it reaches the update (counted apart)
     by_reason = result["rejected_by_reason"]
@@ -51,6 +47,23 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
           f"resets {result['resets']}; diverged: {'yes' if result['diverged'] else 'no'}")
     write_json(args.json, result)
     return EXIT_FAILED if result["diverged"] else EXIT_OK
+
+
+def add_correction_effect(result: dict, rec, model_path: Path | None) -> None:
+    """The correction's effect on the recording's TDOA errors, into `result` and printed. It
+    adds to the score and must not cost it: a recording it cannot measure says why
+    (`correction_effect_error`) and the score stands."""
+    from rig.bias.effect import correction_effect
+    from rig.data.errors import InputError
+    from rig.estimator.evaluate import load_model
+
+    try:
+        result["correction_effect"] = effect = correction_effect(rec, load_model(model_path))
+    except (InputError, ValueError, IndexError) as exc:
+        result["correction_effect_error"] = f"{type(exc).__name__}: {exc}"
+        print(f"bias correction on the TDOA errors: not measured ({result['correction_effect_error']})")
+        return
+    print_correction_effect(effect)
 
 
 def print_correction_effect(effect: dict | None, most: int = 5) -> None:

@@ -50,3 +50,25 @@ def test_rig_evaluate_reports_it_with_the_shipped_correction_only(tmp_path: Path
         in proc.stdout
     run_rig("evaluate", str(flight), "--no-nn", "--json", str(tmp_path / "without.json"), check=True)
     assert "correction_effect" not in json.loads((tmp_path / "without.json").read_text())
+
+
+def test_a_recording_it_cannot_measure_keeps_its_score(tmp_path: Path, data_dir: Path, monkeypatch,
+                                                      capfd) -> None:
+    import signal
+
+    import rig.bias.effect
+    import rig.cli
+
+    def unmeasurable(rec, name):
+        raise ValueError("no ground truth in flight")
+    monkeypatch.setattr(rig.bias.effect, "flight_samples", unmeasurable)
+    handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
+    try:
+        code = rig.cli.main(["evaluate", str(data_dir / "flights" / FLIGHT), "--json", str(tmp_path / "r.json")])
+    finally:
+        for s, handler in handlers.items():            # the rig's own handlers stay with the rig
+            signal.signal(s, handler)
+    result = json.loads((tmp_path / "r.json").read_text())
+    assert code == 0 and result["rmse_3d"] < 0.4 and "correction_effect" not in result
+    assert result["correction_effect_error"] == "ValueError: no ground truth in flight"
+    assert "not measured (ValueError: no ground truth in flight)" in capfd.readouterr().out
