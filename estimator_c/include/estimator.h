@@ -89,7 +89,16 @@ typedef struct {
     uint8_t irls_iterations;   /* fixed IRLS iterations (2 on the board) */
     uint8_t use_bias_net;      /* subtract the network's bias prediction */
     uint8_t thrust_only;       /* use only the z specific force (x/y read drag + vibration in flight) */
+    float trust_prior_n;       /* correction trust: pseudo-measurements at full trust; < 0: always full */
 } est_params_t;
+
+/* How far this flight's measurements follow the bias correction: the robust regression
+ * of the uncorrected innovation on the correction, accumulated over the flight. */
+typedef struct {
+    float s_cc;                /* sum of weight * c^2 */
+    float s_cv;                /* sum of weight * c * innovation without correction */
+    float n;                   /* sum of weights */
+} est_trust_t;
 
 typedef struct {
     float pos[3];
@@ -145,6 +154,7 @@ typedef struct {
     uint8_t queue_n;
     est_anchor_t anchors[EST_MAX_ANCHORS];
     const bias_net_t *net;
+    est_trust_t trust;
     est_counters_t counters;
     est_clock_t clock;
     est_step_cost_t cost;

@@ -35,6 +35,7 @@ void ekf_scalar_update(estimator_t *est, const float h[3], float innovation, flo
 /* mm_tdoa.c */
 float tdoa_predict(const float pos[3], const float a[3], const float b[3], float grad[3]);
 void tdoa_update(estimator_t *est, const est_tdoa_t *m);
+float tdoa_trust_weight(const estimator_t *est);
 
 /* mm_tdoa_robust.c: the M-estimation counterpart of ekf_scalar_update */
 float ekf_robust_scalar_update(estimator_t *est, const float h[3], float innovation, float std);

@@ -20,6 +20,7 @@ void est_default_params(est_params_t *p)
     p->irls_iterations = 2;
     p->use_bias_net = 1;
     p->thrust_only = 1;
+    p->trust_prior_n = -1.0f;
 }
 
 void est_init(estimator_t *est, const est_params_t *params)

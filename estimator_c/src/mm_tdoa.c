@@ -31,6 +31,28 @@ static void count_weight(estimator_t *est, float weight)
         est->counters.tdoa_rejected++;
 }
 
+/* The share of the correction applied, in [0, 1]: the regression slope of the
+ * uncorrected innovations on the corrections, pulled to 1 by a prior of
+ * trust_prior_n pseudo-measurements of the flight's mean c^2. */
+float tdoa_trust_weight(const estimator_t *est)
+{
+    const est_trust_t *t = &est->trust;
+    const float n0 = est->params.trust_prior_n;
+    if (n0 < 0.0f || t->n <= 0.0f) return 1.0f;
+    const float prior = n0 * t->s_cc / t->n;
+    const float w = (t->s_cv + prior) / (t->s_cc + prior);
+    return isfinite(w) ? fminf(fmaxf(w, 0.0f), 1.0f) : 1.0f;
+}
+
+static void observe_trust(estimator_t *est, float correction, float innovation_raw, float innovation)
+{
+    const float e = innovation / est->params.tdoa_std;
+    const float w = gm_weight(e, est->params.gm_meas_c2);
+    est->trust.s_cc += w * correction * correction;
+    est->trust.s_cv += w * correction * innovation_raw;
+    est->trust.n += w;
+}
+
 void tdoa_update(estimator_t *est, const est_tdoa_t *m)
 {
     const est_anchor_t *a = &est->anchors[m->id_a];
@@ -42,18 +64,19 @@ void tdoa_update(estimator_t *est, const est_tdoa_t *m)
     for (int i = 0; i < 3; i++) pos_then[i] = est->pos[i] - est->vel[i] * age;
     float grad[3];
     const float predicted = tdoa_predict(pos_then, a->pos, b->pos, grad);
-    float measured = m->value;
+    float correction = 0.0f;
     if (est->params.use_bias_net && est->net) {
         float features[BN_INPUTS];
         bn_features(pos_then, est->rot, a->pos, a->rot, b->pos, b->rot, features);
-        measured -= bn_predict(est->net, features, m->id_a, m->id_b);
+        correction = bn_predict(est->net, features, m->id_a, m->id_b);
         /* a damaged network (an upload's NaN or inf) refuses the measurement, never the state */
-        if (!isfinite(measured)) {
+        if (!isfinite(correction)) {
             est->counters.rejected[EST_REJ_NONFINITE]++;
             return;
         }
     }
-    const float innovation = measured - predicted;
+    const float innovation_raw = m->value - predicted;
+    const float innovation = (m->value - tdoa_trust_weight(est) * correction) - predicted;
     const float std = est->params.tdoa_std;
 
     /* Hard gate: an innovation both large in metres and many sigmas out is not this
@@ -65,6 +88,7 @@ void tdoa_update(estimator_t *est, const est_tdoa_t *m)
         est->counters.tdoa_rejected++;
         return;
     }
+    if (correction != 0.0f) observe_trust(est, correction, innovation_raw, innovation);
     if (est->params.robust) {
         count_weight(est, ekf_robust_scalar_update(est, grad, innovation, std));
     } else {

@@ -61,6 +61,7 @@ class EstimatorParams(ctypes.Structure):
         ("irls_iterations", ctypes.c_uint8),
         ("use_bias_net", ctypes.c_uint8),
         ("thrust_only", ctypes.c_uint8),
+        ("trust_prior_n", ctypes.c_float),
     ]
 
     def as_dict(self) -> dict:
