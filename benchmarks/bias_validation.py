@@ -32,17 +32,11 @@ experiment/installation-delays), the link network trained without each flight's 
 delays, which the model kept per installation (its survey) and applied only to a
 recording of that installation.
 
-Also trust (session 69): the link network, with the estimator applying only the share of
-its correction that the flight's own measurements support (`trust_prior_n`, the
-regression slope of the uncorrected innovations on the corrections over the flight, in
-[0, 1], pulled to 1 by a prior of TRUST_PRIOR_N pseudo-measurements). Its training is the
-link form's; only the estimator differs. Not ranked. The rule that keeps it, fixed
-before its first run on any split (after a mechanism check on six shared flights with
-the shipped model and the shipped model negated): it is kept if (a) within-0426 its
-mean is at most 0.005 m above the link form's, with no flight worse on any seed; (b)
-on day-0422 it makes fewer flights worse than the link form and has a lower mean, and
-over day-0426 + day-0425 + day-0422 it makes fewer flights worse; (c) its accuracy (the
-mean over the four day and mode splits) is within 0.005 m of the link form's.
+Since session 69 the estimator applies only the share of the correction that the
+flight's own measurements support (`trust_prior_n`; docs/reference/estimator.md), kept
+by the rule in benchmarks/trust_rule.py, fixed before its first run. Every flight's row
+also holds its figure with the whole correction applied (`rmse_3d_full_trust`, the
+estimator before session 69) and the share applied at the end (`correction_trust`).
 
 The protocol is fixed here, before any result is looked at:
 - splits, by flight (samples 20 ms apart are not independent):
@@ -158,8 +152,7 @@ from bias_validation_results import (  # noqa: E402
 )
 
 CACHE = ROOT / "out" / "cache" / "all.npz"
-FORMS = {"link": "7", "shared": "shared", "pair": "14", UNTRANSLATED: "7", "trust": "7"}   # form -> rig train's feature set
-TRUST_PRIOR_N = 2000.0      # the trust form's prior, fixed before its first run
+FORMS = {"link": "7", "shared": "shared", "pair": "14", UNTRANSLATED: "7"}   # form -> rig train's feature set
 VALIDATION_SHARE = 0.15
 
 
@@ -195,20 +188,20 @@ def test_flights(split_name: str, names: list[str]) -> list[str]:
     raise ValueError(split_name)
 
 
-def closed_loop(flights: list[str], net, **params) -> list[dict]:
-    """The robust estimator's 3D RMSE on each flight with `net` (and the estimator
-    `params`) and without correction."""
+def closed_loop(flights: list[str], net) -> list[dict]:
+    """The robust estimator's 3D RMSE on each flight with `net`, with the whole of its
+    correction applied, and without correction."""
     from rig.data.importer import load_any
     from rig.estimator.evaluate import evaluate
 
     out = []
     for name in flights:
         rec = load_any(paths.data_dir() / "flights" / name)
-        with_net, without = evaluate(rec, model=net, **params), evaluate(rec, use_nn=False)
+        with_net, full, without = (evaluate(rec, model=net), evaluate(rec, model=net, full_trust=True),
+                                   evaluate(rec, use_nn=False))
         out.append({"flight": name, "rmse_3d": with_net["rmse_3d"], "rmse_3d_without": without["rmse_3d"],
+                    "rmse_3d_full_trust": full["rmse_3d"], "correction_trust": with_net["correction_trust"],
                     "diverged": with_net["diverged"]})
-        if params:
-            out[-1]["rmse_3d_default_estimator"] = evaluate(rec, model=net)["rmse_3d"]
     return out
 
 
@@ -269,7 +262,7 @@ def run_flight_split(job: tuple) -> dict:
     samples, split = flight_split_samples(f"{split_name}-{fold[0]}" if fold else split_name, seed)
     tic = time.perf_counter()
     net, report = fit(samples, split, form_config(form, seed=seed))
-    loop = closed_loop(split.test, net, **({"trust_prior_n": TRUST_PRIOR_N} if form == "trust" else {}))
+    loop = closed_loop(split.test, net)
     rmse = np.array([r["rmse_3d"] for r in loop])
     without = np.array([r["rmse_3d_without"] for r in loop])
     return {"split": split_name, "form": form, "seed": seed, "train": split.train, "validation": split.validation,

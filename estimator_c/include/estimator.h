@@ -21,7 +21,8 @@
 #define EST_MAX_ANCHORS 16         /* anchor ids 0..EST_MAX_ANCHORS-1 */
 _Static_assert(EST_MAX_ANCHORS == BN_ANCHORS, "the bias model has one offset per anchor id");
 #define EST_TDOA_QUEUE 32          /* TDOA measurements buffered within one window */
-#define EST_API_VERSION 1
+#define EST_API_VERSION 2          /* est_params_t grew trust_prior_n (PARAM index 12) */
+#define EST_TRUST_PRIOR_N 2000.0f  /* correction trust's prior, in pseudo-measurements (session 69) */
 
 /* Error-state indices. */
 #define EST_X 0
@@ -162,6 +163,8 @@ typedef struct {
 
 void est_default_params(est_params_t *params);
 void est_init(estimator_t *est, const est_params_t *params);
+/* The share of the bias correction applied now, in [0, 1] (est_trust_t). */
+float est_correction_trust(const estimator_t *est);
 int est_set_anchor(estimator_t *est, uint8_t id, const float pos[3], const float quat[4]);
 void est_set_bias_net(estimator_t *est, const bias_net_t *net);
 void est_set_clock(estimator_t *est, est_clock_t clock);

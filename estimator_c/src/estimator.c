@@ -20,7 +20,7 @@ void est_default_params(est_params_t *p)
     p->irls_iterations = 2;
     p->use_bias_net = 1;
     p->thrust_only = 1;
-    p->trust_prior_n = -1.0f;
+    p->trust_prior_n = EST_TRUST_PRIOR_N;  /* share of the correction a flight supports */
 }
 
 void est_init(estimator_t *est, const est_params_t *params)
@@ -32,6 +32,11 @@ void est_init(estimator_t *est, const est_params_t *params)
         est_default_params(&est->params);
     est->quat[3] = 1.0f;
     quat_to_rot(est->quat, est->rot);
+}
+
+float est_correction_trust(const estimator_t *est)
+{
+    return tdoa_trust_weight(est);
 }
 
 int est_set_anchor(estimator_t *est, uint8_t id, const float pos[3], const float quat[4])

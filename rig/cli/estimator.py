@@ -29,12 +29,16 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     from rig.estimator.evaluate import evaluate
 
     rec = load_any(args.recording, args.survey, strict=args.strict)
-    result = evaluate(rec, robust=not args.no_robust, use_nn=not args.no_nn, model_path=args.model)
+    result = evaluate(rec, robust=not args.no_robust, use_nn=not args.no_nn, model_path=args.model,
+                      full_trust=args.full_trust)
     result["recording"] = str(args.recording)
     config = ("robust" if not args.no_robust else "plain") + (" + bias network" if result["config"]["bias_net"] else "")
     print(f"{args.recording}: C estimator ({config}), {result['flight_seconds']:.1f} s replayed in "
           f"{result['estimator_seconds'] * 1e3:.1f} ms of estimator time")
     print_accuracy(result)
+    if result["config"]["bias_net"]:
+        print(f"bias correction applied at {result['correction_trust']:.0%} at the end of the flight: the share "
+              "its measurements support" + (" (--full-trust: all of it)" if args.full_trust else ""))
     if result["config"]["bias_net"] and "score_error" not in result:
         add_correction_effect(result, rec, args.model)
     # the update rejects by its gate or by a robust weight near zero; the rest of the

@@ -96,7 +96,7 @@ def estimator_choice(args: argparse.Namespace):
     from rig.hil.job import EstimatorChoice
 
     return EstimatorChoice(use_nn=not args.no_nn, robust=not getattr(args, "no_robust", False),
-                           model_path=getattr(args, "model", None))
+                           model_path=getattr(args, "model", None), full_trust=getattr(args, "full_trust", False))
 
 
 def cmd_replay(args: argparse.Namespace) -> int:

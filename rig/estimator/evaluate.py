@@ -25,6 +25,7 @@ log = logging.getLogger(__name__)
 STEP_S = 0.01
 START_BEFORE_TAKEOFF = 1.0
 DIVERGED_RMSE_M = 1.0  # a flight scored worse than this has lost track
+FULL_TRUST = -1.0      # trust_prior_n that applies the whole correction on every flight
 
 
 @dataclass
@@ -35,6 +36,7 @@ class Replay:
     outputs: np.ndarray  # native.OUTPUT_DTYPE
     estimator_seconds: float
     t_start: float
+    correction_trust: float = 1.0    # the share of the bias correction applied at the end
 
     @property
     def position(self) -> np.ndarray:
@@ -131,7 +133,7 @@ def replay(rec: Recording, params: native.EstimatorParams, model: BiasNet | None
     tic = time.perf_counter()
     outputs = est.replay(events)
     elapsed = time.perf_counter() - tic
-    return Replay(t0 + outputs["t_us"].astype(float) * 1e-6, outputs, elapsed, t0)
+    return Replay(t0 + outputs["t_us"].astype(float) * 1e-6, outputs, elapsed, t0, est.correction_trust())
 
 
 def counter_summary(counters: np.void) -> dict:
@@ -148,10 +150,14 @@ def counter_summary(counters: np.void) -> dict:
 
 
 def estimator_config(robust: bool = True, use_nn: bool = True, model_path: Path | None = None,
-                     model: BiasNet | None = None, **param_overrides) -> tuple[native.EstimatorParams, BiasNet | None]:
+                     model: BiasNet | None = None, full_trust: bool = False,
+                     **param_overrides) -> tuple[native.EstimatorParams, BiasNet | None]:
     """Parameters and bias network of a run (in-process or on a board): `model` when given,
     else the one at `model_path` or the shipped one. An explicit model path must exist;
-    without the shipped one the run goes on without correction, with a warning."""
+    without the shipped one the run goes on without correction, with a warning.
+    `full_trust` applies the whole correction, whatever share the flight supports."""
+    if full_trust:
+        param_overrides.setdefault("trust_prior_n", FULL_TRUST)
     if not use_nn:
         model = None
     elif model is None:
@@ -165,9 +171,9 @@ def estimator_config(robust: bool = True, use_nn: bool = True, model_path: Path 
 
 
 def evaluate(rec: Recording, *, robust: bool = True, use_nn: bool = True, model_path: Path | None = None,
-             model: BiasNet | None = None, **param_overrides) -> dict:
+             model: BiasNet | None = None, full_trust: bool = False, **param_overrides) -> dict:
     """Replay and score; the dict is what `rig evaluate --json` writes."""
-    params, model = estimator_config(robust, use_nn, model_path, model, **param_overrides)
+    params, model = estimator_config(robust, use_nn, model_path, model, full_trust, **param_overrides)
     run = replay(rec, params, model)
     position = run.position
     result = metrics.score(run.t, position, rec.truth)
@@ -178,6 +184,8 @@ def evaluate(rec: Recording, *, robust: bool = True, use_nn: bool = True, model_
     result["flight_seconds"] = float(run.t[-1] - run.t[0]) if len(run.t) else 0.0
     result["config"] = {"robust": robust, "bias_net": model is not None, "params": params.as_dict(),
                         "start_s": run.t_start}
+    if model is not None:
+        result["correction_trust"] = run.correction_trust
     if model is not None and model.region is not None:
         result["outside_trained_region"] = extrapolated_share(rec, run.t, position, model)
     return result

@@ -145,6 +145,8 @@ def _load(path: Path) -> ctypes.CDLL:
     lib.est_replay.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_size_t, ctypes.c_void_p, ctypes.c_size_t]
     lib.est_replay.restype = ctypes.c_size_t
     lib.est_copy_covariance.argtypes = [ctypes.c_void_p, ctypes.c_void_p]
+    lib.est_correction_trust.argtypes = [ctypes.c_void_p]
+    lib.est_correction_trust.restype = ctypes.c_float
     lib.bn_features.argtypes = [ctypes.c_void_p] * 7
     lib.bn_features_batch.argtypes = [ctypes.c_size_t] + [ctypes.c_void_p] * 7
     lib.bn_predict.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_uint, ctypes.c_uint]
@@ -190,6 +192,11 @@ class Estimator:
         pos = _f32(position, 3)
         quat = _f32(quaternion, 4) if quaternion is not None else None
         self.lib.est_reset(self.handle, int(t_us), _ptr(pos), _ptr(quat) if quat is not None else None)
+
+    def correction_trust(self) -> float:
+        """The share of the bias correction the estimator applies now: the regression slope
+        of the flight's uncorrected innovations on the corrections so far."""
+        return float(self.lib.est_correction_trust(self.handle))
 
     def covariance(self) -> np.ndarray:
         out = np.zeros((STATE_DIM, STATE_DIM), np.float32)

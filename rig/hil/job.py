@@ -41,6 +41,7 @@ class EstimatorChoice:
     use_nn: bool = True
     robust: bool = True
     model_path: Path | None = None
+    full_trust: bool = False       # the whole correction, not the share the flight supports
 
 
 class JobFailed(LinkError):
@@ -135,12 +136,13 @@ def replay_job(recording: Path, target: str, out: Path, estimator: EstimatorChoi
     first, last = start_time(rec) if start is None else start, float(rec.time_span()[1])
     if first >= last:
         raise InputError(f"--start {first:g} s is past the end of {recording} ({last:g} s on its clock)")
-    params, model = estimator_config(estimator.robust, estimator.use_nn, estimator.model_path)
+    params, model = estimator_config(estimator.robust, estimator.use_nn, estimator.model_path,
+                                     full_trust=estimator.full_trust)
     writable_directory(out)
     recorder = RunRecorder(out / RUN_FILE)
     info = {"recording": str(recording), "target": target, "bias_net": model is not None,
             "robust": estimator.robust, "lookahead": lookahead, "mode": "lockstep" if speed is None else "realtime",
-            "full_answer_every": full_answer_every}
+            "full_answer_every": full_answer_every, "full_trust": estimator.full_trust}
     began, run, error, own, link, ended, stop = time.monotonic(), None, None, session is None, None, ENDED[0], None
     try:
         session = session or open_session()

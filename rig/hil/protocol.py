@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 VERSION = 2
+ESTIMATOR_API = 2      # EST_API_VERSION: est_params_t's fields, which PARAM indexes
 MAX_PAYLOAD = 30
 ACCEL_LSB = np.float32(0.005)
 GYRO_LSB = np.float32(0.001)

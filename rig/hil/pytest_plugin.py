@@ -11,7 +11,7 @@ the-loop tests written as pytest-embedded users write theirs with `dut`.
 native, native-udp, qemu, qemu-usart, serial:URL, crazyflie:URI, zenoh:NAME. The `board` fixture
 is parametrized over them; `board.replay(recording, **options)` replays as `rig
 replay` does (options: `start`, `duration`, `mode` "lockstep" or "realtime", `speed`,
-`lookahead`, `no_nn`, `no_robust`, `model`, `survey`, `report`) into a directory of
+`lookahead`, `no_nn`, `no_robust`, `model`, `full_trust`, `survey`, `report`) into a directory of
 the test's own and returns what metrics.json holds. A board or link that fails raises
 `rig.hil.job.JobFailed` with what was kept.
 """
@@ -25,7 +25,7 @@ import pytest
 
 DEFAULT_TARGET = "native"
 REPLAY_OPTIONS = {"start", "duration", "mode", "speed", "lookahead", "full_answer_every", "no_nn", "no_robust", "model",
-                  "survey", "report", "strict"}
+                  "full_trust", "survey", "report", "strict"}
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
@@ -63,7 +63,7 @@ class Board:
             raise ValueError(f"mode must be 'lockstep' or 'realtime', not {mode!r}")
         speed = float(options.pop("speed", 1.0))
         estimator = EstimatorChoice(use_nn=not options.pop("no_nn", False), robust=not options.pop("no_robust", False),
-                                    model_path=options.pop("model", None))
+                                    model_path=options.pop("model", None), full_trust=options.pop("full_trust", False))
         self.replays += 1
         out = self.out / f"replay{self.replays}"
         recording = Path(recording) if recording is not None else paths.default_recording()

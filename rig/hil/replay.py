@@ -220,6 +220,9 @@ def handshake(link: BoardLink, attempts: int = 10) -> protocol.HelloReply:
                 raise LinkError(f"{link.name}: no answer to hello after {attempts} attempts") from None
     if reply.version != protocol.VERSION:
         raise LinkError(f"{link.name}: protocol version {reply.version}, the rig speaks {protocol.VERSION}")
+    if reply.api_version != protocol.ESTIMATOR_API:
+        raise LinkError(f"{link.name}: estimator API {reply.api_version}, the rig's estimator is "
+                        f"{protocol.ESTIMATOR_API} (reflash the board with this checkout's firmware)")
     return reply
 
 

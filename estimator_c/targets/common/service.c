@@ -222,14 +222,19 @@ static int8_t on_param(service_t *s, const uint8_t *m)
     float *floats[] = {&p->tdoa_std, &p->accel_noise, &p->gyro_noise, &p->position_noise, &p->velocity_noise,
                        &p->gate_m, &p->gm_state_c2, &p->gm_meas_c2};
     uint8_t *flags[] = {&p->robust, &p->irls_iterations, &p->use_bias_net, &p->thrust_only};
+    float *late_floats[] = {&p->trust_prior_n};   /* after the flags, in the struct's order */
     const uint8_t index = m[1];
     const float value = proto_get_f32(&m[2]);
     const uint8_t n_floats = sizeof floats / sizeof floats[0], n_flags = sizeof flags / sizeof flags[0];
+    const uint8_t n_late = sizeof late_floats / sizeof late_floats[0];
     if (!(value == value)) return PROTO_ERR_RANGE;
     if (index < n_floats) {
         *floats[index] = value;
-    } else if (index < n_floats + n_flags && value >= 0.0f && value <= 255.0f) {
+    } else if (index < n_floats + n_flags) {
+        if (!(value >= 0.0f && value <= 255.0f)) return PROTO_ERR_RANGE;
         *flags[index - n_floats] = (uint8_t)value;
+    } else if (index < n_floats + n_flags + n_late) {
+        *late_floats[index - n_floats - n_flags] = value;
     } else {
         return PROTO_ERR_RANGE;
     }
