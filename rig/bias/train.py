@@ -217,11 +217,12 @@ def train(train_set: Samples, validation_set: Samples, config: TrainConfig = Tra
 
 
 def closed_loop_rmse(recordings: list, net: BiasNet) -> float:
-    """The robust estimator's mean 3D RMSE over `recordings` with `net` correcting (inf if
-    any replay diverges)."""
+    """The robust estimator's mean 3D RMSE over `recordings` with the whole of `net`'s
+    correction applied (inf if any replay diverges). The whole: a restart is chosen for
+    its network, and the share a flight supports would hide how the restarts differ."""
     from rig.estimator.evaluate import evaluate
 
-    results = [evaluate(rec, model=net) for rec in recordings]
+    results = [evaluate(rec, model=net, full_trust=True) for rec in recordings]
     if any(r["diverged"] for r in results):
         return float("inf")
     return float(np.mean([r["rmse_3d"] for r in results]))

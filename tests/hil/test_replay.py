@@ -18,7 +18,7 @@ from rigtest import RIG
 
 from rig.data.importer import load_any
 from rig.estimator import native
-from rig.estimator.evaluate import build_events, load_model, make_estimator, start_time, truth_pose_at
+from rig.estimator.evaluate import FULL_TRUST, build_events, load_model, make_estimator, start_time, truth_pose_at
 from rig.hil import protocol, replay, targets
 from rig.hil.job import score_run
 from rig.hil.links import CrtpLink, LinkError, open_url
@@ -60,6 +60,19 @@ def test_native_program_under_sanitizers_equals_the_library(default_rec) -> None
     assert len(session.estimates) == len(lib) >= 599
     np.testing.assert_array_equal(positions(session), lib["pos"])
     assert session.unit == "ns" and all(t.window > 0 for t in session.timing)
+
+
+def test_the_board_applies_the_correction_trust_the_rig_sends(default_rec) -> None:
+    """trust_prior_n travels as PARAM 12 (estimator API 2): a board told to apply the whole
+    correction gives the library's estimates with the whole correction, not the default's."""
+    native.make("program")
+    params, model = native.params_with(trust_prior_n=FULL_TRUST), load_model()
+    link = targets.open_native(native.ESTIMATOR_DIR / "build" / "estimator_native")
+    session = run_target(link, default_rec, params, model, duration=6.0)
+    whole = library_estimates(default_rec, params, model, 6.0)
+    trusted = library_estimates(default_rec, native.params_with(), model, 6.0)
+    np.testing.assert_array_equal(positions(session), whole["pos"])
+    assert not np.array_equal(whole["pos"], trusted["pos"])
 
 
 def test_cflib_udp_link_to_the_native_program_equals_the_library(default_rec) -> None:

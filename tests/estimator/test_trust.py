@@ -1,0 +1,75 @@
+"""The correction trust: the estimator applies the share of the bias correction that the
+flight's own measurements support (trust_prior_n), in [0, 1]."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rigtest import simulate_exact
+
+from rig.estimator import native
+from rig.estimator.bias_net import ANCHORS, BiasNet, identity_probe_net
+from rig.estimator.evaluate import FULL_TRUST, evaluate
+
+DELAY_M = 0.3
+
+
+def offsets_net(anchor: int, meters: float) -> BiasNet:
+    """A link-form model that corrects one anchor's range by a constant, nothing else."""
+    offsets = np.zeros(ANCHORS)
+    offsets[anchor] = meters
+    return replace(identity_probe_net(0, gain=0.0, form="link"), anchor_offset=offsets)
+
+
+@pytest.fixture(scope="module")
+def delayed_flight(survey_0425: Path):
+    """A simulated flight whose anchor 3 reads DELAY_M long, with white TDOA noise."""
+    return simulate_exact(survey_0425, duration=90.0, seed=5,
+                          effects=[{"effect": "anchor_delay", "params": {"anchor": 3, "meters": DELAY_M}},
+                                   {"effect": "tdoa_noise", "params": {"std_m": 0.05}}])
+
+
+def test_a_correction_the_flight_bears_out_is_applied_whole(delayed_flight) -> None:
+    right = evaluate(delayed_flight, model=offsets_net(3, DELAY_M))
+    without = evaluate(delayed_flight, use_nn=False)
+    assert right["correction_trust"] > 0.9
+    assert right["rmse_3d"] < 0.5 * without["rmse_3d"]
+
+
+def test_a_correction_the_flight_contradicts_is_withdrawn(delayed_flight) -> None:
+    opposite = offsets_net(3, -DELAY_M)              # the delay corrected the wrong way
+    trusted = evaluate(delayed_flight, model=opposite)
+    whole = evaluate(delayed_flight, model=opposite, full_trust=True)
+    assert trusted["correction_trust"] < 0.1
+    assert whole["correction_trust"] == 1.0
+    assert trusted["rmse_3d"] < whole["rmse_3d"] - 0.05
+
+
+def test_a_correction_on_the_wrong_anchor_is_applied_in_part(delayed_flight) -> None:
+    """A constant on another anchor is partly a shift of the position, which the
+    measurements cannot tell from the truth: the trust falls but not to zero."""
+    wrong = offsets_net(5, DELAY_M)
+    trusted = evaluate(delayed_flight, model=wrong)
+    whole = evaluate(delayed_flight, model=wrong, full_trust=True)
+    assert 0.0 < trusted["correction_trust"] < 0.8
+    assert trusted["rmse_3d"] < whole["rmse_3d"] - 0.02
+
+
+def test_without_a_prior_the_whole_correction_is_applied_bit_for_bit_as_before(delayed_flight) -> None:
+    """trust_prior_n < 0 is the estimator before the trust: w is exactly 1, so the
+    corrected measurement is the same float operation."""
+    net = offsets_net(5, DELAY_M)
+    first = evaluate(delayed_flight, model=net, trust_prior_n=FULL_TRUST)
+    second = evaluate(delayed_flight, model=net, full_trust=True)
+    assert first["rmse_3d"] == second["rmse_3d"] and first["config"]["params"]["trust_prior_n"] < 0
+
+
+def test_the_trust_starts_whole_and_stays_within_zero_and_one(delayed_flight) -> None:
+    est = native.Estimator(native.default_params())
+    assert est.correction_trust() == 1.0             # no measurement yet
+    for meters in (-3.0, 3.0):                       # far too much, either sign
+        result = evaluate(delayed_flight, model=offsets_net(3, meters))
+        assert 0.0 <= result["correction_trust"] <= 1.0
