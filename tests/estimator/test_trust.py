@@ -3,12 +3,13 @@ flight's own measurements support (trust_prior_n), in [0, 1]."""
 
 from __future__ import annotations
 
+import json
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
-from rigtest import simulate_exact
+from rigtest import run_rig, simulate_exact
 
 from rig.estimator import native
 from rig.estimator.bias_net import ANCHORS, BiasNet, identity_probe_net
@@ -73,3 +74,13 @@ def test_the_trust_starts_whole_and_stays_within_zero_and_one(delayed_flight) ->
     for meters in (-3.0, 3.0):                       # far too much, either sign
         result = evaluate(delayed_flight, model=offsets_net(3, meters))
         assert 0.0 <= result["correction_trust"] <= 1.0
+
+
+def test_rig_evaluate_reports_the_share_applied_and_full_trust_applies_all(tmp_path: Path) -> None:
+    trusted = run_rig("evaluate", "--json", str(tmp_path / "trusted.json"), check=True)
+    whole = run_rig("evaluate", "--full-trust", "--json", str(tmp_path / "whole.json"), check=True)
+    t, w = (json.loads((tmp_path / f"{name}.json").read_text()) for name in ("trusted", "whole"))
+    assert 0.0 <= t["correction_trust"] <= 1.0 and t["config"]["params"]["trust_prior_n"] > 0
+    assert f"applied at {t['correction_trust']:.0%}" in trusted.stdout
+    assert w["correction_trust"] == 1.0 and w["config"]["params"]["trust_prior_n"] < 0
+    assert "applied whole (--full-trust)" in whole.stdout
