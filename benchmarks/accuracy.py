@@ -4,7 +4,9 @@
 
 Prints per-flight and per-group 3D RMSE and writes the Markdown table and a JSON file.
 Configurations: plain EKF update, robust (M-estimation), robust + bias network (when a
-model is available), with the share of that run's corrections made outside where the
+model is available; the share of its correction the flight supports, as shipped), and
+robust + the whole correction (`--full-trust`), with the share the shipped run applied
+at the end (`correction_trust`) and the share of its corrections made outside where the
 model was trained (`rig evaluate`'s `outside_trained_region`)."""
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ def configurations() -> dict[str, dict]:
     configs = {"plain": {"robust": False, "use_nn": False}, "robust": {"robust": True, "use_nn": False}}
     if DEFAULT_NETWORK.exists():
         configs["robust+nn"] = {"robust": True, "use_nn": True}
+        configs["robust+nn whole"] = {"robust": True, "use_nn": True, "full_trust": True}
     return configs
 
 
@@ -47,6 +50,8 @@ def run_flight(flight: Path) -> dict:
         row[name] = {"rmse_3d": r["rmse_3d"], "rmse_xyz": r["rmse_xyz"], "diverged": r["diverged"]}
         if "outside_trained_region" in r:
             row["outside_trained_region"] = r["outside_trained_region"]
+        if name == "robust+nn":
+            row["correction_trust"] = r["correction_trust"]
     return {"flight": flight.name, **row}
 
 
@@ -60,10 +65,14 @@ def main() -> None:
         rows = list(pool.map(run_flight, flights))
     names = list(configurations())
     region = any("outside_trained_region" in row for row in rows)
-    lines = ["| flight | " + " | ".join(names) + (" | corrected outside the model's trained region" if region else "")
-             + " |", "|---|" + "---|" * (len(names) + region)]
+    trust = any("correction_trust" in row for row in rows)
+    lines = ["| flight | " + " | ".join(names) + (" | share of the correction applied" if trust else "")
+             + (" | corrected outside the model's trained region" if region else "")
+             + " |", "|---|" + "---|" * (len(names) + trust + region)]
     for row in rows:
         cells = [f"{row[n]['rmse_3d']:.3f}" + (" (diverged)" if row[n]["diverged"] else "") for n in names]
+        if trust:
+            cells.append(f"{row['correction_trust']:.2f}" if "correction_trust" in row else "—")
         if region:
             cells.append(f"{row['outside_trained_region']:.1%}" if "outside_trained_region" in row else "—")
         lines.append(f"| {row['flight']} | " + " | ".join(cells) + " |")
