@@ -217,7 +217,9 @@ def test_restarts_are_chosen_by_the_estimator_replaying_the_validation_flights(t
     kept = report["training"]
     assert kept["selected_by"] == "validation_rmse_3d"
     net.save(tmp_path / "kept.json")
-    replayed = evaluate(load_any(data_dir / "flights" / names[1]), model_path=tmp_path / "kept.json")
+    # scored with the whole correction applied: a restart is chosen for its network
+    replayed = evaluate(load_any(data_dir / "flights" / names[1]), model_path=tmp_path / "kept.json",
+                        full_trust=True)
     assert kept["validation_rmse_3d"] == pytest.approx(replayed["rmse_3d"], rel=1e-9)
     assert kept["validation_rmse_3d"] == min(r["validation_rmse_3d"] for r in kept["restarts"])
     assert net.anchors == sorted(net.region.cells) == list(range(8))
