@@ -82,6 +82,10 @@ def print_accuracy(result: dict) -> None:
     if result.get("n_not_finite"):
         print(f"{result['n_not_finite']} of the {result['n_scored']} scored estimates are not finite numbers "
               "(counted as an infinite error)")
+    if "correction_trust" in result:
+        print("bias correction applied whole (--full-trust)" if result.get("full_trust") else
+              f"bias correction applied at {result['correction_trust']:.0%} at the end of the flight: the share "
+              "its measurements support (--full-trust applies all of it)")
     share = result.get("outside_trained_region")
     if share is not None:
         print(f"bias correction: {share:.1%} of the measurements corrected with the tag outside where the model "

@@ -36,10 +36,6 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     print(f"{args.recording}: C estimator ({config}), {result['flight_seconds']:.1f} s replayed in "
           f"{result['estimator_seconds'] * 1e3:.1f} ms of estimator time")
     print_accuracy(result)
-    if result["config"]["bias_net"]:
-        print("bias correction applied whole (--full-trust)" if args.full_trust else
-              f"bias correction applied at {result['correction_trust']:.0%} at the end of the flight: the share "
-              "its measurements support (--full-trust applies all of it)")
     if result["config"]["bias_net"] and "score_error" not in result:
         add_correction_effect(result, rec, args.model)
     # the update rejects by its gate or by a robust weight near zero; the rest of the

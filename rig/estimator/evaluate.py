@@ -185,7 +185,7 @@ def evaluate(rec: Recording, *, robust: bool = True, use_nn: bool = True, model_
     result["config"] = {"robust": robust, "bias_net": model is not None, "params": params.as_dict(),
                         "start_s": run.t_start}
     if model is not None:
-        result["correction_trust"] = run.correction_trust
+        result["correction_trust"], result["full_trust"] = run.correction_trust, bool(params.trust_prior_n < 0)
     if model is not None and model.region is not None:
         result["outside_trained_region"] = extrapolated_share(rec, run.t, position, model)
     return result

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-VERSION = 2
+VERSION = 3
 ESTIMATOR_API = 2      # EST_API_VERSION: est_params_t's fields, which PARAM indexes
 MAX_PAYLOAD = 30
 ACCEL_LSB = np.float32(0.005)
@@ -36,6 +36,7 @@ STATUS_MEANING = {STATUS_BOOT: "started", STATUS_BAD_FRAME: "dropped a corrupt f
                   STATUS_BAD_MESSAGE: "refused a message it does not know",
                   STATUS_RX_OVERFLOW: "lost bytes to a full receive buffer"}
 CAP_BIAS_NET, CAP_BRIEF_STEP = 0x01, 0x02      # capability bits of the hello reply
+TRUST_FULL = 65535          # COUNTERS' correction trust for the whole correction (PROTO_TRUST_FULL)
 
 
 class ProtocolError(Exception):
@@ -445,6 +446,11 @@ class Counters:
     imu_gaps: int
     gated: int
     imu_lost: int
+    trust: int = TRUST_FULL     # share of the bias correction applied, in 1/TRUST_FULL
+
+    @property
+    def correction_trust(self) -> float:
+        return self.trust / TRUST_FULL
 
 
 @dataclass
@@ -481,7 +487,7 @@ _DECODERS = {kind: (struct.Struct(fmt), build) for kind, (fmt, build) in {
     ACK: ("<Bb", lambda v: Ack(*v)),
     ESTIMATE: ("<I3f3f", lambda v: Estimate(v[0], v[1:4], v[4:7])),
     ATTITUDE: ("<4h9e", lambda v: Attitude(_quaternion(v[:4]), v[4:])),
-    COUNTERS: ("<IIIIHHHH", lambda v: Counters(*v)),
+    COUNTERS: ("<IIIIHHHHH", lambda v: Counters(*v)),
     TIMING: ("<IIIIIB", lambda v: Timing(*v)),
     STATUS: ("<BIII", lambda v: Status(*v)),
 }.items()}

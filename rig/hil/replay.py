@@ -516,4 +516,6 @@ def score(session: Session, rec: Recording, model: BiasNet | None = None) -> dic
         c = session.counters
         result.update({"tdoa_accepted": c.accepted, "tdoa_downweighted": c.downweighted,
                        "tdoa_rejected": c.rejected, "resets": c.resets})
+        if model is not None:
+            result["correction_trust"] = c.correction_trust
     return result

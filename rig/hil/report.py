@@ -129,6 +129,8 @@ def write_report(directory: Path, messages: dict[str, list[dict]] | None = None)
         {"figure": "estimates", "value": metrics.get("n_estimates")},
         {"figure": "RMSE 3D [m]", "value": metrics.get("rmse_3d")},
         {"figure": "RMSE x, y, z [m]", "value": metrics.get("rmse_xyz")},
+        *([{"figure": "share of the bias correction applied at the end (correction trust)",
+            "value": f"{metrics['correction_trust']:.0%}"}] if metrics.get("correction_trust") is not None else []),
         *([{"figure": "bias corrections outside where the model was trained (extrapolated)",
             "value": f"{metrics['outside_trained_region']:.1%}"}] if metrics.get("outside_trained_region") is not None
           else []),

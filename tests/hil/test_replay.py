@@ -33,11 +33,20 @@ def real_rec(data_dir: Path):
 
 def library_estimates(rec, params, model, duration: float) -> np.ndarray:
     """The in-process library fed exactly what a board decodes."""
+    return _library_replay(rec, params, model, duration)[1]
+
+
+def library_estimator(rec, params, model, duration: float) -> native.Estimator:
+    """The in-process estimator after `library_estimates`' replay."""
+    return _library_replay(rec, params, model, duration)[0]
+
+
+def _library_replay(rec, params, model, duration: float) -> tuple[native.Estimator, np.ndarray]:
     t0 = start_time(rec)
     est = make_estimator(rec, params, model)
     pos, quat = truth_pose_at(rec, t0)
     est.reset(0, pos, protocol.quantize(quat, protocol.QUAT_LSB).astype(np.float32) * protocol.QUAT_LSB)
-    return est.replay(replay.wire_events(replay.windows(build_events(rec, t0, t0 + duration))))
+    return est, est.replay(replay.wire_events(replay.windows(build_events(rec, t0, t0 + duration))))
 
 
 def run_target(link, rec, params, model, duration):
@@ -62,17 +71,23 @@ def test_native_program_under_sanitizers_equals_the_library(default_rec) -> None
     assert session.unit == "ns" and all(t.window > 0 for t in session.timing)
 
 
-def test_the_board_applies_the_correction_trust_the_rig_sends(default_rec) -> None:
+def test_the_board_applies_the_correction_trust_the_rig_sends_and_reports_it(default_rec) -> None:
     """trust_prior_n travels as PARAM 12 (estimator API 2): a board told to apply the whole
-    correction gives the library's estimates with the whole correction, not the default's."""
+    correction gives the library's estimates with the whole correction, not the default's;
+    with the default, its COUNTERS carry the share the library applies (protocol 3)."""
     native.make("program")
-    params, model = native.params_with(trust_prior_n=FULL_TRUST), load_model()
-    link = targets.open_native(native.ESTIMATOR_DIR / "build" / "estimator_native")
-    session = run_target(link, default_rec, params, model, duration=6.0)
-    whole = library_estimates(default_rec, params, model, 6.0)
+    program, model = native.ESTIMATOR_DIR / "build" / "estimator_native", load_model()
+    whole_params = native.params_with(trust_prior_n=FULL_TRUST)
+    whole_board = run_target(targets.open_native(program), default_rec, whole_params, model, duration=6.0)
+    whole = library_estimates(default_rec, whole_params, model, 6.0)
     trusted = library_estimates(default_rec, native.params_with(), model, 6.0)
-    np.testing.assert_array_equal(positions(session), whole["pos"])
+    np.testing.assert_array_equal(positions(whole_board), whole["pos"])
     assert not np.array_equal(whole["pos"], trusted["pos"])
+    assert whole_board.counters.trust == protocol.TRUST_FULL
+
+    board = run_target(targets.open_native(program), default_rec, native.params_with(), model, duration=20.0)
+    est = library_estimator(default_rec, native.params_with(), model, 20.0)    # long enough to move off 1
+    assert board.counters.trust == round(est.correction_trust() * protocol.TRUST_FULL) < protocol.TRUST_FULL
 
 
 def test_cflib_udp_link_to_the_native_program_equals_the_library(default_rec) -> None:
