@@ -29,6 +29,12 @@ def test_a_replay_in_real_time(board):
 def test_compact_answers(board):
     metrics = board.replay(duration=3.0, full_answer_every=10)
     assert metrics["full_answer_every"] == 10 and metrics["timing"]["windows"] == 30
+
+
+def test_the_recording_still_bears_out_the_bias_correction(board):
+    trusted, whole = board.replay(duration=20.0), board.replay(duration=20.0, full_trust=True)
+    assert 0.8 < trusted["correction_trust"] < 1.0 and not trusted["full_trust"]
+    assert whole["correction_trust"] == 1.0 and whole["full_trust"]
 '''
 
 
@@ -38,7 +44,7 @@ def test_a_users_test_file_with_the_board_fixture_passes_on_the_native_target(tm
                            "--junitxml", str(tmp_path / "junit.xml"), str(tmp_path / "test_hil.py")],
                           cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stdout + proc.stderr
-    assert "3 passed" in proc.stdout
+    assert "4 passed" in proc.stdout
     assert 'test_default_recording_on_every_board[native]' in (tmp_path / "junit.xml").read_text()
 
 
