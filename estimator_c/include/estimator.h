@@ -94,7 +94,8 @@ typedef struct {
 } est_params_t;
 
 /* How far this flight's measurements follow the bias correction: the robust regression
- * of the uncorrected innovation on the correction, accumulated over the flight. */
+ * of the uncorrected innovation on the correction, accumulated over the flight (cleared
+ * by est_reset, kept through a divergence reset; float sums hold flights of hours). */
 typedef struct {
     float s_cc;                /* sum of weight * c^2 */
     float s_cv;                /* sum of weight * c * innovation without correction */

@@ -94,6 +94,7 @@ void est_reset(estimator_t *est, uint32_t t_us, const float pos[3], const float 
     est->queue_n = 0;
     est->t_step_us = t_us;
     est->started = 1;
+    memset(&est->trust, 0, sizeof est->trust);   /* a new flight: its own evidence only */
 }
 
 /* Divergence reset: restart at the last finite position pulled inside the anchors'
@@ -114,7 +115,9 @@ static void reset_after_divergence(estimator_t *est)
         if (lo[i] <= hi[i]) p = fminf(fmaxf(p, lo[i]), hi[i]);
         pos[i] = p;
     }
+    const est_trust_t trust = est->trust;    /* the same flight: what it showed still holds */
     est_reset(est, est->t_step_us, pos, NULL);
+    est->trust = trust;
     est->counters.resets++;
 }
 

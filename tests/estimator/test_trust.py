@@ -13,7 +13,7 @@ from rigtest import run_rig, simulate_exact
 
 from rig.estimator import native
 from rig.estimator.bias_net import ANCHORS, BiasNet, identity_probe_net
-from rig.estimator.evaluate import FULL_TRUST, evaluate
+from rig.estimator.evaluate import FULL_TRUST, build_events, evaluate, make_estimator, start_time, truth_pose_at
 
 DELAY_M = 0.3
 
@@ -84,3 +84,33 @@ def test_rig_evaluate_reports_the_share_applied_and_full_trust_applies_all(tmp_p
     assert f"applied at {t['correction_trust']:.0%}" in trusted.stdout
     assert w["correction_trust"] == 1.0 and w["config"]["params"]["trust_prior_n"] < 0
     assert "applied whole (--full-trust)" in whole.stdout
+
+
+def _replay_with(rec, net: BiasNet, events_filter=None):
+    """An estimator that replayed `rec` with `net` correcting, and its outputs."""
+    est = make_estimator(rec, native.default_params(), net)
+    t0 = start_time(rec)
+    pos, quat = truth_pose_at(rec, t0)
+    est.reset(0, pos, quat)
+    events = build_events(rec, t0)
+    return est, est.replay(events if events_filter is None else events_filter(events)), events
+
+
+def test_a_new_flight_starts_at_full_trust(delayed_flight) -> None:
+    est, _, _ = _replay_with(delayed_flight, offsets_net(3, -DELAY_M))
+    assert est.correction_trust() < 0.1
+    est.reset(0, [0.0, 0.0, 0.0])                    # the start of another flight
+    assert est.correction_trust() == 1.0
+
+
+def test_a_divergence_reset_keeps_what_the_flight_showed(delayed_flight) -> None:
+    """Half the flight with a contradicted correction, then IMU alone, 30 times too strong,
+    until the state diverges and is reset: the trust is the one before the reset."""
+    half = lambda events: events[events["t_us"] < events["t_us"][-1] // 2]   # noqa: E731
+    est, _, events = _replay_with(delayed_flight, offsets_net(3, -DELAY_M), half)
+    before = est.correction_trust()
+    rest = events[(events["t_us"] >= events["t_us"][-1] // 2) & (events["kind"] != native.EV_TDOA)].copy()
+    rest["v"][rest["kind"] == native.EV_ACCEL] *= 30.0
+    out = est.replay(rest)
+    assert out["counters"][-1]["resets"] >= 1
+    assert before < 0.5 and est.correction_trust() == before

@@ -90,6 +90,22 @@ def test_the_board_applies_the_correction_trust_the_rig_sends_and_reports_it(def
     assert board.counters.trust == round(est.correction_trust() * protocol.TRUST_FULL) < protocol.TRUST_FULL
 
 
+def test_a_second_flight_on_the_same_board_starts_from_its_own_evidence(default_rec) -> None:
+    """A bench board replays flight after flight without a restart: the RESET of each
+    flight's start clears the correction trust, so the second replay repeats the first."""
+    native.make("program")
+    link = targets.open_native(native.ESTIMATOR_DIR / "build" / "estimator_native")
+    params, model = native.params_with(), load_model()
+    try:
+        first = replay.run(link, default_rec, params, model, duration=20.0)
+        second = replay.run(link, default_rec, params, model, duration=20.0)
+    finally:
+        link.close()
+    assert first.counters.trust < protocol.TRUST_FULL
+    assert second.counters.trust == first.counters.trust
+    np.testing.assert_array_equal(positions(second), positions(first))
+
+
 def test_cflib_udp_link_to_the_native_program_equals_the_library(default_rec) -> None:
     """The Crazyflie path: cflib's real udp:// link driver, CRTP app-channel packets, the
     native program's UDP endpoint (under sanitizers); with compact answers the same
