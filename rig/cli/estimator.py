@@ -62,7 +62,7 @@ def add_correction_effect(result: dict, rec, model_path: Path | None) -> None:
         result["correction_effect"] = effect = correction_effect(rec, load_model(model_path))
     except (InputError, ValueError, IndexError) as exc:
         result["correction_effect_error"] = f"{type(exc).__name__}: {exc}"
-        print(f"bias correction on the TDOA errors: not measured ({result['correction_effect_error']})")
+        print(f"the whole bias correction on the TDOA errors: not measured ({result['correction_effect_error']})")
         return
     print_correction_effect(effect)
 
@@ -74,7 +74,7 @@ def print_correction_effect(effect: dict | None, most: int = 5) -> None:
     rms, pairs = effect["tdoa_error_rms_m"], effect["per_pair"]
     worse = [f"{k} ({pairs[k]['before']:.3f} → {pairs[k]['after']:.3f} m)" for k in effect["worse_pairs"][:most]]
     more = len(effect["worse_pairs"]) - len(worse)
-    print(f"bias correction on the TDOA errors (against the ground truth): RMS {rms['before']:.3f} → "
+    print(f"the whole bias correction on the TDOA errors (against the ground truth): RMS {rms['before']:.3f} → "
           f"{rms['after']:.3f} m; " + (f"larger on anchor pairs {', '.join(worse)}"
                                        + (f" and {more} more" if more > 0 else "") + " (compare with --no-nn)"
                                        if worse else f"smaller on every one of the {len(pairs)} anchor pairs"))
