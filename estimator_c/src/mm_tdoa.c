@@ -46,6 +46,9 @@ float tdoa_trust_weight(const estimator_t *est)
 
 static void observe_trust(estimator_t *est, float correction, float innovation_raw, float innovation)
 {
+    /* a state blown to inf or NaN (until its divergence reset) says nothing about the
+     * correction, and one NaN in the sums would fix the trust for the rest of the flight */
+    if (!isfinite(innovation_raw) || !isfinite(innovation)) return;
     const float e = innovation / est->params.tdoa_std;
     const float w = gm_weight(e, est->params.gm_meas_c2);
     est->trust.s_cc += w * correction * correction;

@@ -114,3 +114,18 @@ def test_a_divergence_reset_keeps_what_the_flight_showed(delayed_flight) -> None
     out = est.replay(rest)
     assert out["counters"][-1]["resets"] >= 1
     assert before < 0.5 and est.correction_trust() == before
+
+
+def test_a_state_blown_to_infinity_does_not_poison_the_flights_trust(delayed_flight) -> None:
+    """A burst of absurd accelerations drives the state to inf or NaN until the divergence
+    reset; the measurements compared with it meanwhile must not enter the sums, or the
+    trust would be stuck for the rest of the flight."""
+    def burst(events):
+        t = events["t_us"]
+        inside = (t > t[-1] // 3) & (t < t[-1] // 3 + 200_000) & (events["kind"] == native.EV_ACCEL)
+        events = events.copy()
+        events["v"][inside] = 1e30
+        return events
+    est, out, _ = _replay_with(delayed_flight, offsets_net(3, -DELAY_M), burst)
+    assert out["counters"][-1]["resets"] >= 1
+    assert est.correction_trust() < 0.1
