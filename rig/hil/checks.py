@@ -31,9 +31,10 @@ class Check:
 
 
 def checks(result: dict, max_rmse: float | None, max_budget: float | None, figure: str = "window_max",
-           deadlines: bool = False) -> list[Check]:
+           deadlines: bool = False, late_allowed: float = 0.0) -> list[Check]:
     """The bars asked for: accuracy (m), budget (a fraction of the 10 ms budget, on the
-    timing `figure`: the worst window unless said otherwise), real-time deadlines."""
+    timing `figure`: the worst window unless said otherwise), real-time deadlines (no
+    window missed, at most `late_allowed` of those sent late)."""
     out = []
     if max_rmse is not None:
         if "rmse_3d" not in result:
@@ -53,9 +54,19 @@ def checks(result: dict, max_rmse: float | None, max_budget: float | None, figur
         if rt is None:
             out.append(Check("deadlines", False, "--assert-deadlines needs --mode realtime"))
         else:
-            missed = [f"{rt[key]} {key.replace('_', ' ')}" for key in ("late_windows", "missed_windows") if rt[key]]
-            out.append(Check("deadlines", not missed, ", ".join(missed) or "no late or missed window"))
+            out.append(_deadlines(rt, late_allowed))
     return out
+
+
+def _deadlines(rt: dict, late_allowed: float) -> Check:
+    """No window missed, and no more late than allowed: a share of the windows sent,
+    for a host whose scheduler now and then holds the rig or the emulator for a few ms."""
+    late, missed, sent = rt["late_windows"], rt["missed_windows"], rt["windows_sent"]
+    too_late = late > late_allowed * sent
+    failed = ([f"{late} late windows" + (f" (more than {late_allowed:.1%} of {sent})" if late_allowed else "")]
+              if too_late else []) + ([f"{missed} missed windows"] if missed else [])
+    held = f"{late} late windows of {sent} (at most {late_allowed:.1%} allowed), none missed"
+    return Check("deadlines", not failed, ", ".join(failed) or (held if late else "no late or missed window"))
 
 
 def assertions(result: dict, max_rmse: float | None, max_budget: float | None,

@@ -77,7 +77,8 @@ def writable_directory(out: Path) -> None:
 
 
 def check_options(target: str, board: str = "local", start: float | None = None, duration: float | None = None,
-                  lookahead: int | None = None, speed: float | None = None, full_answer_every: int = 1) -> None:
+                  lookahead: int | None = None, speed: float | None = None, full_answer_every: int = 1,
+                  late_allowed: float = 0.0) -> None:
     """Refuse option values a replay cannot use, before anything starts or is written
     (ValueError, saying the rule)."""
     if not TARGET.fullmatch(target):
@@ -96,6 +97,8 @@ def check_options(target: str, board: str = "local", start: float | None = None,
         raise ValueError(f"--speed must be a positive number, not {speed}")
     if full_answer_every < 1:
         raise ValueError(f"--full-answer-every must be 1 (every answer full) or more windows, not {full_answer_every}")
+    if not 0.0 <= late_allowed <= 1.0:
+        raise ValueError(f"--late-allowed must be a share of the windows sent, from 0 to 1, not {late_allowed}")
 
 
 def board_link(target: str, session, board: str):

@@ -55,6 +55,8 @@ def test_a_signal_mid_replay_finishes_the_record_says_how_it_ended_and_leaves_no
     (["--duration", "-3"], "--duration must be a positive number"),
     (["--lookahead", "-1"], "--lookahead must be 0"),
     (["--full-answer-every", "0"], "--full-answer-every must be 1"),
+    (["--late-allowed", "1.5"], "--late-allowed must be a share"),
+    (["--late-allowed", "nan"], "--late-allowed must be a share"),
     (["--start", "1e9"], "is past the end of"),
     (["--target", "zenoh:b0", "--zenoh-connect", "nope"], "zenoh endpoint 'nope' is not PROTOCOL/ADDRESS"),
 ])

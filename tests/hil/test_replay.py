@@ -20,6 +20,7 @@ from rig.data.importer import load_any
 from rig.estimator import native
 from rig.estimator.evaluate import FULL_TRUST, build_events, load_model, make_estimator, start_time, truth_pose_at
 from rig.hil import protocol, replay, targets
+from rig.hil.checks import checks
 from rig.hil.job import score_run
 from rig.hil.links import CrtpLink, LinkError, open_url
 
@@ -461,16 +462,33 @@ def test_real_time_mode_exposes_the_slow_qemu_usart_that_lock_step_hides(tmp_pat
 
 
 @pytest.mark.serial
-def test_real_time_into_qemu_through_the_bulk_link_meets_every_deadline(tmp_path: Path) -> None:
-    """Real time at 1x into the firmware in QEMU, through the bulk link: no window late or
-    missed, so what a real-time run measures is the board, not the emulated link."""
+def test_real_time_into_qemu_through_the_bulk_link_meets_its_deadlines(tmp_path: Path) -> None:
+    """Real time at 1x into the firmware in QEMU, through the bulk link: no window missed
+    and no backlog, so what a real-time run measures is the board, not the emulated link.
+    A shared CI host once held QEMU or the rig long enough to make one window of 2000
+    late (11.6 ms, p99 0.5 ms), so 1 % may be late; the USART's backlog makes half late."""
     out = tmp_path / "rt"
     proc = subprocess.run([*RIG, "replay", "recordings/default.mcap", "--target", "qemu", "--mode", "realtime",
-                           "--duration", "20", "--assert-deadlines", "--out", str(out)],
+                           "--duration", "20", "--assert-deadlines", "--late-allowed", "0.01", "--out", str(out)],
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     rt = json.loads((out / "metrics.json").read_text())["realtime"]
-    assert rt["windows_sent"] == 2000 and rt["late_windows"] == rt["missed_windows"] == 0
+    assert rt["windows_sent"] == 2000 and rt["missed_windows"] == 0 and rt["late_windows"] <= 20
+    assert rt["latency_ms"]["p99"] < rt["deadline_ms"]
+
+
+def test_the_deadline_check_fails_a_missed_window_and_late_windows_beyond_the_allowance() -> None:
+    def deadline(late: int, missed: int, allowed: float) -> tuple[bool, str]:
+        realtime = {"late_windows": late, "missed_windows": missed, "windows_sent": 2000}
+        (check,) = checks({"realtime": realtime}, None, None, deadlines=True, late_allowed=allowed)
+        return check.passed, check.message
+
+    assert deadline(0, 0, 0.0) == (True, "no late or missed window")
+    assert deadline(1, 0, 0.0) == (False, "1 late windows")
+    assert deadline(20, 0, 0.01) == (True, "20 late windows of 2000 (at most 1.0% allowed), none missed")
+    assert deadline(21, 0, 0.01) == (False, "21 late windows (more than 1.0% of 2000)")
+    assert deadline(0, 1, 1.0) == (False, "1 missed windows")
+    assert not checks({}, None, None, deadlines=True)[0].passed        # lock-step has no deadlines
 
 
 def test_a_run_too_short_to_score_still_reports_and_fails_its_accuracy_assertion(tmp_path: Path) -> None:
