@@ -133,11 +133,14 @@ def test_diverged_state_is_reset_and_counted(survey_0425: Path) -> None:
     assert np.all(np.abs(out["pos"]) <= 50.0)
 
 
-def test_sixty_seconds_of_flight_take_well_under_a_second(survey_0425: Path) -> None:
+def test_a_minute_of_flight_at_400_hz_is_evaluated_and_its_estimator_time_reported(survey_0425: Path) -> None:
+    """The cost itself is counted in instructions by benchmarks/cost.py (a wall-clock bar
+    here would measure the CI host); here only that the time is reported, and is far
+    from the flight's own."""
     rec = _sim(survey_0425, [{"effect": "tdoa_noise", "params": {"std_m": 0.1}}], duration=60.0, tdoa_hz=400.0)
     result = evaluate(rec, use_nn=False)
     assert result["flight_seconds"] > 60.0
-    assert result["estimator_seconds"] < 0.5
+    assert 0 < result["estimator_seconds"] < result["flight_seconds"] / 10
 
 
 @pytest.mark.slow
