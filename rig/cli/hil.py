@@ -64,8 +64,9 @@ def print_score(result: dict) -> None:
     if "realtime" in result:
         rt = result["realtime"]
         lat = rt["latency_ms"] or {"p50": math.nan, "p99": math.nan, "max": math.nan}
+        slowest = f" ({rt['slowest_t_us'] / 1e6:.2f} s in)" if rt.get("slowest_t_us") is not None else ""
         print(f"real time x{rt['speed']:g}: latency p50 {lat['p50']:.1f} ms, p99 {lat['p99']:.1f} ms, max "
-              f"{lat['max']:.1f} ms; late windows {rt['late_windows']} (deadline {rt['deadline_ms']:.1f} ms), "
+              f"{lat['max']:.1f} ms{slowest}; late windows {rt['late_windows']} (deadline {rt['deadline_ms']:.1f} ms), "
               f"missed windows {rt['missed_windows']}")
     lost = result.get("board_link", {})
     if lost.get("bytes_dropped") or lost.get("frames_bad"):

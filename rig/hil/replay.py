@@ -157,13 +157,18 @@ class RealTime:
         return BUDGET_SECONDS / self.speed
 
     def summary(self) -> dict:
+        t_us = np.array(list(self.latency.keys()), np.int64)
         lat = np.array(list(self.latency.values()), float) * 1e3
         missed = sorted(t for t in self.sent_at if t not in self.latency)
+        late = np.sort(t_us[lat > self.period * 1e3])
         return {
             "speed": self.speed, "deadline_ms": self.period * 1e3, "windows_sent": len(self.sent_at),
             "latency_ms": ({"p50": float(np.percentile(lat, 50)), "p99": float(np.percentile(lat, 99)),
                             "max": float(lat.max())} if len(lat) else None),
-            "late_windows": int((lat > self.period * 1e3).sum()),
+            # where the slowest and the late windows fall (µs from the replay's start): a
+            # cold start (QEMU translating the code it runs first) or a stall mid-flight
+            "slowest_t_us": int(t_us[np.argmax(lat)]) if len(lat) else None,
+            "late_windows": len(late), "first_late_t_us": late[:10].tolist(),
             "missed_windows": len(missed), "first_missed_t_us": missed[:10],
             "host_send_lag_max_ms": self.send_lag_max * 1e3,
         }
