@@ -198,8 +198,8 @@ def replay_job(recording: Path, target: str, out: Path, estimator: EstimatorChoi
 
 def score_run(run, rec, model=None) -> dict:
     """Accuracy and timing of what the board answered, and what it reported of the link;
-    a run cut short before the scored segment still reports its estimates and timing,
-    without accuracy."""
+    a run cut short before the scored segment still reports its estimates, timing,
+    real-time bookkeeping and counters, without accuracy."""
     from rig.estimator.metrics import MetricsError
     from rig.hil import replay
 
@@ -209,7 +209,7 @@ def score_run(run, rec, model=None) -> dict:
     if not run.estimates:
         return {"n_estimates": 0} | board_link
     try:
-        result = replay.score(run, rec, model)
+        accuracy = replay.score(run, rec, model)
     except MetricsError as exc:
-        result = {"n_estimates": len(run.estimates), "timing": replay.timing_summary(run), "score_error": str(exc)}
-    return result | board_link
+        accuracy = {"score_error": str(exc)}
+    return accuracy | replay.answers_summary(run, model) | board_link

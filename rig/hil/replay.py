@@ -504,8 +504,9 @@ def board_link_summary(statuses: list) -> dict:
 
 
 def score(session: Session, rec: Recording, model: BiasNet | None = None) -> dict:
-    """Accuracy, timing and counters of the board's answers; with the `model` it ran,
-    the share of its corrections made outside where the model was trained."""
+    """Accuracy of the board's answers against the ground truth; with the `model` it
+    ran, the share of its corrections made outside where the model was trained
+    (metrics.MetricsError when no estimate falls in the scored segment)."""
     from rig.estimator.evaluate import extrapolated_share
 
     t = session.t0 + np.array([e[0] for e in session.estimates], float) * 1e-6
@@ -513,8 +514,14 @@ def score(session: Session, rec: Recording, model: BiasNet | None = None) -> dic
     result = metrics.score(t, pos, rec.truth)
     if model is not None and model.region is not None:
         result["outside_trained_region"] = extrapolated_share(rec, t, pos, model)
-    result["n_estimates"] = len(session.estimates)
-    result["timing"] = timing_summary(session)
+    return result
+
+
+def answers_summary(session: Session, model: BiasNet | None = None) -> dict:
+    """What the board answered, scored or not: how many estimates, their timing, the
+    real-time bookkeeping, its last counters and (with a `model`) the share of the
+    correction it applied."""
+    result = {"n_estimates": len(session.estimates), "timing": timing_summary(session)}
     if session.realtime is not None:
         result["realtime"] = session.realtime.summary()
     if session.counters is not None:

@@ -477,13 +477,20 @@ def test_real_time_into_qemu_through_the_bulk_link_meets_its_deadlines(tmp_path:
     assert rt["latency_ms"]["p99"] < rt["deadline_ms"]
 
 
-def test_a_run_too_short_to_score_still_reports_and_fails_its_accuracy_assertion(tmp_path: Path) -> None:
-    proc = subprocess.run([*RIG, "replay", "recordings/default.mcap", "--target", "native", "--duration", "3",
+@pytest.mark.parametrize("mode", [[], ["--mode", "realtime", "--speed", "2"]], ids=["lockstep", "realtime"])
+def test_a_run_too_short_to_score_still_reports_and_fails_its_accuracy_assertion(tmp_path: Path, mode: list[str]) -> None:
+    """All but the accuracy: the timing, the board's counters and, in real time, the
+    latencies (once lost with the accuracy)."""
+    proc = subprocess.run([*RIG, "replay", "recordings/default.mcap", "--target", "native", "--duration", "3", *mode,
                            "--assert-rmse", "0.3", "--out", str(tmp_path)], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 1 and "no rmse_3d to compare" in proc.stderr, proc.stderr
     result = json.loads((tmp_path / "metrics.json").read_text())
     assert result["n_estimates"] == 299 and "scored segment" in result["score_error"]   # windows in 3 s
     assert result["timing"]["windows"] == 299 and (tmp_path / "report.html").exists()
+    assert result["tdoa_accepted"] > 0 and 0.0 <= result["correction_trust"] <= 1.0
+    if mode:
+        assert result["realtime"]["windows_sent"] == 299 and result["realtime"]["missed_windows"] == 0
+        assert "real time x2: latency" in proc.stdout
 
 
 def test_the_cycle_collector_is_paused_only_while_windows_are_exchanged() -> None:
