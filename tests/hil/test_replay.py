@@ -287,10 +287,13 @@ def test_a_board_that_stops_reading_fails_the_write_instead_of_blocking_for_ever
         os.close(rig_side)
 
 
-def test_a_board_that_resets_mid_replay_fails_clearly_and_keeps_the_record(default_rec, tmp_path: Path) -> None:
+@pytest.mark.parametrize("speed", [None, 1.0], ids=["lockstep", "realtime"])
+def test_a_board_that_resets_mid_replay_fails_clearly_and_keeps_the_record(default_rec, tmp_path: Path,
+                                                                           speed: float | None) -> None:
     """A real reset: QEMU's system_reset reboots the firmware mid-replay; the board
     announces its boot, the replay stops with a clear error and the run record keeps
-    every estimate received before, and the board's boot status."""
+    every estimate received before, and the board's boot status (in lock-step, and in
+    real time, where answers are taken as they come)."""
     from rig.hil.runrecord import TOPIC_ESTIMATE, TOPIC_STATUS, RunRecorder, read_run
 
     link = targets.open_qemu()
@@ -306,7 +309,8 @@ def test_a_board_that_resets_mid_replay_fails_clearly_and_keeps_the_record(defau
     recorder = RunRecorder(tmp_path / "run.mcap")
     try:
         with pytest.raises(LinkError, match="reset during the replay") as failure:
-            replay.run(link, default_rec, native.params_with(use_bias_net=0), None, duration=8.0, recorder=recorder)
+            replay.run(link, default_rec, native.params_with(use_bias_net=0), None, duration=8.0, recorder=recorder,
+                       speed=speed)
     finally:
         link.close()
         recorder.close()
