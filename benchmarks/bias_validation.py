@@ -5,13 +5,16 @@ and the table of estimates in docs/bias.md (every split and form: 71 min on two 
     .venv/bin/python benchmarks/bias_validation.py [--forms link shared pair] [--seeds 0 1 2]
         [--splits day-0426 day-0425 mode-tdoa3 mode-tdoa2 within-0426 day-0422 anchors region sector]
         [--json docs/notebook/bias-validation.json] [--doc PAGE]
-        [--fresh] [--from-json]
+        [--fresh] [--from-json] [--save-models DIR]
 
 Rows are merged into --json by split, form, seed and anchor (a run of one form keeps the
 others' rows); --fresh starts from none. The JSON is kept beside the page, so that
 `--from-json` rewrites both pages from it without training (a test checks they agree),
 and every row says the MKL branch it was trained on (`mkl_cbwr`). A run into another
 JSON (an experiment) writes its page beside that JSON and leaves docs/ alone.
+`--save-models DIR` keeps the networks of the day, mode and within-0426 splits, so that a
+change on the estimator's side is judged on the kept rows' very networks without
+training again (`model_path`).
 
 Forms (rig train --features): link, the link form's 7 features; shared, the link form on
 the features every anchor shares, with a bounded range offset per anchor; pair, the
@@ -152,6 +155,7 @@ from bias_validation_results import (  # noqa: E402
 )
 
 CACHE = ROOT / "out" / "cache" / "all.npz"
+SAVE_MODELS_ENV = "UWB_RIG_SAVE_MODELS"
 FORMS = {"link": "7", "shared": "shared", "pair": "14", UNTRANSLATED: "7"}   # form -> rig train's feature set
 VALIDATION_SHARE = 0.15
 
@@ -262,6 +266,8 @@ def run_flight_split(job: tuple) -> dict:
     samples, split = flight_split_samples(f"{split_name}-{fold[0]}" if fold else split_name, seed)
     tic = time.perf_counter()
     net, report = fit(samples, split, form_config(form, seed=seed))
+    if os.environ.get(SAVE_MODELS_ENV):
+        net.save(model_path(Path(os.environ[SAVE_MODELS_ENV]), split_name, form, seed, fold[0] if fold else None))
     loop = closed_loop(split.test, net)
     rmse = np.array([r["rmse_3d"] for r in loop])
     without = np.array([r["rmse_3d_without"] for r in loop])
@@ -270,6 +276,13 @@ def run_flight_split(job: tuple) -> dict:
             "mean_rmse_3d_without": float(without.mean()), "worse_flights": int(np.sum(rmse > without)),
             "tdoa": tdoa_spread(net, samples.select(np.isin(samples.flight, split.test))),
             "seconds": time.perf_counter() - tic, **({"fold": fold[0]} if fold else {})}
+
+
+def model_path(directory: Path, split_name: str, form: str, seed: int, fold: str | None = None) -> Path:
+    """Where --save-models keeps a day, mode or within-0426 split's network, so that an
+    estimator-side change can be judged on the very networks of the kept rows without
+    training them again (training is deterministic on the pinned MKL branch)."""
+    return directory / f"{split_name}{'-' + fold if fold else ''}.{form}.seed{seed}.json"
 
 
 def run_anchor_split(job: tuple) -> dict:
@@ -351,6 +364,8 @@ def main() -> None:
                              "results; else beside --json)")
     parser.add_argument("--from-json", action="store_true", help="write the page from --json, training nothing")
     parser.add_argument("--fresh", action="store_true", help="drop the rows already in --json")
+    parser.add_argument("--save-models", type=Path, metavar="DIR",
+                        help="keep each day, mode and within-0426 split's network in DIR (model_path)")
     args = parser.parse_args()
     # only the kept results write the notebook page and docs/bias.md's table; a run into
     # another JSON (an experiment, a tag) writes its page beside it
@@ -362,6 +377,9 @@ def main() -> None:
             parser.error(f"--from-json: {args.json} does not exist (run without --from-json to make it)")
         write_pages(json.loads(args.json.read_text())["rows"], args.doc, entry)
         return
+    if args.save_models:
+        args.save_models.mkdir(parents=True, exist_ok=True)
+        os.environ[SAVE_MODELS_ENV] = str(args.save_models.resolve())     # the workers inherit it
     cached_samples()         # built once, before the workers read it
     # the workers train on this MKL branch (rig.bias.train.import_torch), said in every row
     os.environ.setdefault("MKL_CBWR", MKL_BRANCH)
