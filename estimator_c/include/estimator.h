@@ -21,7 +21,7 @@
 #define EST_MAX_ANCHORS 16         /* anchor ids 0..EST_MAX_ANCHORS-1 */
 _Static_assert(EST_MAX_ANCHORS == BN_ANCHORS, "the bias model has one offset per anchor id");
 #define EST_TDOA_QUEUE 32          /* TDOA measurements buffered within one window */
-#define EST_API_VERSION 2          /* est_params_t grew trust_prior_n (PARAM index 12) */
+#define EST_API_VERSION 3          /* 2: est_params_t grew trust_prior_n (PARAM 12); 3: est_reset clears the counters */
 #define EST_TRUST_PRIOR_N 2000.0f  /* correction trust's prior, in pseudo-measurements (session 69) */
 
 /* Error-state indices. */
@@ -66,6 +66,7 @@ typedef enum {
     EST_REJ_COUNT
 } est_reject_reason_t;
 
+/* A flight's counts: cleared by est_reset (a new flight), kept through a divergence reset. */
 typedef struct {
     uint32_t steps;
     uint32_t imu_samples;

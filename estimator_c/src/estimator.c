@@ -71,7 +71,9 @@ static void reset_covariance(estimator_t *est)
     }
 }
 
-void est_reset(estimator_t *est, uint32_t t_us, const float pos[3], const float quat[4])
+/* The filter restarted at a pose: state, covariance, IMU sums and queue (what a
+ * divergence reset and the start of a flight share). */
+static void restart_filter(estimator_t *est, uint32_t t_us, const float pos[3], const float quat[4])
 {
     for (int i = 0; i < 3; i++) {
         est->pos[i] = pos[i];
@@ -94,7 +96,13 @@ void est_reset(estimator_t *est, uint32_t t_us, const float pos[3], const float 
     est->queue_n = 0;
     est->t_step_us = t_us;
     est->started = 1;
-    memset(&est->trust, 0, sizeof est->trust);   /* a new flight: its own evidence only */
+}
+
+void est_reset(estimator_t *est, uint32_t t_us, const float pos[3], const float quat[4])
+{
+    restart_filter(est, t_us, pos, quat);
+    memset(&est->trust, 0, sizeof est->trust);        /* a new flight: its own evidence only, */
+    memset(&est->counters, 0, sizeof est->counters);  /* and its own counts */
 }
 
 /* Divergence reset: restart at the last finite position pulled inside the anchors'
@@ -115,9 +123,8 @@ static void reset_after_divergence(estimator_t *est)
         if (lo[i] <= hi[i]) p = fminf(fmaxf(p, lo[i]), hi[i]);
         pos[i] = p;
     }
-    const est_trust_t trust = est->trust;    /* the same flight: what it showed still holds */
-    est_reset(est, est->t_step_us, pos, NULL);
-    est->trust = trust;
+    /* the same flight: what it showed still holds, and its counts go on */
+    restart_filter(est, est->t_step_us, pos, NULL);
     est->counters.resets++;
 }
 

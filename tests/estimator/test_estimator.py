@@ -131,6 +131,21 @@ def test_diverged_state_is_reset_and_counted(survey_0425: Path) -> None:
     assert out["counters"][-1]["resets"] >= 1
     assert np.all(np.isfinite(out["pos"]))
     assert np.all(np.abs(out["pos"]) <= 50.0)
+    # the same flight goes on: its counts run through the divergence reset
+    np.testing.assert_array_equal(out["counters"]["steps"], np.arange(1, len(out["counters"]) + 1))
+
+
+def test_a_new_flight_counts_from_zero(survey_0425: Path) -> None:
+    """The start of a flight (est_reset, a board's RESET) clears the counters: a bench
+    board replaying flight after flight reports each flight's own."""
+    rec = _sim(survey_0425, [{"effect": "tdoa_noise", "params": {"std_m": 0.1}}], duration=8.0)
+    est, events, t0 = _start(rec)
+    first = est.replay(events)["counters"][-1]
+    pos, quat = truth_pose_at(rec, t0)
+    est.reset(0, pos, quat)
+    second = est.replay(events)["counters"][-1]
+    assert first["steps"] > 0 and first["tdoa_accepted"] > 0
+    assert second.tobytes() == first.tobytes()
 
 
 def test_a_minute_of_flight_at_400_hz_is_evaluated_and_its_estimator_time_reported(survey_0425: Path) -> None:

@@ -72,7 +72,7 @@ def test_native_program_under_sanitizers_equals_the_library(default_rec) -> None
 
 
 def test_the_board_applies_the_correction_trust_the_rig_sends_and_reports_it(default_rec) -> None:
-    """trust_prior_n travels as PARAM 12 (estimator API 2): a board told to apply the whole
+    """trust_prior_n travels as PARAM 12 (since estimator API 2): a board told to apply the whole
     correction gives the library's estimates with the whole correction, not the default's;
     with the default, its COUNTERS carry the share the library applies (protocol 3)."""
     native.make("program")
@@ -92,7 +92,8 @@ def test_the_board_applies_the_correction_trust_the_rig_sends_and_reports_it(def
 
 def test_a_second_flight_on_the_same_board_starts_from_its_own_evidence(default_rec) -> None:
     """A bench board replays flight after flight without a restart: the RESET of each
-    flight's start clears the correction trust, so the second replay repeats the first."""
+    flight's start clears the correction trust and the counters, so the second replay
+    repeats the first."""
     native.make("program")
     link = targets.open_native(native.ESTIMATOR_DIR / "build" / "estimator_native")
     params, model = native.params_with(), load_model()
@@ -102,7 +103,7 @@ def test_a_second_flight_on_the_same_board_starts_from_its_own_evidence(default_
     finally:
         link.close()
     assert first.counters.trust < protocol.TRUST_FULL
-    assert second.counters.trust == first.counters.trust
+    assert second.counters == first.counters                     # its own counts too, trust and all
     np.testing.assert_array_equal(positions(second), positions(first))
 
 

@@ -260,7 +260,8 @@ static int8_t on_reset(service_t *s, const uint8_t *m)
     est_reset(&s->est, proto_get_u32(&m[1]), pos, quat);
     s->window_cost = 0;
     s->worst_pending = 0;
-    s->imu.valid = 0;   /* a new session starts with a key message */
+    s->imu.valid = 0;   /* a new session starts with a key message, */
+    s->imu.lost = 0;    /* and counts its own lost IMU messages */
     return 0;
 }
 
