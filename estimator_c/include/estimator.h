@@ -168,6 +168,8 @@ void est_init(estimator_t *est, const est_params_t *params);
 /* The share of the bias correction applied now, in [0, 1] (est_trust_t). */
 float est_correction_trust(const estimator_t *est);
 int est_set_anchor(estimator_t *est, uint8_t id, const float pos[3], const float quat[4]);
+/* Forget every anchor (a board configured for another flight: its anchors are set anew). */
+void est_clear_anchors(estimator_t *est);
 void est_set_bias_net(estimator_t *est, const bias_net_t *net);
 void est_set_clock(estimator_t *est, est_clock_t clock);
 /* Start (or restart) at a pose: quat may be NULL for level, yaw 0. */

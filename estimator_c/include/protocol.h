@@ -14,7 +14,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#define PROTO_VERSION 3
+#define PROTO_VERSION 4
 #define PROTO_TRUST_FULL 65535   /* COUNTERS' correction trust: 65535 = the whole correction */
 #define PROTO_MAX_PAYLOAD 30
 #define PROTO_MAX_FRAME (PROTO_MAX_PAYLOAD + 2 + 2)   /* + CRC + COBS overhead byte + slack */
@@ -55,6 +55,7 @@ typedef enum {
     MSG_TDOA_PACK = 0x0B,    /* 1..5 packed TDOA items (u16 dt_us, u8 ids, i16 value / PROTO_TDOA_LSB) */
     MSG_STEP_BRIEF = 0x0C,   /* as MSG_STEP, answered by ESTIMATE and ATTITUDE only: a link with few packets
                                 a second asks for the counters and timing every N windows */
+    MSG_ANCHORS_CLEAR = 0x0D, /* (empty): forget every anchor; sent before a flight's ANCHORs (version 4) */
     /* board -> host */
     MSG_HELLO_REPLY = 0x81,  /* u8 proto version, u8 api version, u8 timer unit, u8 max anchors,
                                 u32 timer hz, u16 sizeof(bias_net_t), u8 capabilities */

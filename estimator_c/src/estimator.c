@@ -39,6 +39,11 @@ float est_correction_trust(const estimator_t *est)
     return tdoa_trust_weight(est);
 }
 
+void est_clear_anchors(estimator_t *est)
+{
+    for (int k = 0; k < EST_MAX_ANCHORS; k++) est->anchors[k].valid = 0;
+}
+
 int est_set_anchor(estimator_t *est, uint8_t id, const float pos[3], const float quat[4])
 {
     if (id >= EST_MAX_ANCHORS) return -1;

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-VERSION = 3
+VERSION = 4
 ESTIMATOR_API = 3      # EST_API_VERSION: est_params_t's fields (which PARAM indexes), and what COUNTERS count
 MAX_PAYLOAD = 30
 ACCEL_LSB = np.float32(0.005)
@@ -21,7 +21,8 @@ GYRO_LSB = np.float32(0.001)
 QUAT_LSB = np.float32(1.0 / 32767.0)
 TDOA_LSB = np.float32(0.001)
 
-HELLO, PARAM, ANCHOR, NET_CHUNK, NET_COMMIT, RESET, IMU, TDOA, STEP, IMU_DELTA, TDOA_PACK, STEP_BRIEF = range(0x01, 0x0D)
+HELLO, PARAM, ANCHOR, NET_CHUNK, NET_COMMIT, RESET, IMU, TDOA, STEP, IMU_DELTA, TDOA_PACK, STEP_BRIEF, \
+    ANCHORS_CLEAR = range(0x01, 0x0E)
 HELLO_REPLY, ACK, ESTIMATE, ATTITUDE, COUNTERS, TIMING, STATUS = range(0x81, 0x88)
 NET_CHUNK_BYTES = MAX_PAYLOAD - 3
 IMU_AXES = 6
@@ -168,6 +169,11 @@ def hello() -> bytes:
 def param(index: int, value: float) -> bytes:
     """Parameter `index` in the field order of est_params_t (native.EstimatorParams)."""
     return struct.pack("<BBf", PARAM, index, value)
+
+
+def anchors_clear() -> bytes:
+    """Forget every anchor the board holds (from an earlier flight), before this one's."""
+    return bytes([ANCHORS_CLEAR])
 
 
 def anchor(anchor_id: int, position, quaternion) -> bytes:

@@ -282,7 +282,8 @@ def configure(link: BoardLink, rec: Recording, params: native.EstimatorParams, m
     for a in rec.anchors:
         if a not in anchors:        # as the in-process estimator says (evaluate.make_estimator)
             log.warning("anchor id %d is outside the board's range 0..%d; ignored", a.id, hello.max_anchors - 1)
-    _acked(link, [protocol.anchor(a.id, a.position, a.quaternion) for a in anchors], "anchors", session)
+    _acked(link, [protocol.anchors_clear()] + [protocol.anchor(a.id, a.position, a.quaternion) for a in anchors],
+           "anchors", session)
     if model is not None and params.use_bias_net:
         image = model.pack().tobytes()
         if len(image) != hello.net_size:

@@ -25,7 +25,7 @@ def seed_sessions(rec: Recording, n: int = 4) -> list[bytes]:
     t0 = start_time(rec)
     pos, quat = truth_pose_at(rec, t0)
     setup = [protocol.hello(), protocol.param(0, 0.1), protocol.reset(0, pos, quat)]
-    setup += [protocol.anchor(a.id, a.position, a.quaternion) for a in rec.anchors[:8]]
+    setup += [protocol.anchors_clear()] + [protocol.anchor(a.id, a.position, a.quaternion) for a in rec.anchors[:8]]
     ws = replay.windows(build_events(rec, t0, t0 + 0.2))
     sessions = []
     for k in range(n):

@@ -107,6 +107,23 @@ def test_a_second_flight_on_the_same_board_starts_from_its_own_evidence(default_
     np.testing.assert_array_equal(positions(second), positions(first))
 
 
+def test_a_board_forgets_the_anchors_of_an_earlier_flight(default_rec) -> None:
+    """A bench board configured for a flight with eight anchors, then for one with four:
+    ANCHORS_CLEAR before the second flight's ANCHORs, so the board refuses TDOA with the
+    other four as a fresh board does, instead of using the first flight's positions."""
+    four = dataclasses.replace(default_rec, anchors=default_rec.anchors[:4])
+    params = native.params_with(use_bias_net=0)
+    fresh = run_target(targets.open_native(), four, params, None, duration=3.0)
+    link = targets.open_native()
+    try:
+        replay.run(link, default_rec, params, None, duration=3.0)
+        after = replay.run(link, four, params, None, duration=3.0)
+    finally:
+        link.close()
+    assert fresh.counters.rejected > 0 and after.counters == fresh.counters
+    np.testing.assert_array_equal(positions(after), positions(fresh))
+
+
 def test_cflib_udp_link_to_the_native_program_equals_the_library(default_rec) -> None:
     """The Crazyflie path: cflib's real udp:// link driver, CRTP app-channel packets, the
     native program's UDP endpoint (under sanitizers); with compact answers the same

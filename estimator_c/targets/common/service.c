@@ -276,6 +276,7 @@ static int length_ok(uint8_t type, int n)
 {
     switch (type) {
     case MSG_HELLO: return n == 1;
+    case MSG_ANCHORS_CLEAR: return n == 1;
     case MSG_PARAM: return n == 6;
     case MSG_ANCHOR: return n == 30;
     case MSG_NET_CHUNK: return n > 3;
@@ -301,6 +302,7 @@ static void dispatch(service_t *s, const uint8_t *m, int n)
     switch (type) {
     case MSG_HELLO: send_hello(s); break;
     case MSG_PARAM: send_ack(s, type, on_param(s, m)); break;
+    case MSG_ANCHORS_CLEAR: est_clear_anchors(&s->est); send_ack(s, type, 0); break;
     case MSG_ANCHOR: {
         float pos[3], quat[4];
         for (int i = 0; i < 3; i++) pos[i] = proto_get_f32(&m[2 + 4 * i]);
