@@ -124,6 +124,36 @@ def test_a_board_forgets_the_anchors_of_an_earlier_flight(default_rec) -> None:
     np.testing.assert_array_equal(positions(after), positions(fresh))
 
 
+def test_a_board_reports_each_sessions_own_link_losses(default_rec) -> None:
+    """A HELLO starts a session and the board's link counts with it: two replays on the
+    same native program, each with one configuration frame arriving corrupt (the board
+    drops it and says so, the rig sends it again), each report one bad frame, not the
+    second one two."""
+    link = targets.open_native()
+    original, state = link.send, {"corrupt": True}
+
+    def corrupt_the_first_anchor(payloads, framed=None):
+        if state["corrupt"] and payloads[0][0] == protocol.ANCHOR:
+            state["corrupt"] = False
+            frame = bytearray(protocol.frame(payloads[0]))
+            frame[3] ^= 0x5A
+            framed = bytes(frame)
+        original(payloads, framed)
+
+    link.send = corrupt_the_first_anchor
+    try:
+        runs = []
+        for _ in range(2):
+            state["corrupt"] = True
+            runs.append(replay.run(link, default_rec, native.params_with(use_bias_net=0), None, duration=1.0))
+    finally:
+        link.close()
+    for run in runs:
+        assert score_run(run, default_rec)["board_link"] == {"frames_bad": 1, "bytes_dropped": 0,
+                                                             "reports": {"dropped a corrupt frame": 1}}
+    np.testing.assert_array_equal(positions(runs[1]), positions(runs[0]))
+
+
 def test_cflib_udp_link_to_the_native_program_equals_the_library(default_rec) -> None:
     """The Crazyflie path: cflib's real udp:// link driver, CRTP app-channel packets, the
     native program's UDP endpoint (under sanitizers); with compact answers the same

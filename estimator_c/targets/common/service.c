@@ -38,6 +38,14 @@ static void send_hello(service_t *s)
     send(s, m, sizeof m);
 }
 
+/* A HELLO starts a session: the link's counts (frames, losses) restart with it, so a
+ * board that serves session after session reports each one's own (version 4). */
+static void restart_link_counts(service_t *s)
+{
+    s->parser.frames_ok = s->parser.frames_bad = s->parser.bytes_dropped = 0;
+    s->frames_bad_reported = 0;
+}
+
 static void send_estimate(service_t *s, const est_output_t *out)
 {
     uint8_t m[PROTO_MAX_PAYLOAD] = {MSG_ESTIMATE};
@@ -300,7 +308,7 @@ static void dispatch(service_t *s, const uint8_t *m, int n)
         return;
     }
     switch (type) {
-    case MSG_HELLO: send_hello(s); break;
+    case MSG_HELLO: restart_link_counts(s); send_hello(s); break;
     case MSG_PARAM: send_ack(s, type, on_param(s, m)); break;
     case MSG_ANCHORS_CLEAR: est_clear_anchors(&s->est); send_ack(s, type, 0); break;
     case MSG_ANCHOR: {
