@@ -92,24 +92,32 @@ def import_log(log_path: Path, survey_path: Path, *, salvage: bool = False, uwb_
     )
 
 
+def day_survey(log: Path) -> Path:
+    """The survey of a flight log's day (`paths.survey_for`), or a SurveyError that says
+    where it was looked for."""
+    from rig.data.paths import survey_for
+
+    found = survey_for(log)
+    if Path(log).is_file() and not found.is_file():
+        looked = dict.fromkeys([str(Path(log).resolve().parent.parent / "surveys"), str(found.parent)])
+        raise SurveyError(f"{log}: no survey of its day: {found.name} is not in "
+                          f"{' nor in '.join(looked)} (name one with --survey FILE)")
+    return found
+
+
 def load_any(path: Path, survey: Path | None = None, strict: bool = False) -> Recording:
     """An MCAP recording, or a flight log imported with `survey` (by default its day's,
     see `paths.survey_for`). An MCAP recording carries its own anchors. `strict`: a
     damaged recording is an error (a damaged log always is, without `--salvage`)."""
     from rig.data import cache
-    from rig.data.paths import survey_for
 
     path = Path(path)
     if path.suffix == ".mcap":
         if survey is not None:
             raise LogFormatError(f"{path}: an MCAP recording carries its own anchors; --survey is for flight logs")
         return cache.read_cached(path, strict)
-    if survey is None and path.is_file() and not survey_for(path).is_file():
-        looked = dict.fromkeys([str(path.resolve().parent.parent / "surveys"), str(survey_for(path).parent)])
-        raise SurveyError(f"{path}: no survey of its day: {survey_for(path).name} is not in "
-                          f"{' nor in '.join(looked)} (name one with --survey FILE)")
     # a log is imported once for a given log and survey (the cache's key is both files)
-    sources = [path, Path(survey or survey_for(path))]
+    sources = [path, Path(survey) if survey is not None else day_survey(path)]
     rec = cache.load(*sources)
     if rec is None:
         rec = import_log(*sources)

@@ -13,6 +13,7 @@ from rigtest import TYPES, crafted_events, crafted_log, run_rig
 from rig.data import paths
 from rig.data.importer import GRAVITY, import_log, infer_uwb_mode, load_any
 from rig.data.recording import read_recording, write_recording
+from rig.data.survey import parse_survey
 from rig.data.usdlog import encode, read_log
 
 
@@ -89,7 +90,6 @@ def test_cli_import_writes_an_mcap_with_the_contract_topics(tmp_path: Path, data
 
 
 @pytest.mark.slow
-@pytest.mark.slow
 @pytest.mark.parametrize("damage", ["truncate", "corrupt"])
 def test_cli_import_of_a_damaged_log_fails_cleanly(tmp_path: Path, data_dir: Path, damage: str) -> None:
     data = bytearray((data_dir / "flights" / "0425-traj2").read_bytes())
@@ -122,6 +122,26 @@ def test_cli_salvage_imports_the_valid_prefix_with_a_warning(tmp_path: Path, dat
     full = read_log(source).counts()
     assert 0 < len(rec.accel) < full["estAcceleration"]
     assert rec.metadata["crc"].startswith("bad")
+
+
+@pytest.mark.slow
+def test_cli_import_finds_the_survey_of_the_logs_day_or_says_where_it_looked(tmp_path: Path, data_dir: Path) -> None:
+    half = (data_dir / "flights" / "0425-traj2").read_bytes()
+    half = half[: len(half) // 4]
+    (tmp_path / "flights").mkdir()
+    for name in ("0425-cut", "0999-cut"):
+        (tmp_path / "flights" / name).write_bytes(half)
+    out = tmp_path / "out.mcap"
+    proc = run_rig("import", str(tmp_path / "flights" / "0425-cut"), "-o", str(out), "--salvage")
+    assert proc.returncode == 0, proc.stderr
+    surveyed = {a.id: a.position for a in parse_survey(data_dir / "surveys" / "anchor_0425.txt")}
+    imported = {a.id: a.position for a in read_recording(out).anchors}
+    assert imported.keys() == surveyed.keys()
+    assert all(imported[k] == pytest.approx(surveyed[k], abs=1e-6) for k in surveyed)
+    proc = run_rig("import", str(tmp_path / "flights" / "0999-cut"), "-o", str(tmp_path / "other.mcap"), "--salvage")
+    assert proc.returncode == 2
+    assert "anchor_0999.txt" in proc.stderr and "--survey" in proc.stderr and "Traceback" not in proc.stderr
+    assert not (tmp_path / "other.mcap").exists()
 
 
 @pytest.mark.slow
