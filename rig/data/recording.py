@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import struct
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Callable, Iterable, Iterator
@@ -257,19 +258,79 @@ class McapJsonWriter:
         self._writer.add_metadata(name, {k: str(v) for k, v in data.items()})
 
     def close(self) -> None:
+        """Finish the file. If that fails (a full disk), the file is still finished:
+        cut back to its last whole record and closed with a footer that fits in the room
+        the cut freed (`seal_unfinished`), then the error is raised on."""
         if self._closed:
             return
         self._closed = True
         try:
             self._writer.finish()
-        finally:
             self._stream.close()
+        except OSError:
+            try:
+                self._stream.close()      # flushes again, which fails again: the descriptor closes
+            except OSError:
+                pass
+            seal_unfinished(self.path)
+            raise
 
     def __enter__(self) -> "McapJsonWriter":
         return self
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+# An MCAP file's end without a summary (the specification's DataEnd and Footer records):
+# a reader then reads the data section from the start, as the stock readers do.
+_OP_FOOTER, _OP_DATA_END = 0x02, 0x0F
+_RECORD_HEAD = struct.Struct("<BQ")
+_END_WITHOUT_SUMMARY = (_RECORD_HEAD.pack(_OP_DATA_END, 4) + struct.pack("<I", 0)
+                        + _RECORD_HEAD.pack(_OP_FOOTER, 20) + struct.pack("<QQI", 0, 0, 0) + MCAP0_MAGIC)
+
+
+def _whole_record_ends(stream, size: int) -> list[int]:
+    """Where each whole record of an MCAP file's data section ends, from the first; the
+    scan stops at a record cut short or at the data section's end."""
+    ends, at = [], len(MCAP0_MAGIC)
+    stream.seek(0)
+    if stream.read(len(MCAP0_MAGIC)) != MCAP0_MAGIC:
+        return ends
+    while at + _RECORD_HEAD.size <= size:
+        stream.seek(at)
+        opcode, length = _RECORD_HEAD.unpack(stream.read(_RECORD_HEAD.size))
+        if opcode in (_OP_DATA_END, _OP_FOOTER) or at + _RECORD_HEAD.size + length > size:
+            break
+        at += _RECORD_HEAD.size + length
+        ends.append(at)
+    return ends
+
+
+def seal_unfinished(path: Path) -> bool:
+    """Finish an MCAP file whose writing stopped (a full disk, a write error): cut it at
+    the end of its last whole record and append the end of a file without a summary, so
+    that any MCAP reader reads every whole record. Where even that does not fit, the
+    last records are given up one at a time to make room (a chunk frees disk blocks).
+    Returns whether the file is finished; a file that is not a regular one, or whose
+    header is cut, is left as it is."""
+    path = Path(path)
+    if not path.is_file():
+        return False
+    with open(path, "r+b", buffering=0) as stream:       # unbuffered: a failed write leaves nothing held
+        ends = _whole_record_ends(stream, path.stat().st_size)
+        while ends:                    # ends[0] is the header's: without it nothing is a file
+            try:
+                os.ftruncate(stream.fileno(), ends[-1])
+                if os.pwrite(stream.fileno(), _END_WITHOUT_SUMMARY, ends[-1]) == len(_END_WITHOUT_SUMMARY):
+                    os.fsync(stream.fileno())
+                    log.warning("%s: finished after a write error, %d bytes of whole records kept",
+                                path, ends[-1])
+                    return True
+            except OSError:
+                pass
+            ends.pop()
+    return False
 
 
 def _merged(*streams: tuple[int, Iterator[tuple[float, str]]]) -> list[tuple[float, int, str]]:

@@ -17,8 +17,8 @@ Topics (JSON, with JSON schemas, readable in Foxglove; documented in recordings/
 
 The file is written as the replay goes (small chunks) and finished on every exit path:
 normal end, Ctrl-C, a board failure. A write error (a full disk) stops the recording
-with a clear message; what was written before stays readable (`read_run` recovers the
-complete chunks of an unfinished file).
+with a clear message, and the file is still finished from its whole records
+(`recording.seal_unfinished`), so any MCAP reader reads what was written before.
 """
 
 from __future__ import annotations

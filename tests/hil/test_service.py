@@ -6,6 +6,8 @@ Ctrl-C)."""
 from __future__ import annotations
 
 import json
+import os
+import resource
 import signal
 import socket
 import subprocess
@@ -15,7 +17,7 @@ import xml.etree.ElementTree as ElementTree
 from pathlib import Path
 
 import pytest
-from rigtest import RIG, exit_status, finished_mcap, run_rig, start
+from rigtest import RIG, ROOT, exit_status, finished_mcap, run_rig, start
 
 from rig.hil.runrecord import read_run
 
@@ -148,6 +150,32 @@ def test_a_full_disk_is_reported_and_the_replay_still_scores(tmp_path: Path) -> 
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["n_estimates"] >= 1199 and "No space left" in metrics["run_record_error"]
     assert metrics["ended"] == "completed"
+
+
+def test_a_record_cut_short_by_a_full_disk_is_finished_and_the_stock_reader_reads_it(tmp_path: Path) -> None:
+    """A file-size limit fails the run record's writes mid-replay as a full disk does,
+    after part of it is written; the record is still finished (cut at its last whole
+    record, closed without a summary) and holds the estimates written before."""
+    from mcap.reader import make_reader
+
+    out = tmp_path / "run"
+    limit = 120_000
+
+    def limit_file_size() -> None:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)           # a write past it fails (EFBIG) instead
+
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    proc = subprocess.run([*RIG, "replay", "recordings/default.mcap", "--target", "native", "--duration", "20",
+                           "--out", str(out)], cwd=ROOT, env=env, capture_output=True, text=True, timeout=300,
+                          preexec_fn=limit_file_size)
+    assert "File too large" in proc.stderr and "Traceback" not in proc.stderr
+    assert limit - 20_000 < (out / "run.mcap").stat().st_size <= limit
+    with open(out / "run.mcap", "rb") as stream:
+        topics = [channel.topic for _, channel, _ in make_reader(stream).iter_messages()]
+    assert topics.count("/run/estimate") > 0 and topics.count("/uwb/anchors") == 1
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["ended"] == "completed" and "File too large" in metrics["run_record_error"]
 
 
 def test_board_samples_are_stamped_declare_their_encoding_and_a_late_joiner_gets_the_latest(tmp_path: Path) -> None:

@@ -1,0 +1,49 @@
+"""MCAP writing: a file whose writing stopped is finished from its whole records."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from mcap.reader import make_reader
+
+from rig.data.recording import McapJsonWriter, seal_unfinished
+
+MESSAGES = 3000
+
+
+def _written(path: Path) -> Path:
+    """A finished file of MESSAGES messages in small chunks, each numbered."""
+    with McapJsonWriter(path, chunk_size=2048) as out:
+        channel = out.channel("/n", "n", {"type": "object"})
+        for k in range(MESSAGES):
+            out.write(channel, k * 0.01, f'{{"n": {k}}}')
+    return path
+
+
+def _numbers(path: Path) -> list[int]:
+    with open(path, "rb") as stream:
+        return [int(message.data[6:-1]) for _, _, message in make_reader(stream).iter_messages()]
+
+
+@pytest.mark.parametrize("share", [0.2, 0.5, 0.93])
+def test_a_file_cut_anywhere_is_finished_with_every_whole_record_before_the_cut(tmp_path: Path, share: float) -> None:
+    whole = _written(tmp_path / "whole.mcap").read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(whole[: int(len(whole) * share)])
+    with pytest.raises(Exception):
+        _numbers(cut)                                     # the stock reader stops at the cut record
+    assert seal_unfinished(cut)
+    numbers = _numbers(cut)
+    assert numbers == list(range(len(numbers)))           # a prefix, in order, nothing invented
+    assert len(numbers) > share * MESSAGES * 0.8
+    assert cut.stat().st_size <= len(whole) * share + 50
+
+
+def test_what_is_not_a_file_with_a_whole_header_is_left_as_it_is(tmp_path: Path) -> None:
+    header_only = tmp_path / "short.mcap"
+    header_only.write_bytes(_written(tmp_path / "whole.mcap").read_bytes()[:12])
+    assert not seal_unfinished(header_only)
+    assert header_only.stat().st_size == 12
+    assert not seal_unfinished(Path("/dev/full"))
+    assert not seal_unfinished(tmp_path / "absent.mcap")
