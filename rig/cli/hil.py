@@ -143,7 +143,11 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 def cmd_report(args: argparse.Namespace) -> int:
     from rig.hil.report import write_report
+    from rig.hil.runrecord import RUN_FILE, finish_run_record
 
+    record = args.dir / RUN_FILE
+    if args.finish:
+        print(f"{record}: {finish_run_record(record)}")
     print(f"wrote {write_report(args.dir)}")
     return EXIT_OK
 
@@ -364,6 +368,9 @@ def register(sub) -> None:
                                    "innovation statistics and the window-cost histogram against the budget, as "
                                    "one self-contained HTML page (also written at the end of every replay).")
     p.add_argument("dir", type=Path, help="a replay's output directory")
+    p.add_argument("--finish", action="store_true",
+                   help="first finish an unfinished run.mcap (a rig killed with SIGKILL, a power loss): cut it at "
+                        "its last whole record and close it, so that any MCAP reader opens it")
     p.set_defaults(func=cmd_report)
     p = sub.add_parser("farm", help="replay into many boards in parallel through zenoh (one bridge per board)",
                        description="Open a zenoh router session here, start one `bridge` process per board "

@@ -307,16 +307,27 @@ def _whole_record_ends(stream, size: int) -> list[int]:
     return ends
 
 
-def seal_unfinished(path: Path) -> bool:
+def is_finished(path: Path) -> bool:
+    """Whether an MCAP file ends as a finished one does (its footer's magic bytes)."""
+    path = Path(path)
+    size = path.stat().st_size
+    if size < 2 * len(MCAP0_MAGIC):
+        return False
+    with open(path, "rb") as stream:
+        stream.seek(size - len(MCAP0_MAGIC))
+        return stream.read() == MCAP0_MAGIC
+
+
+def seal_unfinished(path: Path) -> int | None:
     """Finish an MCAP file whose writing stopped (a full disk, a write error): cut it at
     the end of its last whole record and append the end of a file without a summary, so
     that any MCAP reader reads every whole record. Where even that does not fit, the
     last records are given up one at a time to make room (a chunk frees disk blocks).
-    Returns whether the file is finished; a file that is not a regular one, or whose
-    header is cut, is left as it is."""
+    Returns how many bytes of whole records it kept; a file that is not a regular one, or
+    whose header is cut, is left as it is (None)."""
     path = Path(path)
     if not path.is_file():
-        return False
+        return None
     with open(path, "r+b", buffering=0) as stream:       # unbuffered: a failed write leaves nothing held
         ends = _whole_record_ends(stream, path.stat().st_size)
         while ends:                    # ends[0] is the header's: without it nothing is a file
@@ -326,11 +337,11 @@ def seal_unfinished(path: Path) -> bool:
                     os.fsync(stream.fileno())
                     log.warning("%s: finished after a write error, %d bytes of whole records kept",
                                 path, ends[-1])
-                    return True
+                    return ends[-1]
             except OSError:
                 pass
             ends.pop()
-    return False
+    return None
 
 
 def _merged(*streams: tuple[int, Iterator[tuple[float, str]]]) -> list[tuple[float, int, str]]:

@@ -42,9 +42,11 @@ from rig.data.recording import (
     Recording,
     RecordingError,
     anchors_message,
+    is_finished,
     number_schema,
     object_schema,
     read_topics,
+    seal_unfinished,
     vector_schema,
 )
 from rig.hil import foxglove, protocol
@@ -304,8 +306,26 @@ REPORTED = (TOPIC_ESTIMATE, TOPIC_TRUTH, TOPIC_TIMING, TOPIC_TDOA, TOPIC_ANCHORS
 
 
 def read_run(path: Path) -> dict[str, list[dict]]:
-    """Every message of a run record by topic; an unfinished file yields its complete chunks."""
+    """Every message of a run record by topic; an unfinished file yields its complete
+    chunks (`rig report DIR --finish` finishes it for other readers)."""
     path = Path(path)
     if not path.is_file():
         raise RecordingError(f"no run record at {path}")
+    if not is_finished(path):
+        log.warning("%s is unfinished (its writer was killed?): `rig report %s --finish` closes it at its last "
+                    "whole record, so that any MCAP reader opens it", path, path.parent)
     return read_topics(path)[0]
+
+
+def finish_run_record(path: Path) -> str:
+    """Finish a run record left unfinished (`recording.seal_unfinished`); what was done."""
+    path = Path(path)
+    if not path.is_file():
+        raise RecordingError(f"no run record at {path}")
+    if is_finished(path):
+        return "already finished"
+    before = path.stat().st_size
+    kept = seal_unfinished(path)
+    if kept is None:
+        raise RecordingError(f"{path}: cannot finish it: its header is cut or it is not an MCAP file")
+    return f"finished at its last whole record ({kept} bytes kept, {before - kept} of a cut record dropped)"

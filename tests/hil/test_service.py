@@ -140,6 +140,35 @@ def test_ctrl_c_finishes_the_run_record(tmp_path: Path) -> None:
     assert len(read_run(out / "run.mcap").get("/run/estimate", [])) > 0
 
 
+def test_a_record_left_unfinished_by_sigkill_is_finished_by_rig_report(tmp_path: Path) -> None:
+    """SIGKILL leaves the record without its end; `rig report DIR --finish` closes it at
+    its last whole record, and the stock reader then reads it."""
+    from mcap.reader import make_reader
+
+    from rig.data.recording import is_finished
+
+    out = tmp_path / "run"
+    replay = start(*RIG, "replay", "recordings/default.mcap", "--target", "native", "--mode", "realtime",
+                   "--out", str(out))
+    record = out / "run.mcap"
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and (not record.exists() or record.stat().st_size < 30_000):
+        time.sleep(0.2)                                       # anchors and ground truth are on disk
+    time.sleep(1.0)
+    replay.kill()
+    assert exit_status(replay, 30) == -signal.SIGKILL
+    assert not is_finished(record)
+    proc = run_rig("report", str(out))
+    assert proc.returncode == 0 and "--finish" in proc.stderr              # read as it is, with the hint
+    proc = run_rig("report", str(out), "--finish", check=True)
+    assert "finished at its last whole record" in proc.stdout
+    with open(record, "rb") as stream:
+        topics = [channel.topic for _, channel, _ in make_reader(stream).iter_messages()]
+    assert topics.count("/uwb/anchors") == 1 and topics.count("/run/truth") > 100
+    assert (out / "report.html").stat().st_size > 0
+    assert "already finished" in run_rig("report", str(out), "--finish", check=True).stdout
+
+
 def test_a_full_disk_is_reported_and_the_replay_still_scores(tmp_path: Path) -> None:
     out = tmp_path / "run"
     out.mkdir()
