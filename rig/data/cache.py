@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from rig.data.errors import RecordingError
-from rig.data.recording import PoseSeries, Recording, TdoaSeries, Vec3Series, read_recording_checked
+from rig.data.recording import PoseSeries, Recording, TdoaSeries, Vec3Series, check_anchor_set, read_recording_checked
 from rig.data.survey import Anchor
 
 log = logging.getLogger(__name__)
@@ -56,7 +56,9 @@ def read_cached(path: Path, strict: bool = False) -> Recording:
     from it (and cached when it was read whole). `strict`: a damaged or unfinished
     file is an error, not the part of it before the damage."""
     rec = load(path)
-    if rec is None:
+    if rec is not None:
+        check_anchor_set(path, rec.anchors)          # an entry cached before the check existed
+    else:
         rec, whole = read_recording_checked(path)
         if whole:
             store(path, rec=rec)

@@ -506,4 +506,18 @@ def read_recording_checked(path: Path) -> tuple[Recording, bool]:
     )
     if not rec.anchors:
         raise RecordingError(f"{path} has no anchor set on {TOPIC_ANCHORS}")
+    check_anchor_set(path, rec.anchors)
     return rec, whole
+
+
+def check_anchor_set(path: Path, anchors: list[Anchor]) -> None:
+    """An anchor set the estimator can use: each id once, every coordinate finite (a
+    survey is checked the same way when it is parsed)."""
+    ids = [a.id for a in anchors]
+    twice = sorted({i for i in ids if ids.count(i) > 1})
+    if twice:
+        raise RecordingError(f"{path}: anchor id(s) {twice} appear more than once in the anchor set on "
+                             f"{TOPIC_ANCHORS}: which position is right cannot be told")
+    bad = [a.id for a in anchors if not np.isfinite(np.array([*a.position, *a.quaternion], dtype=float)).all()]
+    if bad:
+        raise RecordingError(f"{path}: anchor(s) {bad} on {TOPIC_ANCHORS} have a non-finite position or orientation")

@@ -9,6 +9,8 @@ from mcap.reader import make_reader
 
 from rig.data.recording import McapJsonWriter, seal_unfinished
 
+ROOT = Path(__file__).resolve().parents[2]
+
 MESSAGES = 3000
 
 
@@ -47,3 +49,38 @@ def test_what_is_not_a_file_with_a_whole_header_is_left_as_it_is(tmp_path: Path)
     assert header_only.stat().st_size == 12
     assert not seal_unfinished(Path("/dev/full"))
     assert not seal_unfinished(tmp_path / "absent.mcap")
+
+
+@pytest.fixture(scope="module")
+def default_recording():
+    from rig.data.recording import read_recording
+
+    return read_recording(ROOT / "recordings" / "default.mcap")
+
+
+@pytest.mark.parametrize("fault", ["duplicated", "non-finite"])
+def test_an_anchor_set_with_a_duplicated_or_non_finite_anchor_is_refused_from_file_and_cache(
+        tmp_path: Path, default_recording, fault: str) -> None:
+    from dataclasses import replace
+
+    from rig.data import cache
+    from rig.data.errors import RecordingError
+    from rig.data.recording import read_recording, write_recording
+    from rig.data.survey import Anchor
+
+    anchors = list(default_recording.anchors)
+    a = anchors[2]
+    if fault == "duplicated":
+        anchors.append(Anchor(a.id, (a.position[0] + 1.0, a.position[1], a.position[2]), a.quaternion))
+    else:
+        anchors[2] = Anchor(a.id, (float("nan"), a.position[1], a.position[2]), a.quaternion)
+    bad = replace(default_recording, anchors=anchors)
+    path = tmp_path / "bad.mcap"
+    write_recording(bad, path)
+    expected = f"anchor id\\(s\\) \\[{a.id}\\] appear more than once" if fault == "duplicated" else \
+        f"anchor\\(s\\) \\[{a.id}\\] .* non-finite"
+    with pytest.raises(RecordingError, match=expected):
+        read_recording(path)
+    cache.store(path, rec=bad)                       # as an entry cached before the check existed
+    with pytest.raises(RecordingError, match=expected):
+        cache.read_cached(path)
