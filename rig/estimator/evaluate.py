@@ -15,7 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from rig.data.recording import Recording
+from rig.data.errors import InputError
+from rig.data.recording import TOPIC_TRUTH, Recording
 from rig.estimator import metrics, native
 from rig.estimator.bias_net import DEFAULT_NETWORK, BiasNet
 from rig.estimator.trained_region import outside_share
@@ -47,13 +48,22 @@ class Replay:
         return self.outputs["counters"][-1]
 
 
+def require_truth(rec: Recording) -> None:
+    """The ground truth a replay starts from and is scored against, or a clear error."""
+    if len(rec.truth) == 0:
+        raise InputError(f"the recording has no ground truth on {TOPIC_TRUTH}: the estimator starts from the "
+                         "ground truth's pose and is scored against it")
+
+
 def start_time(rec: Recording, rule: metrics.SegmentRule = metrics.SegmentRule()) -> float:
+    require_truth(rec)
     return float(max(metrics.takeoff_time(rec.truth, rule) - START_BEFORE_TAKEOFF, rec.truth.t[0]))
 
 
 def truth_pose_at(rec: Recording, t: float) -> tuple[np.ndarray, np.ndarray]:
     """The ground truth's position and orientation (quaternion x, y, z, w) at `t`, the
     orientation interpolated on the great circle between the two poses around it."""
+    require_truth(rec)
     pos = metrics.interpolate_positions(rec.truth, np.array([t]))[0]
     times, keep = np.unique(rec.truth.t, return_index=True)
     quats = rec.truth.quaternion[keep]

@@ -128,7 +128,7 @@ def replay_job(recording: Path, target: str, out: Path, estimator: EstimatorChoi
     `full_answer_every`: compact answers, the counters and timing every N windows."""
     from rig.data.errors import InputError
     from rig.data.importer import load_any
-    from rig.estimator.evaluate import estimator_config, start_time
+    from rig.estimator.evaluate import estimator_config, require_truth, start_time
     from rig.hil import replay
     from rig.hil.runrecord import RUN_FILE, RunRecorder
     from rig.hil.zenoh import open_session
@@ -136,6 +136,7 @@ def replay_job(recording: Path, target: str, out: Path, estimator: EstimatorChoi
     check_options(target, board, start, duration, lookahead, speed, full_answer_every)
     lookahead = default_lookahead(target) if lookahead is None else lookahead
     rec = load_any(recording, survey, strict=strict) if loaded is None else loaded
+    require_truth(rec)                   # before a board starts or a file is written
     first, last = start_time(rec) if start is None else start, float(rec.time_span()[1])
     if first >= last:
         raise InputError(f"--start {first:g} s is past the end of {recording} ({last:g} s on its clock)")

@@ -70,6 +70,21 @@ def test_an_option_value_a_replay_cannot_use_is_refused_before_anything_starts(t
     assert time.monotonic() - began < 30                  # and no board waited for
 
 
+@pytest.mark.parametrize("command", [["replay", "--target", "native", "--start", "1", "--out"], ["evaluate", "--json"]])
+def test_a_recording_without_ground_truth_is_refused_before_anything_starts(tmp_path: Path,
+                                                                              command: list[str]) -> None:
+    from dataclasses import replace
+
+    from rig.data.recording import PoseSeries, read_recording, write_recording
+
+    recording = tmp_path / "no-truth.mcap"
+    write_recording(replace(read_recording(ROOT / "recordings" / "default.mcap"), truth=PoseSeries.empty()), recording)
+    proc = run_rig(command[0], str(recording), *command[1:], str(tmp_path / "out"), timeout=60)
+    assert proc.returncode == 2, proc.stderr
+    assert "no ground truth on /truth/pose" in proc.stderr and "Traceback" not in proc.stderr
+    assert not (tmp_path / "out").exists()
+
+
 def test_json_is_written_whole_or_not_at_all(tmp_path: Path, monkeypatch) -> None:
     path = tmp_path / "metrics.json"
     write_json(path, {"rmse_3d": 0.2})
