@@ -75,6 +75,24 @@ def test_rig_evaluate_tells_measurements_refused_at_input_from_those_the_update_
     assert f"nonfinite {by_reason['nonfinite']}" in line.group(4) and "gate" not in line.group(4)
 
 
+@pytest.mark.slow
+def test_rig_evaluate_says_when_windows_had_no_imu_sample(tmp_path: Path) -> None:
+    from dataclasses import replace
+
+    from rig.data.recording import Vec3Series
+
+    rec = read_recording(ROOT / "recordings" / "default.mcap")
+    run_rig_ok = run_rig("evaluate", str(ROOT / "recordings" / "default.mcap"), check=True)
+    assert "IMU:" not in run_rig_ok.stderr                      # a whole recording: nothing to say
+    none = Vec3Series(rec.accel.t[:0], rec.accel.xyz[:0])
+    write_recording(replace(rec, accel=none, gyro=none), tmp_path / "no-imu.mcap")
+    proc = run_rig("evaluate", str(tmp_path / "no-imu.mcap"), "--json", str(tmp_path / "e.json"))
+    result = json.loads((tmp_path / "e.json").read_text())
+    assert result["imu_samples"] == 0 and result["imu_gaps"] > 1000
+    assert f"IMU: {result['imu_gaps']} windows of 10 ms without a sample" in proc.stderr
+    assert "has no IMU samples" in proc.stderr
+
+
 def test_every_bad_input_is_counted_by_reason_and_never_reaches_the_state(survey_0425: Path) -> None:
     rec = _sim(survey_0425, [{"effect": "tdoa_noise", "params": {"std_m": 0.05}}], duration=10.0)
     est, events, _ = _start(rec)
