@@ -82,8 +82,8 @@ def test_rig_evaluate_says_when_windows_had_no_imu_sample(tmp_path: Path) -> Non
     from rig.data.recording import Vec3Series
 
     rec = read_recording(ROOT / "recordings" / "default.mcap")
-    run_rig_ok = run_rig("evaluate", str(ROOT / "recordings" / "default.mcap"), check=True)
-    assert "IMU:" not in run_rig_ok.stderr                      # a whole recording: nothing to say
+    whole = run_rig("evaluate", str(ROOT / "recordings" / "default.mcap"), check=True)
+    assert "IMU:" not in whole.stderr                      # a whole recording: nothing to say
     none = Vec3Series(rec.accel.t[:0], rec.accel.xyz[:0])
     write_recording(replace(rec, accel=none, gyro=none), tmp_path / "no-imu.mcap")
     proc = run_rig("evaluate", str(tmp_path / "no-imu.mcap"), "--json", str(tmp_path / "e.json"))
