@@ -72,6 +72,14 @@ def write_json(path: Path | None, data: dict) -> None:
     write(path, data)
 
 
+def print_imu_gaps(result: dict) -> None:
+    """Windows the estimator predicted without an IMU sample, if any (a real flight has none)."""
+    if result.get("imu_gaps"):
+        print(f"IMU: {result['imu_gaps']} windows of 10 ms without a sample (held the last reading)"
+              + (": the recording has no IMU samples, the estimate is TDOA alone"
+                 if result.get("imu_samples") == 0 else ""), file=sys.stderr)
+
+
 def print_accuracy(result: dict) -> None:
     if "score_error" in result:
         print(f"not scored: {result['score_error']}")

@@ -4,10 +4,10 @@ scored against ground truth, and the estimator's footprint on the board."""
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
-from rig.cli.common import EXIT_FAILED, EXIT_OK, add_estimator_options, add_segment_options, print_accuracy, write_json
+from rig.cli.common import (EXIT_FAILED, EXIT_OK, add_estimator_options, add_segment_options, print_accuracy,
+                             print_imu_gaps, write_json)
 
 
 def cmd_metrics(args: argparse.Namespace) -> int:
@@ -47,10 +47,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
           f"{result['tdoa_rejected']} rejected (gate {by_reason['gate']}, robust weight "
           f"{result['tdoa_rejected'] - by_reason['gate']}); refused before the update: {refused}; "
           f"resets {result['resets']}; diverged: {'yes' if result['diverged'] else 'no'}")
-    if result["imu_gaps"]:
-        print(f"IMU: {result['imu_gaps']} windows of 10 ms without a sample (held the last reading)"
-              + (": the recording has no IMU samples, the estimate is TDOA alone" if not result["imu_samples"] else ""),
-              file=sys.stderr)
+    print_imu_gaps(result)
     write_json(args.json, result)
     return EXIT_FAILED if result["diverged"] else EXIT_OK
 

@@ -14,6 +14,7 @@ from rig.cli.common import (
     CliError,
     add_estimator_options,
     print_accuracy,
+    print_imu_gaps,
     positive,
     progress,
     write_json,
@@ -60,6 +61,7 @@ def print_score(result: dict) -> None:
           f"{result.get('bytes_received', 0) / max(1, result['n_estimates']):.0f} B down a window; "
           f"{result['wall_seconds']:.1f} s with start-up and the run record)")
     print_accuracy(result)
+    print_imu_gaps(result)
     print_timing(timing)
     if "realtime" in result:
         rt = result["realtime"]

@@ -85,6 +85,22 @@ def test_a_recording_without_ground_truth_is_refused_before_anything_starts(tmp_
     assert not (tmp_path / "out").exists()
 
 
+def test_a_replay_reports_the_windows_the_board_had_no_imu_sample_for(tmp_path: Path) -> None:
+    from dataclasses import replace
+
+    from rig.data.recording import Vec3Series, read_recording, write_recording
+
+    rec = read_recording(ROOT / "recordings" / "default.mcap")
+    gap = (rec.accel.t > 5.0) & (rec.accel.t < 7.0)               # two seconds without IMU, mid-replay
+    accel, gyro = (Vec3Series(s.t[~gap], s.xyz[~gap]) for s in (rec.accel, rec.gyro))
+    write_recording(replace(rec, accel=accel, gyro=gyro), tmp_path / "gap.mcap")
+    proc = run_rig("replay", str(tmp_path / "gap.mcap"), "--target", "native", "--duration", "10",
+                   "--out", str(tmp_path / "run"), check=True)
+    metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert 190 <= metrics["imu_gaps"] <= 201 and metrics["imu_lost"] == 0
+    assert f"IMU: {metrics['imu_gaps']} windows of 10 ms without a sample" in proc.stderr
+
+
 def test_json_is_written_whole_or_not_at_all(tmp_path: Path, monkeypatch) -> None:
     path = tmp_path / "metrics.json"
     write_json(path, {"rmse_3d": 0.2})
