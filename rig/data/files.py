@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import os
 import tempfile
 from pathlib import Path
@@ -31,6 +32,19 @@ def write_text_whole(path: Path, text: str) -> None:
     log.info("wrote %s", path)
 
 
+def finite_json(value):
+    """`value` with every non-finite float as None: JSON has no NaN or infinity, and
+    strict readers (jq, JavaScript, most CI tools) refuse Python's `NaN` and `Infinity`."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: finite_json(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [finite_json(v) for v in value]
+    return value
+
+
 def write_json(path: Path, data: dict) -> None:
-    """`data` as indented, key-sorted JSON (what every command writes), whole."""
-    write_text_whole(path, json.dumps(data, indent=2, sort_keys=True) + "\n")
+    """`data` as indented, key-sorted, strict JSON (what every command writes), whole:
+    a figure that is not finite (the RMSE of a run whose estimate diverged) is null."""
+    write_text_whole(path, json.dumps(finite_json(data), indent=2, sort_keys=True, allow_nan=False) + "\n")

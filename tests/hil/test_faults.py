@@ -116,6 +116,33 @@ def test_json_is_written_whole_or_not_at_all(tmp_path: Path, monkeypatch) -> Non
     assert [p.name for p in tmp_path.iterdir()] == ["metrics.json"]   # no temporary left behind
 
 
+def test_json_is_strict_a_figure_that_is_not_finite_is_null(tmp_path: Path) -> None:
+    """A diverged run's RMSE is infinite and its mean error NaN: Python would write
+    `Infinity` and `NaN`, which jq, JavaScript and most CI tools refuse."""
+    import numpy as np
+
+    def refuse(constant: str):
+        raise ValueError(f"not JSON: {constant}")
+
+    write_json(tmp_path / "m.json", {"rmse_3d": float("inf"), "mean_xyz": [float("nan"), 0.1, np.float64("-inf")],
+                                     "timing": {"window_max": 3.0, "per_call": {"predict": {"max": float("nan")}}}})
+    data = json.loads((tmp_path / "m.json").read_text(), parse_constant=refuse)
+    assert data == {"rmse_3d": None, "mean_xyz": [None, 0.1, None],
+                    "timing": {"window_max": 3.0, "per_call": {"predict": {"max": None}}}}
+
+
+def test_every_key_replay_and_evaluate_write_is_in_the_reference(tmp_path: Path) -> None:
+    """docs/reference/metrics.md is what CI checks outside the project read: it names
+    every top-level key a real-time replay's metrics.json and `rig evaluate --json` hold."""
+    run_rig("replay", "recordings/default.mcap", "--target", "native", "--mode", "realtime", "--speed", "8",
+            "--duration", "8", "--out", str(tmp_path / "run"), check=True)
+    run_rig("evaluate", "recordings/default.mcap", "--json", str(tmp_path / "e.json"), check=True)
+    reference = (ROOT / "docs" / "reference" / "metrics.md").read_text()
+    keys = set(json.loads((tmp_path / "run" / "metrics.json").read_text())) | set(
+        json.loads((tmp_path / "e.json").read_text()))
+    assert sorted(k for k in keys if f"`{k}`" not in reference) == []
+
+
 @pytest.mark.slow
 def test_junit_xml_has_a_testcase_per_board_and_assertion_and_failures_carry_the_figure(tmp_path: Path) -> None:
     import xml.etree.ElementTree as ElementTree
