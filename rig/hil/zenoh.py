@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 import zenoh
 
 from rig.data.errors import InputError
+from rig.data.files import finite_json
 from rig.hil import protocol
 from rig.hil.links import BoardLink, LinkError
 
@@ -104,8 +105,9 @@ def unpack_batch(data: bytes) -> list[bytes]:
 
 
 def message_json(msg) -> bytes:
-    """A decoded message as JSON (its fields are numbers and tuples of numbers)."""
-    return json.dumps(vars(msg)).encode()
+    """A decoded message as strict JSON (its fields are numbers and tuples of numbers; a
+    diverged board's NaN is null, as application/json readers expect)."""
+    return json.dumps(finite_json(vars(msg)), allow_nan=False).encode()
 
 
 RAW_ENCODING = zenoh.Encoding.APPLICATION_OCTET_STREAM

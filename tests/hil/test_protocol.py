@@ -253,3 +253,17 @@ def test_an_attitude_is_scaled_as_the_board_scales_it_in_float32() -> None:
     counts = np.arange(-32768, 32768).reshape(-1, 4)
     decoded = [q for row in counts.tolist() for q in protocol._quaternion(row)]
     assert decoded == (counts.astype(np.float32) * protocol.QUAT_LSB).ravel().tolist()
+
+
+def test_an_estimate_on_zenoh_is_strict_json_a_diverged_boards_nan_is_null() -> None:
+    import json
+
+    from rig.hil.zenoh import message_json
+
+    def refuse(constant: str):
+        raise ValueError(f"not JSON: {constant}")
+
+    nan, inf = float("nan"), float("inf")
+    text = message_json(protocol.Estimate(1_000_000, (nan, 1.5, inf), (0.0, -inf, 0.25)))
+    assert json.loads(text, parse_constant=refuse) == {"t_us": 1_000_000, "pos": [None, 1.5, None],
+                                                       "vel": [0.0, None, 0.25]}
