@@ -10,6 +10,7 @@ Seconds to minutes, once the networks are saved:
     .venv/bin/python benchmarks/param_transfer.py --param tdoa_std --values 0.3 0.55      # session 71
     .venv/bin/python benchmarks/param_transfer.py --param accel_noise --values 0.25 1.0   # session 71
     .venv/bin/python benchmarks/param_transfer.py --param gm_meas_c2 --values 4 16        # session 71
+    .venv/bin/python benchmarks/param_transfer.py --param trust_prior_n --values 500 8000 # session 71
 
 The rule, fixed before the first run (session 71, for `tdoa_std`, and the same for every
 parameter since). Each flight's figure is the shipped estimator's (the share of the
