@@ -34,7 +34,9 @@ six restarts instead of three, and installation (session 68,
 experiment/installation-delays), the link network trained without each flight's anchor
 delays, which the model kept per installation (its survey) and applied only to a
 recording of that installation, and weight-decay (session 71, experiment/weight-decay),
-the link form trained with an L2 penalty of 1e-3.
+the link form trained with an L2 penalty of 1e-3, and balanced-days (session 71,
+experiment/balanced-days), the link form trained with every day of flights weighing the
+same in the loss. benchmarks/form_rule.py judges such a form against the link rows.
 
 Since session 69 the estimator applies only the share of the correction that the
 flight's own measurements support (`trust_prior_n`; docs/reference/estimator.md), kept
@@ -157,11 +159,7 @@ from bias_validation_results import (  # noqa: E402
 
 CACHE = ROOT / "out" / "cache" / "all.npz"
 SAVE_MODELS_ENV = "UWB_RIG_SAVE_MODELS"
-FORMS = {"link": "7", "shared": "shared", "pair": "14", UNTRANSLATED: "7",   # form -> rig train's feature set
-         "balanced-days": "7"}
-# Forms that are the link form trained otherwise (session 71, registered before its run):
-# balanced-days, every day of flights weighing the same in the loss.
-FORM_TRAINING = {"balanced-days": {"balance_days": True}}
+FORMS = {"link": "7", "shared": "shared", "pair": "14", UNTRANSLATED: "7"}   # form -> rig train's feature set
 VALIDATION_SHARE = 0.15
 
 
@@ -252,8 +250,7 @@ def clamped_correction(net, samples: Samples, trained: Samples) -> tuple[np.ndar
 
 def form_config(form: str, **kwargs) -> TrainConfig:
     """The training configuration of a form of this page."""
-    return TrainConfig.with_features(FORMS[form], untranslated=form == UNTRANSLATED,
-                                     **{**FORM_TRAINING.get(form, {}), **kwargs})
+    return TrainConfig.with_features(FORMS[form], untranslated=form == UNTRANSLATED, **kwargs)
 
 
 def flight_split_samples(split_name: str, seed: int) -> tuple[Samples, Split]:
@@ -359,7 +356,7 @@ def bearing_sector(position: np.ndarray) -> np.ndarray:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--forms", nargs="+", choices=list(FORMS), default=[f for f in FORMS if f not in FORM_TRAINING])
+    parser.add_argument("--forms", nargs="+", choices=list(FORMS), default=list(FORMS))
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--splits", nargs="+",
                         default=[*FLIGHT_SPLITS, *ESTIMATE_SPLITS, "anchors", "region", "sector"])

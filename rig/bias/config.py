@@ -39,9 +39,6 @@ class TrainConfig:
     # (rig.bias.tag_offset): the correction then carries none, as no flight can tell one
     # from where the tag really is
     untranslated: bool = False
-    # each day of flights weighs the same in the loss, however many flights it has (a new
-    # day is the unit a correction must carry to)
-    balance_days: bool = False
 
     def __post_init__(self) -> None:
         if self.restarts < 1:

@@ -197,9 +197,7 @@ def train(train_set: Samples, validation_set: Samples, config: TrainConfig = Tra
         if config.anchor_offsets:
             x = np.hstack([x, _anchor_ids(samples)])
         y = (samples.label - out_offset) / out_scale
-        w = day_weights(samples.flight) if config.balance_days else np.ones(len(samples))
-        return (torch.tensor(x, dtype=torch.float32), torch.tensor(y[:, None], dtype=torch.float32),
-                torch.tensor(w[:, None], dtype=torch.float32))
+        return torch.tensor(x, dtype=torch.float32), torch.tensor(y[:, None], dtype=torch.float32)
 
     data = (*tensors(train_set), *tensors(validation_set))
     seen = np.unique(np.concatenate([train_set.id_a, train_set.id_b]).astype(int))
@@ -230,31 +228,15 @@ def closed_loop_rmse(recordings: list, net: BiasNet) -> float:
     return float(np.mean([r["rmse_3d"] for r in results]))
 
 
-def day_weights(flights: np.ndarray) -> np.ndarray:
-    """Each sample's weight so that every day (a flight's MMDD) weighs the same, mean 1."""
-    days = np.array([str(f)[:4] for f in flights])
-    if not len(days):
-        return np.ones(0)
-    _, index, counts = np.unique(days, return_inverse=True, return_counts=True)
-    return len(days) / (len(counts) * counts[index])
-
-
 def _train_once(torch, data: tuple, config: TrainConfig, restart: int, progress=None) -> tuple:
     """One training run from the initialisation `config.init_seed(restart)`."""
-    xt, yt, wt, xv, yv, wv = data
+    xt, yt, xv, yv = data
     init_seed = config.init_seed(restart)
     torch.manual_seed(init_seed)
     rng = np.random.default_rng(init_seed)
     model = _model(torch, config)
     optimiser = torch.optim.Adam(model.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay)
-    if config.balance_days:
-        def loss_fn(predicted, label, weight):
-            return torch.mean(weight * (predicted - label) ** 2)
-    else:
-        mse = torch.nn.MSELoss()
-
-        def loss_fn(predicted, label, weight):      # the recipe's loss, bit for bit
-            return mse(predicted, label)
+    loss_fn = torch.nn.MSELoss()
     best, best_state, best_epoch, history = np.inf, None, -1, []
     epochs = range(config.max_epochs)
     for epoch in progress(epochs) if progress else epochs:
@@ -263,12 +245,12 @@ def _train_once(torch, data: tuple, config: TrainConfig, restart: int, progress=
         for start in range(0, len(xt), config.batch_size):
             idx = order[start:start + config.batch_size]
             optimiser.zero_grad()
-            loss = loss_fn(model(xt[idx]), yt[idx], wt[idx])
+            loss = loss_fn(model(xt[idx]), yt[idx])
             loss.backward()
             optimiser.step()
         model.eval()
         with torch.no_grad():
-            val = float(loss_fn(model(xv), yv, wv)) if len(xv) else float(loss)
+            val = float(loss_fn(model(xv), yv)) if len(xv) else float(loss)
         history.append({"epoch": epoch, "validation_mse": val})
         if val < best - 1e-6:
             best, best_epoch = val, epoch

@@ -384,14 +384,3 @@ def test_a_damaged_dataset_cache_is_built_again_never_an_error(tmp_path: Path, d
         assert "unreadable" not in caplog.text
         np.testing.assert_array_equal(reread.label, samples.label)
     assert not list(tmp_path.glob("*.partial"))
-
-
-def test_day_weights_make_every_day_weigh_the_same_with_mean_one() -> None:
-    from rig.bias.train import day_weights
-
-    flights = np.array(["0425-traj1"] * 6 + ["0425-traj2"] * 3 + ["0426-traj1"] * 2 + ["0422-log00"] * 1)
-    w = day_weights(flights)
-    assert w.mean() == pytest.approx(1.0)
-    totals = {day: w[np.char.startswith(flights, day)].sum() for day in ("0425", "0426", "0422")}
-    assert totals == pytest.approx({day: len(flights) / 3 for day in totals})
-    assert len(day_weights(np.array([], dtype=str))) == 0
