@@ -5,6 +5,8 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 from mcap.reader import make_reader
 
 from rig.data.recording import McapJsonWriter, seal_unfinished
@@ -40,6 +42,27 @@ def test_a_file_cut_anywhere_is_finished_with_every_whole_record_before_the_cut(
     assert numbers == list(range(len(numbers)))           # a prefix, in order, nothing invented
     assert len(numbers) > share * MESSAGES * 0.8
     assert cut.stat().st_size <= len(whole) * share + 50
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(cut=st.floats(0.0, 1.0))
+def test_any_cut_of_a_file_is_finished_to_a_prefix_the_stock_reader_reads(tmp_path: Path, cut: float) -> None:
+    """Wherever the writing stopped, sealing leaves a file the stock reader reads, a
+    prefix of the messages in order; or, when not even the header is whole, the file
+    as it was."""
+    source = tmp_path / "whole.mcap"                     # one per test: hypothesis reuses tmp_path
+    whole = source.read_bytes() if source.exists() else _written(source).read_bytes()
+    data = whole[: int(len(whole) * cut)]
+    path = tmp_path / "cut.mcap"
+    path.write_bytes(data)
+    kept = seal_unfinished(path)
+    if kept is None:                                      # the cut is inside the magic or the header record
+        header_end = 8 + 9 + int.from_bytes(whole[9:17], "little")
+        assert path.read_bytes() == data and len(data) < header_end
+        return
+    numbers = _numbers(path)
+    assert numbers == list(range(len(numbers)))
+    assert kept <= len(data)
 
 
 def test_what_is_not_a_file_with_a_whole_header_is_left_as_it_is(tmp_path: Path) -> None:
