@@ -67,3 +67,44 @@ def test_session_59s_rule_on_the_rows(untranslated: float, worse: int, met: bool
     assert results.untranslated_verdict(rows[:-1]) is not None        # a seed short still has every split
     assert results.untranslated_verdict([r for r in rows if r["split"] != "day-0426"]) is None
 
+
+
+def _flight_rows(form: str, rmse: float, without: float = 0.25, worse_on: tuple[str, ...] = ()) -> list[dict]:
+    """Rows with flights, as the closed-loop splits write them: one flight a split and
+    seed, `rmse` everywhere, above `without` on the splits in `worse_on`."""
+    splits = (*results.FLIGHT_SPLITS, "within-0426", "day-0422")
+    return [{"split": split, "form": form, "seed": seed,
+             "flights": [{"flight": "f", "rmse_3d": rmse + (without if split in worse_on else 0.0),
+                          "rmse_3d_without": without}]}
+            for split in splits for seed in (0, 1, 2)]
+
+
+@pytest.mark.parametrize("rmse, worse_on, kept", [
+    (0.194, (), True),                    # 0.006 m more accurate
+    (0.197, (), False),                   # 0.003 m: not enough
+    (0.194, ("within-0426",), False),     # a new flight of a trained day made worse
+    (0.194, ("day-0426",), False),        # more flights worse
+])
+def test_the_form_rule_on_made_up_rows(rmse: float, worse_on: tuple, kept: bool) -> None:
+    import form_rule
+
+    verdict = form_rule.verdict(_flight_rows("link", 0.200), _flight_rows("x", rmse, worse_on=worse_on))
+    assert verdict["kept"] is kept
+    assert verdict["accuracy_m"]["link"] == pytest.approx(0.200)
+
+
+@pytest.mark.parametrize("lower, day_0422, kept", [
+    (0.196, 0.200, 0.3),                  # 0.004 m more accurate: the lower value replaces 0.4
+    (0.198, 0.200, 0.4),                  # 0.002 m: not enough
+    (0.196, 0.203, 0.4),                  # the other-day proxy 0.003 m worse
+])
+def test_the_parameter_rule_on_made_up_rows(lower: float, day_0422: float, kept: float) -> None:
+    import param_transfer
+
+    rows = _flight_rows("link", 0.200)
+    for row in rows:
+        for flight in row["flights"]:
+            at_lower = day_0422 if row["split"] == "day-0422" else lower
+            flight["by_level"] = {"0.3": at_lower, "0.4": 0.200, "0.55": 0.210}
+            flight["without_by_level"] = {"0.3": 0.25, "0.4": 0.25, "0.55": 0.25}
+    assert param_transfer.verdict(rows, (0.3, 0.4, 0.55), 0.4)["value"] == kept
