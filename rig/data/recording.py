@@ -268,12 +268,18 @@ class McapJsonWriter:
             self._writer.finish()
             self._stream.close()
         except OSError:
-            try:
-                self._stream.close()      # flushes again, which fails again: the descriptor closes
-            except OSError:
-                pass
+            self._close_stream_quietly()
             seal_unfinished(self.path)
             raise
+        except BaseException:             # an interruption: the descriptor is closed all the same
+            self._close_stream_quietly()
+            raise
+
+    def _close_stream_quietly(self) -> None:
+        try:
+            self._stream.close()          # flushes again, which may fail again: the descriptor closes
+        except OSError:
+            pass
 
     def __enter__(self) -> "McapJsonWriter":
         return self

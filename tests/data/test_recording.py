@@ -107,3 +107,15 @@ def test_an_anchor_set_with_a_duplicated_or_non_finite_anchor_is_refused_from_fi
     cache.store(path, rec=bad)                       # as an entry cached before the check existed
     with pytest.raises(RecordingError, match=expected):
         cache.read_cached(path)
+
+
+def test_a_writer_interrupted_while_finishing_still_closes_its_file(tmp_path: Path, monkeypatch) -> None:
+    writer = McapJsonWriter(tmp_path / "x.mcap")
+
+    def interrupted() -> None:
+        raise KeyboardInterrupt("SIGTERM")
+    monkeypatch.setattr(writer._writer, "finish", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        writer.close()
+    assert writer._stream.closed
+    writer.close()                                        # once closed, closing again does nothing
