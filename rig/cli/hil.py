@@ -102,6 +102,17 @@ def estimator_choice(args: argparse.Namespace):
                            model_path=getattr(args, "model", None), full_trust=getattr(args, "full_trust", False))
 
 
+def start_pose(args: argparse.Namespace):
+    """The start pose given on the command line, or None (the ground truth's)."""
+    from rig.estimator.evaluate import StartPose
+
+    if args.start_position is None:
+        if args.start_yaw != 0.0:
+            raise CliError("--start-yaw needs --start-position")
+        return None
+    return StartPose(tuple(args.start_position), args.start_yaw)
+
+
 def cmd_replay(args: argparse.Namespace) -> int:
     from rig.hil.checks import checks, replay_cases, write_junit
     from rig.hil.job import check_options
@@ -109,13 +120,15 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
     check_options(args.target, args.board, args.start, args.duration, args.lookahead, args.speed,
                   args.full_answer_every, args.late_allowed)
+    pose = start_pose(args)
     session = open_session(None, args.zenoh_listen, args.zenoh_connect)
     try:
         result = replay_into(args.recording, args.target, args.out, estimator_choice(args), start=args.start,
                              duration=args.duration, lookahead=args.lookahead,
                              full_answer_every=args.full_answer_every,
                              speed=args.speed if args.mode == "realtime" else None, session=session,
-                             board=args.board, survey=args.survey, junit=args.junit_xml, strict=args.strict)
+                             board=args.board, survey=args.survey, junit=args.junit_xml, strict=args.strict,
+                             start_pose=pose)
     finally:
         session.close()
     asserted = checks(result, args.assert_rmse, args.assert_budget, deadlines=args.assert_deadlines,
@@ -295,6 +308,13 @@ def register(sub) -> None:
     p.add_argument("--out", type=Path, required=True, help="output directory")
     p.add_argument("--start", type=float, help="start time on the recording's clock (default 1 s before take-off)")
     p.add_argument("--duration", type=float, help="seconds to replay (default: to the end)")
+    p.add_argument("--start-position", type=float, nargs=3, metavar=("X", "Y", "Z"),
+                   help="where the drone stood, in the anchors' frame (metres), instead of the ground truth's "
+                        "pose: a recording without ground truth is then replayed from its first IMU sample, "
+                        "timed and not scored")
+    p.add_argument("--start-yaw", type=float, default=0.0, metavar="DEG",
+                   help="with --start-position: the drone's heading (default 0); roll and pitch come from the "
+                        "accelerometer")
     p.add_argument("--board", default="local", help="board name on zenoh for a local target (default local)")
     p.add_argument("--zenoh-connect", action="append", default=[], metavar="ENDPOINT",
                    help="zenoh endpoint (a router, e.g. tcp/127.0.0.1:7447) where boards and subscribers meet")

@@ -4,6 +4,12 @@ The replay starts `START_BEFORE_TAKEOFF` seconds before take-off (first ground
 truth above the segment height), where the estimator is initialised with the
 ground-truth pose, as a drone is told its start pose before it flies. From there
 on it sees only IMU and TDOA, in time order, with a STEP every 10 ms.
+
+A recording without ground truth (a flight without motion capture) can still be
+replayed for timing when the drone's start position is given (`StartPose`, as the
+Crazyflie's `kalman.initialX/Y/Z/Yaw`): it then starts at its first IMU sample,
+level. The TDOA cannot place a drone on the floor:
+there its errors are metres (multipath), so a fix from them would not do.
 """
 
 from __future__ import annotations
@@ -48,16 +54,53 @@ class Replay:
         return self.outputs["counters"][-1]
 
 
+@dataclass(frozen=True)
+class StartPose:
+    """Where the drone stood when its recording has no ground truth to say so: its
+    position in the anchors' frame and its heading, level (as the Crazyflie's Kalman
+    filter starts: the accelerometer's own bias at rest would read as a tilt)."""
+
+    position: tuple[float, float, float]
+    yaw_deg: float = 0.0
+
+    def __post_init__(self) -> None:
+        if len(self.position) != 3 or not all(np.isfinite(self.position)) or not np.isfinite(self.yaw_deg):
+            raise InputError(f"a start pose needs three finite coordinates and a finite yaw, not "
+                             f"{list(self.position)} and {self.yaw_deg}")
+
+
 def require_truth(rec: Recording) -> None:
     """The ground truth a replay starts from and is scored against, or a clear error."""
     if len(rec.truth) == 0:
-        raise InputError(f"the recording has no ground truth on {TOPIC_TRUTH}: the estimator starts from the "
-                         "ground truth's pose and is scored against it")
+        raise InputError(f"the recording has no ground truth on {TOPIC_TRUTH} to start the estimator from and "
+                         "score it against; `rig replay --start-position X Y Z [--start-yaw DEG]` replays it from "
+                         "where the drone stood, timed and not scored")
 
 
-def start_time(rec: Recording, rule: metrics.SegmentRule = metrics.SegmentRule()) -> float:
+def start_time(rec: Recording, rule: metrics.SegmentRule = metrics.SegmentRule(),
+               given: StartPose | None = None) -> float:
+    """`START_BEFORE_TAKEOFF` before take-off by the ground truth; with a `given` start
+    pose and no ground truth, the first instant both IMU streams have a sample."""
+    if given is not None and len(rec.truth) == 0:
+        if not len(rec.accel) or not len(rec.gyro):
+            raise InputError("the recording has no IMU samples to start a replay from")
+        return float(max(rec.accel.t[0], rec.gyro.t[0]))
     require_truth(rec)
     return float(max(metrics.takeoff_time(rec.truth, rule) - START_BEFORE_TAKEOFF, rec.truth.t[0]))
+
+
+def initial_pose(rec: Recording, t: float, given: StartPose | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The pose the estimator starts from at `t`: the `given` one, else the ground
+    truth's (else a clear error)."""
+    if given is not None:
+        return np.array(given.position, float), yaw_quaternion(given.yaw_deg)
+    return truth_pose_at(rec, t)
+
+
+def yaw_quaternion(yaw_deg: float) -> np.ndarray:
+    """Body-to-world quaternion (x, y, z, w) of a level drone heading `yaw_deg`."""
+    half = np.radians(yaw_deg) / 2.0
+    return np.array([0.0, 0.0, np.sin(half), np.cos(half)])
 
 
 def truth_pose_at(rec: Recording, t: float) -> tuple[np.ndarray, np.ndarray]:
@@ -134,10 +177,13 @@ def make_estimator(rec: Recording, params: native.EstimatorParams, model: BiasNe
     return est
 
 
-def replay(rec: Recording, params: native.EstimatorParams, model: BiasNet | None = None) -> Replay:
-    t0 = start_time(rec)
+def replay(rec: Recording, params: native.EstimatorParams, model: BiasNet | None = None,
+           start_pose: StartPose | None = None) -> Replay:
+    """The whole recording from its start (`start_time`, `initial_pose`) through the
+    estimator, in-process."""
+    t0 = start_time(rec, given=start_pose)
     est = make_estimator(rec, params, model)
-    pos, quat = truth_pose_at(rec, t0)
+    pos, quat = initial_pose(rec, t0, start_pose)
     est.reset(0, pos, quat)
     events = build_events(rec, t0)
     tic = time.perf_counter()

@@ -13,7 +13,7 @@ import os
 import re
 import tempfile
 import time
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable
 
@@ -22,6 +22,7 @@ from rig.hil.links import LinkError
 
 if TYPE_CHECKING:
     from rig.data.recording import Recording
+    from rig.estimator.evaluate import StartPose
 
 log = logging.getLogger(__name__)
 
@@ -117,7 +118,8 @@ def replay_job(recording: Path, target: str, out: Path, estimator: EstimatorChoi
                speed: float | None = None, full_answer_every: int = 1, report: bool = True, session=None,
                board: str = "local",
                survey: Path | None = None, progress=None, strict: bool = False,
-               loaded: Recording | None = None, on_scored: Callable[[dict], None] | None = None) -> dict:
+               loaded: Recording | None = None, on_scored: Callable[[dict], None] | None = None,
+               start_pose: StartPose | None = None) -> dict:
     """Replay `recording` into `target` (through zenoh `session`, or a private one) and
     write OUT/run.mcap, OUT/metrics.json and, with `report`, OUT/report.html. Returns
     what metrics.json holds; raises JobFailed (after writing both files) when the board
@@ -125,10 +127,12 @@ def replay_job(recording: Path, target: str, out: Path, estimator: EstimatorChoi
     `ended: interrupted`, and raises the interruption on. `loaded`: the recording
     already read (a farm replays one recording into many boards). `on_scored` sees the
     result before any file of it is written (a full disk must not hide the score).
-    `full_answer_every`: compact answers, the counters and timing every N windows."""
+    `full_answer_every`: compact answers, the counters and timing every N windows.
+    `start_pose`: where the drone stood, for a recording without ground truth (the run
+    is then timed and not scored)."""
     from rig.data.errors import InputError
     from rig.data.importer import load_any
-    from rig.estimator.evaluate import estimator_config, require_truth, start_time
+    from rig.estimator.evaluate import estimator_config, initial_pose, start_time
     from rig.hil import replay
     from rig.hil.runrecord import RUN_FILE, RunRecorder
     from rig.hil.zenoh import open_session
@@ -136,15 +140,16 @@ def replay_job(recording: Path, target: str, out: Path, estimator: EstimatorChoi
     check_options(target, board, start, duration, lookahead, speed, full_answer_every)
     lookahead = default_lookahead(target) if lookahead is None else lookahead
     rec = load_any(recording, survey, strict=strict) if loaded is None else loaded
-    require_truth(rec)                   # before a board starts or a file is written
-    first, last = start_time(rec) if start is None else start, float(rec.time_span()[1])
+    first, last = start_time(rec, given=start_pose) if start is None else start, float(rec.time_span()[1])
     if first >= last:
         raise InputError(f"--start {first:g} s is past the end of {recording} ({last:g} s on its clock)")
+    initial_pose(rec, first, start_pose)      # a pose to start from, before a board starts or a file is written
     params, model = estimator_config(estimator.robust, estimator.use_nn, estimator.model_path,
                                      full_trust=estimator.full_trust)
     writable_directory(out)
     recorder = RunRecorder(out / RUN_FILE)
     info = {"recording": str(recording), "target": target, "bias_net": model is not None,
+            "start_pose": None if start_pose is None else asdict(start_pose),
             "robust": estimator.robust, "lookahead": lookahead, "mode": "lockstep" if speed is None else "realtime",
             "full_answer_every": full_answer_every, "full_trust": estimator.full_trust}
     began, run, error, own, link, ended, stop = time.monotonic(), None, None, session is None, None, ENDED[0], None
@@ -152,7 +157,8 @@ def replay_job(recording: Path, target: str, out: Path, estimator: EstimatorChoi
         session = session or open_session()
         link = board_link(target, session, board)
         run = replay.run(link, rec, params, model, start=start, duration=duration, lookahead=lookahead,
-                         speed=speed, full_every=full_answer_every, progress=progress, recorder=recorder)
+                         speed=speed, full_every=full_answer_every, progress=progress, recorder=recorder,
+                         start_pose=start_pose)
     except LinkError as exc:
         error, run, ended = str(exc), getattr(exc, "session", None), "board_lost"
         recorder.status(run.t0 if run else 0.0, "rig", -1, error)
@@ -201,6 +207,7 @@ def score_run(run, rec, model=None) -> dict:
     """Accuracy and timing of what the board answered, and what it reported of the link;
     a run cut short before the scored segment still reports its estimates, timing,
     real-time bookkeeping and counters, without accuracy."""
+    from rig.data.recording import TOPIC_TRUTH
     from rig.estimator.metrics import MetricsError
     from rig.hil import replay
 
@@ -210,6 +217,8 @@ def score_run(run, rec, model=None) -> dict:
     if not run.estimates:
         return {"n_estimates": 0} | board_link
     try:
+        if len(rec.truth) == 0:
+            raise MetricsError(f"the recording has no ground truth on {TOPIC_TRUTH}: timed, not scored")
         accuracy = replay.score(run, rec, model)
     except MetricsError as exc:
         accuracy = {"score_error": str(exc)}

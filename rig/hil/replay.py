@@ -35,7 +35,7 @@ import numpy as np
 from rig.data.recording import Recording
 from rig.estimator import metrics, native
 from rig.estimator.bias_net import BiasNet
-from rig.estimator.evaluate import build_events, start_time, truth_pose_at
+from rig.estimator.evaluate import StartPose, build_events, initial_pose, start_time
 from rig.hil import protocol
 from rig.hil.links import BoardLink, LinkError
 
@@ -294,15 +294,17 @@ def configure(link: BoardLink, rec: Recording, params: native.EstimatorParams, m
 def run(link: BoardLink, rec: Recording, params: native.EstimatorParams, model: BiasNet | None = None,
         start: float | None = None, duration: float | None = None, progress=None,
         lookahead: int = LOOKAHEAD, recorder=None, speed: float | None = None,
-        full_every: int = FULL_EVERY) -> Session:
-    """Handshake, configure, reset at the start pose, then lock-step every window (with
+        full_every: int = FULL_EVERY, start_pose: StartPose | None = None) -> Session:
+    """Handshake, configure, reset at the start pose (the ground truth's, or `start_pose`
+    given), then lock-step every window (with
     `lookahead` further windows already on the wire; 0 is strict send-and-wait), or, with
     a `speed`, send them in real time at that multiple of the recording's clock; every
     `full_every`-th window (and the last) is answered in full, the others briefly. With a
     `recorder` (runrecord.RunRecorder) every input and answer is recorded as it happens.
     A LinkError, or an interruption (KeyboardInterrupt: SIGINT, SIGTERM, SIGHUP), carries
     the partial session as `.session`."""
-    t0 = start_time(rec) if start is None else start
+    t0 = start_time(rec, given=start_pose) if start is None else start
+    pos, quat = initial_pose(rec, t0, start_pose)
     t_end = None if duration is None else t0 + duration
     session = Session(t0, recorder=recorder, full_every=full_every)
     try:
@@ -312,7 +314,6 @@ def run(link: BoardLink, rec: Recording, params: native.EstimatorParams, model: 
             raise LinkError(f"{link.name}: the board does not answer brief STEPs (compact answers); "
                             "replay it with every answer full")
         configure(link, rec, params, model, hello, session)
-        pos, quat = truth_pose_at(rec, t0)
         wire = Wire(windows(build_events(rec, t0, t_end)), full_every)
         if speed is not None:
             _warm_up(link, wire, pos, quat, session)

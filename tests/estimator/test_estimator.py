@@ -230,6 +230,28 @@ def test_the_truth_orientation_between_samples_is_scipys_slerp() -> None:
         assert np.abs(quat - expected).max() < 1e-12 or np.abs(quat + expected).max() < 1e-12
 
 
+@pytest.mark.parametrize("yaw_deg", [0.0, 90.0, -135.0, 400.0])
+def test_a_given_start_pose_is_level_with_its_heading_as_scipy_builds_it(yaw_deg: float) -> None:
+    from scipy.spatial.transform import Rotation
+
+    from rig.estimator.evaluate import StartPose, initial_pose
+
+    rec = read_recording(ROOT / "recordings" / "default.mcap")
+    pos, quat = initial_pose(rec, 3.0, StartPose((1.0, -2.0, 0.05), yaw_deg))
+    assert pos.tolist() == [1.0, -2.0, 0.05]
+    expected = Rotation.from_euler("ZYX", [yaw_deg, 0.0, 0.0], degrees=True).as_quat()
+    assert np.abs(quat - expected).max() < 1e-12 or np.abs(quat + expected).max() < 1e-12
+
+
+def test_a_start_pose_without_finite_coordinates_is_refused() -> None:
+    from rig.data.errors import InputError
+    from rig.estimator.evaluate import StartPose
+
+    for position, yaw in (((0.0, float("nan"), 0.0), 0.0), ((0.0, 0.0), 0.0), ((0.0, 0.0, 0.0), float("inf"))):
+        with pytest.raises(InputError, match="three finite coordinates"):
+            StartPose(position, yaw)
+
+
 def test_rig_evaluate_refuses_a_damaged_model_file_in_one_line_naming_it(tmp_path: Path) -> None:
     shipped = json.loads(DEFAULT_NETWORK.read_text())
     nan = json.loads(json.dumps(shipped))

@@ -58,6 +58,8 @@ def test_a_signal_mid_replay_finishes_the_record_says_how_it_ended_and_leaves_no
     (["--late-allowed", "1.5"], "--late-allowed must be a share"),
     (["--late-allowed", "nan"], "--late-allowed must be a share"),
     (["--start", "1e9"], "is past the end of"),
+    (["--start-yaw", "90"], "--start-yaw needs --start-position"),
+    (["--start-position", "1.5", "nan", "0"], "three finite coordinates"),
     (["--target", "zenoh:b0", "--zenoh-connect", "nope"], "zenoh endpoint 'nope' is not PROTOCOL/ADDRESS"),
 ])
 def test_an_option_value_a_replay_cannot_use_is_refused_before_anything_starts(tmp_path: Path, option: list[str],
@@ -82,7 +84,36 @@ def test_a_recording_without_ground_truth_is_refused_before_anything_starts(tmp_
     proc = run_rig(command[0], str(recording), *command[1:], str(tmp_path / "out"), timeout=60)
     assert proc.returncode == 2, proc.stderr
     assert "no ground truth on /truth/pose" in proc.stderr and "Traceback" not in proc.stderr
+    assert "--start-position X Y Z" in proc.stderr           # and says how to replay it anyway
     assert not (tmp_path / "out").exists()
+
+
+def test_a_recording_without_ground_truth_is_replayed_from_where_the_drone_stood_timed_not_scored(
+        tmp_path: Path) -> None:
+    from dataclasses import replace
+
+    from rig.data.recording import PoseSeries, read_recording, write_recording
+    from rig.estimator import metrics as scoring
+
+    rec = read_recording(ROOT / "recordings" / "default.mcap")
+    write_recording(replace(rec, truth=PoseSeries.empty()), tmp_path / "no-truth.mcap")
+    stood = rec.truth.position[0]                       # where the drone stood, as its pilot would say
+    proc = run_rig("replay", str(tmp_path / "no-truth.mcap"), "--target", "native", "--out", str(tmp_path / "run"),
+                   "--start-position", *map(str, stood), "--start-yaw", "0", check=True)
+    metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert "rmse_3d" not in metrics and "no ground truth" in metrics["score_error"]
+    assert "not scored" in proc.stdout and metrics["timing"]["windows"] == metrics["n_estimates"]
+    assert metrics["start_pose"] == {"position": stood.tolist(), "yaw_deg": 0.0}
+    # from its first IMU sample, not from a take-off only the ground truth could tell
+    assert abs(metrics["n_estimates"] - (rec.time_span()[1] - max(rec.accel.t[0], rec.gyro.t[0])) / 0.01) <= 1
+    estimates = read_run(tmp_path / "run" / "run.mcap")["/run/estimate"]
+    t = [e["t"] for e in estimates]
+    position = [[e["position"][axis] for axis in "xyz"] for e in estimates]
+    assert scoring.score(t, position, rec.truth)["rmse_3d"] < 0.3      # it tracked the flight it was not told
+
+    failed = run_rig("replay", str(tmp_path / "no-truth.mcap"), "--target", "native", "--out", str(tmp_path / "a"),
+                     "--start-position", *map(str, stood), "--duration", "5", "--assert-rmse", "0.4")
+    assert failed.returncode == 1 and "no rmse_3d to compare with 0.4 m" in failed.stderr
 
 
 def test_a_replay_reports_the_windows_the_board_had_no_imu_sample_for(tmp_path: Path) -> None:
