@@ -11,7 +11,8 @@ the-loop tests written as pytest-embedded users write theirs with `dut`.
 native, native-udp, qemu, qemu-usart, serial:URL, crazyflie:URI, zenoh:NAME. The `board` fixture
 is parametrized over them; `board.replay(recording, **options)` replays as `rig
 replay` does (options: `start`, `duration`, `mode` "lockstep" or "realtime", `speed`,
-`lookahead`, `no_nn`, `no_robust`, `model`, `full_trust`, `survey`, `report`) into a directory of
+`lookahead`, `no_nn`, `no_robust`, `model`, `full_trust`, `survey`, `report`, and for a recording
+without ground truth `start_position` (x, y, z) and `start_yaw` in degrees) into a directory of
 the test's own and returns what metrics.json holds. A board or link that fails raises
 `rig.hil.job.JobFailed` with what was kept.
 """
@@ -25,7 +26,7 @@ import pytest
 
 DEFAULT_TARGET = "native"
 REPLAY_OPTIONS = {"start", "duration", "mode", "speed", "lookahead", "full_answer_every", "no_nn", "no_robust", "model",
-                  "full_trust", "survey", "report", "strict"}
+                  "full_trust", "survey", "report", "strict", "start_position", "start_yaw"}
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
@@ -53,6 +54,7 @@ class Board:
         """Replay `recording` (default: the shipped default recording) as `rig replay`
         would; returns metrics.json's content (also written, with run.mcap, under `out`)."""
         from rig.data import paths
+        from rig.estimator.evaluate import StartPose
         from rig.hil.job import EstimatorChoice, replay_job
 
         unknown = set(options) - REPLAY_OPTIONS
@@ -64,11 +66,13 @@ class Board:
         speed = float(options.pop("speed", 1.0))
         estimator = EstimatorChoice(use_nn=not options.pop("no_nn", False), robust=not options.pop("no_robust", False),
                                     model_path=options.pop("model", None), full_trust=options.pop("full_trust", False))
+        position, yaw = options.pop("start_position", None), options.pop("start_yaw", 0.0)
+        start_pose = None if position is None else StartPose(tuple(position), float(yaw))
         self.replays += 1
         out = self.out / f"replay{self.replays}"
         recording = Path(recording) if recording is not None else paths.default_recording()
         return replay_job(recording, self.target, out, estimator, speed=speed if mode == "realtime" else None,
-                          report=options.pop("report", False), **options)
+                          report=options.pop("report", False), start_pose=start_pose, **options)
 
 
 @pytest.fixture

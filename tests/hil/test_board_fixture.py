@@ -31,6 +31,19 @@ def test_compact_answers(board):
     assert metrics["full_answer_every"] == 10 and metrics["timing"]["windows"] == 30
 
 
+def test_a_flight_without_ground_truth_from_where_the_drone_stood(board, tmp_path):
+    from dataclasses import replace
+
+    from rig.data import paths
+    from rig.data.recording import PoseSeries, read_recording, write_recording
+
+    rec = read_recording(paths.default_recording())
+    write_recording(replace(rec, truth=PoseSeries.empty()), tmp_path / "field.mcap")
+    metrics = board.replay(tmp_path / "field.mcap", duration=3.0, start_position=(1.5, 0.0, 0.03), start_yaw=10.0)
+    assert "rmse_3d" not in metrics and metrics["timing"]["windows"] >= 299
+    assert metrics["start_pose"] == {"position": [1.5, 0.0, 0.03], "yaw_deg": 10.0}
+
+
 def test_the_recording_still_bears_out_the_bias_correction(board):
     trusted, whole = board.replay(duration=20.0), board.replay(duration=20.0, full_trust=True)
     assert 0.8 < trusted["correction_trust"] < 1.0 and not trusted["full_trust"]
@@ -44,7 +57,7 @@ def test_a_users_test_file_with_the_board_fixture_passes_on_the_native_target(tm
                            "--junitxml", str(tmp_path / "junit.xml"), str(tmp_path / "test_hil.py")],
                           cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stdout + proc.stderr
-    assert "4 passed" in proc.stdout
+    assert "5 passed" in proc.stdout
     assert 'test_default_recording_on_every_board[native]' in (tmp_path / "junit.xml").read_text()
 
 
