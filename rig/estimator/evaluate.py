@@ -68,6 +68,10 @@ class StartPose:
             raise InputError(f"a start pose needs three finite coordinates and a finite yaw, not "
                              f"{list(self.position)} and {self.yaw_deg}")
 
+    def as_dict(self) -> dict:
+        """As metrics.json records it."""
+        return {"position": [float(v) for v in self.position], "yaw_deg": float(self.yaw_deg)}
+
 
 def require_truth(rec: Recording) -> None:
     """The ground truth a replay starts from and is scored against, or a clear error."""

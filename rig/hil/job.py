@@ -13,7 +13,7 @@ import os
 import re
 import tempfile
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable
 
@@ -149,7 +149,7 @@ def replay_job(recording: Path, target: str, out: Path, estimator: EstimatorChoi
     writable_directory(out)
     recorder = RunRecorder(out / RUN_FILE)
     info = {"recording": str(recording), "target": target, "bias_net": model is not None,
-            "start_pose": None if start_pose is None else asdict(start_pose),
+            "start_pose": None if start_pose is None else start_pose.as_dict(),
             "robust": estimator.robust, "lookahead": lookahead, "mode": "lockstep" if speed is None else "realtime",
             "full_answer_every": full_answer_every, "full_trust": estimator.full_trust}
     began, run, error, own, link, ended, stop = time.monotonic(), None, None, session is None, None, ENDED[0], None
