@@ -11,6 +11,10 @@ Seconds to minutes, once the networks are saved:
     .venv/bin/python benchmarks/param_transfer.py --param accel_noise --values 0.25 1.0   # session 71
     .venv/bin/python benchmarks/param_transfer.py --param gm_meas_c2 --values 4 16        # session 71
     .venv/bin/python benchmarks/param_transfer.py --param trust_prior_n --values 500 8000 # session 71
+    .venv/bin/python benchmarks/param_transfer.py --param gyro_noise --values 0.05 0.2    # session 72
+    .venv/bin/python benchmarks/param_transfer.py --param gm_state_c2 --values 1 4        # session 72
+    .venv/bin/python benchmarks/param_transfer.py --param irls_iterations --values 1 3    # session 72
+    .venv/bin/python benchmarks/param_transfer.py --param gate_m --values 1.0 2.5         # session 72
 
 The rule, fixed before the first run (session 71, for `tdoa_std`, and the same for every
 parameter since). Each flight's figure is the shipped estimator's (the share of the
@@ -66,7 +70,17 @@ def flight_figures(job: tuple[str, str | None, str, tuple[float, ...]]) -> dict:
     flight, model, param, values = job
     rec = load_any(paths.data_dir() / "flights" / flight)
     net = BiasNet.load(Path(model)) if model else None
-    return {str(v): evaluate(rec, use_nn=net is not None, model=net, **{param: v})["rmse_3d"] for v in values}
+    return {str(v): evaluate(rec, use_nn=net is not None, model=net, **{param: setting(param, v)})["rmse_3d"]
+            for v in values}
+
+
+def setting(param: str, value: float) -> float | int:
+    """`value` as the C field takes it: a count (irls_iterations) is an integer."""
+    if isinstance(getattr(default_params(), param), int):
+        if not float(value).is_integer():
+            raise ValueError(f"{param} is a count, not {value}")
+        return int(value)
+    return value
 
 
 def replay_rows(rows: list[dict], models: Path, param: str, values: tuple[float, ...]) -> list[dict]:
