@@ -201,7 +201,6 @@ class Bridge:
     session: zenoh.Session
     name: str
     link: BoardLink
-    published: int = 0
     error: str | None = None
     _stop: threading.Event = field(default_factory=threading.Event)
     _thread: threading.Thread | None = None
@@ -231,7 +230,6 @@ class Bridge:
                 self._fail(str(exc))
                 return
             self._publishers.publish(payloads)
-            self.published += len(payloads)
 
     def _fail(self, reason: str) -> None:
         """The board is gone: say so, and drop the liveliness token so rigs notice."""
