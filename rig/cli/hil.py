@@ -177,15 +177,22 @@ def cmd_farm(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise CliError(str(exc)) from exc
     results = run_farm(jobs, args.out, args.listen, estimator_choice(args), args.duration,
-                       on_replayed=lambda result: print_replay(result, report=False))
+                       on_replayed=lambda result: print_replay(result, report=False), start_pose=start_pose(args))
     for k, r in enumerate(results):
-        state = r.get("error") or f"RMSE {r['rmse_3d']:.3f} m, {r['n_estimates']} estimates"
-        print(f"board{k} ({r['target']}, {r['recording']}): {state}")
+        print(f"board{k} ({r['target']}, {r['recording']}): {farm_state(r)}")
     print(f"wrote {args.out / FARM_FILE}")
     if args.junit_xml:
         write_junit(args.junit_xml, "rig.farm", [replay_cases(f"board{k}", [], r) for k, r in enumerate(results)])
         print(f"wrote {args.junit_xml}")
     return EXIT_FAILED if any(r.get("error") for r in results) else EXIT_OK
+
+
+def farm_state(result: dict) -> str:
+    """One board's line in the farm's summary: its error, else its score (or why none)."""
+    if result.get("error"):
+        return result["error"]
+    score = f"RMSE {result['rmse_3d']:.3f} m" if "rmse_3d" in result else f"not scored ({result['score_error']})"
+    return f"{score}, {result['n_estimates']} estimates"
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
@@ -293,6 +300,15 @@ def cmd_watch(args: argparse.Namespace) -> int:
     return EXIT_OK if args.count is None or sum(counter.counts.values()) >= args.count else EXIT_FAILED
 
 
+def add_start_pose_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--start-position", type=float, nargs=3, metavar=("X", "Y", "Z"),
+                   help="where the drone stood, in the anchors' frame (metres), instead of the ground truth's "
+                        "pose: a recording without ground truth is then replayed from its first IMU sample, "
+                        "timed and not scored")
+    p.add_argument("--start-yaw", type=float, default=0.0, metavar="DEG",
+                   help="with --start-position: the drone's heading (default 0); it starts level")
+
+
 def register(sub) -> None:
     p = sub.add_parser("replay", help="replay a recording into a board (native, QEMU or serial) in lock-step",
                        description="Build what the target needs, start it (native program on a pty, firmware in "
@@ -308,13 +324,7 @@ def register(sub) -> None:
     p.add_argument("--out", type=Path, required=True, help="output directory")
     p.add_argument("--start", type=float, help="start time on the recording's clock (default 1 s before take-off)")
     p.add_argument("--duration", type=float, help="seconds to replay (default: to the end)")
-    p.add_argument("--start-position", type=float, nargs=3, metavar=("X", "Y", "Z"),
-                   help="where the drone stood, in the anchors' frame (metres), instead of the ground truth's "
-                        "pose: a recording without ground truth is then replayed from its first IMU sample, "
-                        "timed and not scored")
-    p.add_argument("--start-yaw", type=float, default=0.0, metavar="DEG",
-                   help="with --start-position: the drone's heading (default 0); roll and pitch come from the "
-                        "accelerometer")
+    add_start_pose_options(p)
     p.add_argument("--board", default="local", help="board name on zenoh for a local target (default local)")
     p.add_argument("--zenoh-connect", action="append", default=[], metavar="ENDPOINT",
                    help="zenoh endpoint (a router, e.g. tcp/127.0.0.1:7447) where boards and subscribers meet")
@@ -400,6 +410,7 @@ def register(sub) -> None:
                                    "recording on each target when either list has one entry, else pairwise. "
                                    "Writes OUT/boardK/{run.mcap,metrics.json,report.html} and OUT/farm.json.")
     p.add_argument("recordings", type=Path, nargs="+")
+    add_start_pose_options(p)
     p.add_argument("--target", action="append", help="repeatable: native, native-udp, qemu, serial:URL, ...")
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--duration", type=float, help="seconds of each recording to replay")

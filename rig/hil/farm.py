@@ -9,9 +9,13 @@ import sys
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from rig.data.files import write_json
 from rig.hil.job import EstimatorChoice, replay_job
+
+if TYPE_CHECKING:
+    from rig.estimator.evaluate import StartPose
 
 FARM_FILE = "farm.json"
 
@@ -26,12 +30,13 @@ def farm_jobs(recordings: list[Path], targets: list[str]) -> list[tuple[Path, st
 
 
 def run_farm(jobs: list[tuple[Path, str]], out: Path, listen: str, estimator: EstimatorChoice = EstimatorChoice(),
-             duration: float | None = None, on_replayed: Callable[[dict], None] | None = None) -> list[dict]:
+             duration: float | None = None, on_replayed: Callable[[dict], None] | None = None,
+             start_pose: StartPose | None = None) -> list[dict]:
     """Replay every job at once, each into its own bridge process; one board's failure
     does not take the others down (its result is {"error": ...}). `on_replayed` sees each
     job's metrics as it ends. Each recording is loaded once, whatever number of boards
-    replay it. Writes the reports (in parallel processes) and OUT/farm.json; returns the
-    results."""
+    replay it. `start_pose`: every board's, in place of the ground truth's (rig.hil.job).
+    Writes the reports (in parallel processes) and OUT/farm.json; returns the results."""
     from rig.data.importer import load_any
     from rig.hil.zenoh import open_session
 
@@ -53,7 +58,8 @@ def run_farm(jobs: list[tuple[Path, str]], out: Path, listen: str, estimator: Es
             if isinstance(loaded[recording], Exception):
                 raise loaded[recording]
             result = replay_job(recording, f"zenoh:board{k}", out / f"board{k}", estimator, duration=duration,
-                                report=False, session=session, board=f"board{k}", loaded=loaded[recording])
+                                report=False, session=session, board=f"board{k}", loaded=loaded[recording],
+                                start_pose=start_pose)
             if on_replayed is not None:
                 on_replayed(result)
             if result["run_record_error"]:

@@ -100,6 +100,28 @@ def test_four_boards_in_parallel_through_one_router(tmp_path: Path) -> None:
     assert len({j["rmse_3d"] for j in jobs}) == 1            # the same answers on every board
 
 
+def test_a_farm_says_which_boards_it_could_not_score_and_why(tmp_path: Path) -> None:
+    """One recording cut short before its scored segment, one without ground truth
+    replayed from a given start: both timed, neither scored, each saying why."""
+    from dataclasses import replace
+
+    from rig.data.recording import PoseSeries, read_recording, write_recording
+
+    rec = read_recording(ROOT / "recordings" / "default.mcap")
+    write_recording(replace(rec, truth=PoseSeries.empty()), tmp_path / "field.mcap")
+    out = tmp_path / "farm"
+    proc = run_rig("farm", "recordings/default.mcap", str(tmp_path / "field.mcap"), "--target", "native",
+                   "--duration", "2", "--start-position", "1.5", "0", "0.03", "--listen", _free_endpoint(),
+                   "--out", str(out))
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "board0 (native, recordings/default.mcap): not scored (no estimate inside the scored segment" in proc.stdout
+    assert "board1 (native, " + str(tmp_path / "field.mcap") + "): not scored (the recording has no ground truth" \
+        in proc.stdout
+    jobs = json.loads((out / "farm.json").read_text())["jobs"]
+    assert all(199 <= j["n_estimates"] <= 200 for j in jobs)
+    assert all(j["start_pose"] == {"position": [1.5, 0.0, 0.03], "yaw_deg": 0.0} for j in jobs)
+
+
 def test_a_board_lost_mid_run_keeps_the_record_and_says_so(tmp_path: Path) -> None:
     endpoint = _free_endpoint()
     router = _router(endpoint, 120)
