@@ -60,7 +60,8 @@ def import_log(log_path: Path, survey_path: Path, *, salvage: bool = False, uwb_
     t_acc, acc = _columns(decoded, "estAcceleration")
     t_gyr, gyr = _columns(decoded, "estGyroscope")
     t_tdoa, tdoa = _columns(decoded, "estTDOA")
-    t_pose, pose = _columns(decoded, "estPose")
+    # a flight without motion capture has no estPose: it is replayed from a given start (rig replay --start-position)
+    t_pose, pose = _columns(decoded, "estPose") if "estPose" in decoded.events else (np.zeros(0), np.zeros((0, 7)))
 
     id_a = tdoa[:, 0].astype(int)
     id_b = tdoa[:, 1].astype(int)

@@ -255,6 +255,18 @@ def test_a_file_that_is_no_log_at_all_says_so(tmp_path: Path, survey_0425: Path,
         assert not (tmp_path / "out.mcap").exists() and not list(tmp_path.glob("*.partial"))
 
 
+def test_a_log_without_motion_capture_imports_without_ground_truth(tmp_path: Path, survey_0425: Path) -> None:
+    log = tmp_path / "field"
+    log.write_bytes(encode([t for t in TYPES if t.name != "estPose"],
+                           [e for e in crafted_events(40) if e[0] != "estPose"]))
+    rec = import_log(log, survey_0425)
+    assert len(rec.truth) == 0 and len(rec.accel) == len(rec.gyro) == 40 and len(rec.tdoa) == 10
+    write_recording(rec, tmp_path / "field.mcap")
+    assert len(read_recording(tmp_path / "field.mcap").truth) == 0
+    proc = run_rig("evaluate", str(log), "--survey", str(survey_0425))
+    assert proc.returncode == 2 and "--start-position X Y Z" in proc.stderr
+
+
 def test_a_survey_that_is_not_the_logs_is_refused(tmp_path: Path, survey_0425: Path) -> None:
     """A survey listing an anchor twice (which position is right?) or lacking one the log
     uses (another day's survey) is refused with the line or the anchor, not imported."""
