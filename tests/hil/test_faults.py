@@ -116,6 +116,29 @@ def test_a_recording_without_ground_truth_is_replayed_from_where_the_drone_stood
     assert failed.returncode == 1 and "no rmse_3d to compare with 0.4 m" in failed.stderr
 
 
+@pytest.mark.slow
+def test_the_firmware_in_qemu_answers_a_given_start_as_the_native_program_does(tmp_path: Path) -> None:
+    from dataclasses import replace
+
+    import numpy as np
+
+    from rig.data.recording import PoseSeries, read_recording, write_recording
+    from rig.estimator.metrics import interpolate_positions
+
+    rec = read_recording(ROOT / "recordings" / "default.mcap")
+    write_recording(replace(rec, truth=PoseSeries.empty()), tmp_path / "field.mcap")
+    final = {}
+    for target in ("native", "qemu"):
+        run_rig("replay", str(tmp_path / "field.mcap"), "--target", target, "--out", str(tmp_path / target),
+                "--duration", "15", "--start-position", "1.5", "0", "0.03", "--start-yaw", "30", check=True)
+        estimates = read_run(tmp_path / target / "run.mcap")["/run/estimate"]
+        assert len(estimates) == 1499                    # a STEP every 10 ms after the start, within 15 s
+        final[target] = [estimates[-1]["position"][axis] for axis in "xyz"]
+    assert max(abs(a - b) for a, b in zip(final["native"], final["qemu"])) < 0.002
+    truth = interpolate_positions(rec.truth, np.array([estimates[-1]["t"]]))[0]
+    assert np.linalg.norm(np.array(final["native"]) - truth) < 0.3     # in the air, 15 s in, where the flight is
+
+
 def test_a_replay_reports_the_windows_the_board_had_no_imu_sample_for(tmp_path: Path) -> None:
     from dataclasses import replace
 
