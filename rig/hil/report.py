@@ -127,8 +127,12 @@ def write_report(directory: Path, messages: dict[str, list[dict]] | None = None)
         {"figure": "recording", "value": metrics.get("recording")},
         {"figure": "target", "value": metrics.get("target")},
         {"figure": "estimates", "value": metrics.get("n_estimates")},
-        {"figure": "RMSE 3D [m]", "value": metrics.get("rmse_3d")},
-        {"figure": "RMSE x, y, z [m]", "value": metrics.get("rmse_xyz")},
+        *([{"figure": "RMSE 3D [m]", "value": metrics.get("rmse_3d")},
+           {"figure": "RMSE x, y, z [m]", "value": metrics.get("rmse_xyz")}] if "score_error" not in metrics else
+          [{"figure": "not scored", "value": metrics["score_error"]}]),
+        *([{"figure": "start pose given (position [m], yaw [deg])",
+            "value": f"{metrics['start_pose']['position']}, {metrics['start_pose']['yaw_deg']:g}"}]
+          if metrics.get("start_pose") else []),
         *([{"figure": "share of the bias correction applied at the end (correction trust)",
             "value": f"{metrics['correction_trust']:.0%}"}] if metrics.get("correction_trust") is not None else []),
         *([{"figure": "bias corrections outside where the model was trained (extrapolated)",

@@ -104,6 +104,8 @@ def test_a_recording_without_ground_truth_is_replayed_from_where_the_drone_stood
     assert "rmse_3d" not in metrics and "no ground truth" in metrics["score_error"]
     assert "not scored" in proc.stdout and metrics["timing"]["windows"] == metrics["n_estimates"]
     assert metrics["start_pose"] == {"position": stood.tolist(), "yaw_deg": 0.0}
+    page = (tmp_path / "run" / "report.html").read_text()
+    assert "<td>not scored</td><td>the recording has no ground truth" in page and "start pose given" in page
     # from its first IMU sample, not from a take-off only the ground truth could tell
     assert abs(metrics["n_estimates"] - (rec.time_span()[1] - max(rec.accel.t[0], rec.gyro.t[0])) / 0.01) <= 1
     estimates = read_run(tmp_path / "run" / "run.mcap")["/run/estimate"]
