@@ -8,8 +8,8 @@ on it sees only IMU and TDOA, in time order, with a STEP every 10 ms.
 A recording without ground truth (a flight without motion capture) can still be
 replayed for timing when the drone's start position is given (`StartPose`, as the
 Crazyflie's `kalman.initialX/Y/Z/Yaw`): it then starts at its first IMU sample,
-level. The TDOA cannot place a drone on the floor:
-there its errors are metres (multipath), so a fix from them would not do.
+level. The TDOA cannot place a drone on the floor, where their errors are metres
+(multipath; benchmarks/start_pose.py), so a fix from them would not do.
 """
 
 from __future__ import annotations
