@@ -127,3 +127,27 @@ def survey_option(p: argparse.ArgumentParser) -> None:
 def add_segment_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--min-height", type=float, default=0.3, help="score only above this height (m)")
     p.add_argument("--skip-after-takeoff", type=float, default=5.0, help="seconds after take-off not scored")
+
+
+REPLAY_FROM_GIVEN_START = ("a recording without ground truth is then replayed from its first IMU sample, timed "
+                           "and not scored")
+
+
+def add_start_pose_options(p: argparse.ArgumentParser, then: str = REPLAY_FROM_GIVEN_START) -> None:
+    """--start-position and --start-yaw (read back by `start_pose`); `then`: what follows."""
+    p.add_argument("--start-position", type=float, nargs=3, metavar=("X", "Y", "Z"),
+                   help=f"where the drone stood, in the anchors' frame (metres), instead of the ground truth's "
+                        f"pose: {then}")
+    p.add_argument("--start-yaw", type=float, default=0.0, metavar="DEG",
+                   help="with --start-position: the drone's heading (default 0); it starts level")
+
+
+def start_pose(args: argparse.Namespace):
+    """The start pose given on the command line, or None (the ground truth's)."""
+    from rig.estimator.evaluate import StartPose
+
+    if args.start_position is None:
+        if args.start_yaw != 0.0:
+            raise CliError("--start-yaw needs --start-position")
+        return None
+    return StartPose(tuple(args.start_position), args.start_yaw)

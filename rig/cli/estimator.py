@@ -6,8 +6,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from rig.cli.common import (EXIT_FAILED, EXIT_OK, add_estimator_options, add_segment_options, print_accuracy,
-                             print_imu_gaps, write_json)
+from rig.cli.common import (EXIT_FAILED, EXIT_OK, add_estimator_options, add_segment_options,
+                             add_start_pose_options, print_accuracy, print_imu_gaps, start_pose, write_json)
 
 
 def cmd_metrics(args: argparse.Namespace) -> int:
@@ -29,9 +29,10 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     from rig.data.importer import load_any
     from rig.estimator.evaluate import evaluate
 
+    given = start_pose(args)
     rec = load_any(args.recording, args.survey, strict=args.strict)
     result = evaluate(rec, robust=not args.no_robust, use_nn=not args.no_nn, model_path=args.model,
-                      full_trust=args.full_trust)
+                      full_trust=args.full_trust, start_pose=given)
     result["recording"] = str(args.recording)
     config = ("robust" if not args.no_robust else "plain") + (" + bias network" if result["config"]["bias_net"] else "")
     print(f"{args.recording}: C estimator ({config}), {result['flight_seconds']:.1f} s replayed in "
@@ -115,6 +116,8 @@ def register(sub) -> None:
                                    "Writes rmse_3d, rmse_xyz, diverged and measurement counts. Exit status 1 "
                                    "when the estimate diverged.")
     add_estimator_options(p)
+    add_start_pose_options(p, then="the estimator starts there at the usual time, level, and is scored as ever "
+                                   "(how it converges from a misplaced start)")
     p.add_argument("--json", type=Path, help="write the metrics here")
     p.set_defaults(func=cmd_evaluate)
     p = sub.add_parser("size", help="flash, RAM and stack of the estimator for the STM32F405",

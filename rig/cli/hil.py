@@ -13,10 +13,12 @@ from rig.cli.common import (
     BoardError,
     CliError,
     add_estimator_options,
+    add_start_pose_options,
     print_accuracy,
     print_imu_gaps,
     positive,
     progress,
+    start_pose,
     write_json,
 )
 from rig.data import paths
@@ -100,17 +102,6 @@ def estimator_choice(args: argparse.Namespace):
 
     return EstimatorChoice(use_nn=not args.no_nn, robust=not getattr(args, "no_robust", False),
                            model_path=getattr(args, "model", None), full_trust=getattr(args, "full_trust", False))
-
-
-def start_pose(args: argparse.Namespace):
-    """The start pose given on the command line, or None (the ground truth's)."""
-    from rig.estimator.evaluate import StartPose
-
-    if args.start_position is None:
-        if args.start_yaw != 0.0:
-            raise CliError("--start-yaw needs --start-position")
-        return None
-    return StartPose(tuple(args.start_position), args.start_yaw)
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
@@ -298,15 +289,6 @@ def cmd_watch(args: argparse.Namespace) -> int:
     for board, n in sorted(counter.counts.items()):
         print(f"{board}: {n} estimates")
     return EXIT_OK if args.count is None or sum(counter.counts.values()) >= args.count else EXIT_FAILED
-
-
-def add_start_pose_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--start-position", type=float, nargs=3, metavar=("X", "Y", "Z"),
-                   help="where the drone stood, in the anchors' frame (metres), instead of the ground truth's "
-                        "pose: a recording without ground truth is then replayed from its first IMU sample, "
-                        "timed and not scored")
-    p.add_argument("--start-yaw", type=float, default=0.0, metavar="DEG",
-                   help="with --start-position: the drone's heading (default 0); it starts level")
 
 
 def register(sub) -> None:

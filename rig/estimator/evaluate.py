@@ -231,10 +231,13 @@ def estimator_config(robust: bool = True, use_nn: bool = True, model_path: Path 
 
 
 def evaluate(rec: Recording, *, robust: bool = True, use_nn: bool = True, model_path: Path | None = None,
-             model: BiasNet | None = None, full_trust: bool = False, **param_overrides) -> dict:
-    """Replay and score; the dict is what `rig evaluate --json` writes."""
+             model: BiasNet | None = None, full_trust: bool = False, start_pose: StartPose | None = None,
+             **param_overrides) -> dict:
+    """Replay and score; the dict is what `rig evaluate --json` writes. `start_pose`:
+    the pose it starts from instead of the ground truth's (at the same time)."""
+    require_truth(rec)
     params, model = estimator_config(robust, use_nn, model_path, model, full_trust, **param_overrides)
-    run = replay(rec, params, model)
+    run = replay(rec, params, model, start_pose)
     position = run.position
     result = metrics.score(run.t, position, rec.truth)
     counters = counter_summary(run.counters)
@@ -243,7 +246,7 @@ def evaluate(rec: Recording, *, robust: bool = True, use_nn: bool = True, model_
     result["estimator_seconds"] = run.estimator_seconds
     result["flight_seconds"] = float(run.t[-1] - run.t[0]) if len(run.t) else 0.0
     result["config"] = {"robust": robust, "bias_net": model is not None, "params": params.as_dict(),
-                        "start_s": run.t_start}
+                        "start_s": run.t_start, "start_pose": None if start_pose is None else start_pose.as_dict()}
     if model is not None:
         result["correction_trust"], result["full_trust"] = run.correction_trust, bool(params.trust_prior_n < 0)
     if model is not None and model.region is not None:
