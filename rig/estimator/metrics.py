@@ -30,6 +30,8 @@ class MetricsError(InputError):
 
 
 def _airborne(truth: PoseSeries, rule: SegmentRule) -> np.ndarray:
+    if len(truth) == 0:
+        raise MetricsError("the recording has no ground truth: nothing to score against")
     airborne = truth.position[:, 2] > rule.min_height
     if not airborne.any():
         raise MetricsError(f"ground truth never rises above {rule.min_height} m: no flight to score")

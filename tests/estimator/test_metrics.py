@@ -72,6 +72,8 @@ def test_no_flight_is_a_clear_error() -> None:
     truth.position[:, 2] = 0.0
     with pytest.raises(MetricsError, match="never rises"):
         score(truth.t, truth.position, truth)
+    with pytest.raises(MetricsError, match="no ground truth: nothing to score against"):
+        score(truth.t, truth.position, PoseSeries.empty())
 
 
 @pytest.mark.slow
