@@ -36,7 +36,8 @@ UNTRANSLATED_TOLERANCE_M = 0.005
 # session 65's "distilled": experiment/distill, "refit": experiment/refit and
 # "six-restarts": experiment/six-restarts and, on fresh seeds, experiment/six-restarts-replication;
 # session 68's "installation": experiment/installation-delays)
-NOT_RANKED = (UNTRANSLATED, "offset", "huber", "distilled", "refit", "six-restarts", "installation", "weight-decay", "balanced-days")
+NOT_RANKED = (UNTRANSLATED, "offset", "huber", "distilled", "refit", "six-restarts", "installation", "weight-decay", "balanced-days",
+              "corrected-features")
 
 
 def merge_folds(rows: list[dict]) -> list[dict]:
