@@ -6,7 +6,7 @@ reran them to the last digit). Seconds, once the run is done:
 
     .venv/bin/python benchmarks/bias_validation.py --forms FORM \\
         --splits day-0426 day-0425 mode-tdoa3 mode-tdoa2 within-0426 day-0422 --json out/FORM.json   # 12 min
-    .venv/bin/python benchmarks/form_rule.py --form FORM [--json out/FORM.json]
+    .venv/bin/python benchmarks/form_rule.py --form FORM [--json out/FORM.json] [--link-json JSON]
 
 Each flight's figure is the shipped estimator's (the share of the correction the flight
 supports, `rmse_3d`). Accuracy is the mean over the four day and mode splits of the mean
@@ -15,7 +15,8 @@ the flights the correction makes worse than none. The form is kept only if
 (1) neither figure is higher than the link rows', and
 (2) accuracy is lower by at least 0.005 m, or flights worse by at least 1.0, and
 (3) within-0426 its mean is at most 0.002 m higher, with no flight worse on any seed.
-day-0422 is reported and decides nothing.
+day-0422 is reported and decides nothing. With --link-json, the link rows are that
+file's (a replication on fresh seeds trains both forms into one JSON).
 """
 
 from __future__ import annotations
@@ -51,9 +52,12 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--form", required=True, help="the experiment's form, as bias_validation.py --forms names it")
     parser.add_argument("--json", type=Path, help="the experiment's rows (default: out/FORM.json)")
+    parser.add_argument("--link-json", type=Path, default=KEPT, help="the link rows compared with (default: the kept ones)")
     args = parser.parse_args()
     path = args.json or ROOT / "out" / f"{args.form}.json"
-    link = [r for r in json.loads(KEPT.read_text())["rows"] if r["form"] == "link" and "flights" in r]
+    link = [r for r in json.loads(args.link_json.read_text())["rows"] if r["form"] == "link" and "flights" in r]
+    if not link:
+        parser.error(f"{args.link_json} holds no rows of the link form")
     form = [r for r in json.loads(path.read_text())["rows"] if r["form"] == args.form and "flights" in r]
     if not form:
         parser.error(f"{path} holds no rows of the form {args.form!r}")

@@ -93,6 +93,21 @@ def test_the_form_rule_on_made_up_rows(rmse: float, worse_on: tuple, kept: bool)
     assert verdict["accuracy_m"]["link"] == pytest.approx(0.200)
 
 
+def test_the_form_rule_compares_a_replications_link_rows_from_its_own_json(tmp_path: Path) -> None:
+    import subprocess
+
+    both = tmp_path / "replication.json"
+    both.write_text(json.dumps({"rows": _flight_rows("link", 0.210) + _flight_rows("x", 0.200)}))
+    command = [sys.executable, str(ROOT / "benchmarks" / "form_rule.py"), "--form", "x", "--json", str(both)]
+    against_own = subprocess.run([*command, "--link-json", str(both)], capture_output=True, text=True, check=True)
+    verdict = json.loads(against_own.stdout.splitlines()[-1])
+    assert verdict["kept"] and verdict["accuracy_m"]["link"] == pytest.approx(0.210)
+    alone = tmp_path / "x.json"
+    alone.write_text(json.dumps({"rows": _flight_rows("x", 0.200)}))
+    refused = subprocess.run([*command, "--link-json", str(alone)], capture_output=True, text=True)
+    assert refused.returncode == 2 and "no rows of the link form" in refused.stderr
+
+
 @pytest.mark.parametrize("lower, day_0422, kept", [
     (0.196, 0.200, 0.3),                  # 0.004 m more accurate: the lower value replaces 0.4
     (0.198, 0.200, 0.4),                  # 0.002 m: not enough
