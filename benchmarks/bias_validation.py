@@ -159,12 +159,7 @@ from bias_validation_results import (  # noqa: E402
 
 CACHE = ROOT / "out" / "cache" / "all.npz"
 SAVE_MODELS_ENV = "UWB_RIG_SAVE_MODELS"
-FORMS = {"link": "7", "shared": "shared", "pair": "14", UNTRANSLATED: "7",   # form -> rig train's feature set
-         "corrected-features": "7"}
-# Forms that are the link form trained otherwise (session 73, registered before its run):
-# corrected-features, a second round on the features of an estimate the first round's
-# network corrects, beside the first round's (TrainConfig.feature_rounds).
-FORM_TRAINING = {"corrected-features": {"feature_rounds": 2}}
+FORMS = {"link": "7", "shared": "shared", "pair": "14", UNTRANSLATED: "7"}   # form -> rig train's feature set
 VALIDATION_SHARE = 0.15
 
 
@@ -255,8 +250,7 @@ def clamped_correction(net, samples: Samples, trained: Samples) -> tuple[np.ndar
 
 def form_config(form: str, **kwargs) -> TrainConfig:
     """The training configuration of a form of this page."""
-    return TrainConfig.with_features(FORMS[form], untranslated=form == UNTRANSLATED,
-                                     **{**FORM_TRAINING.get(form, {}), **kwargs})
+    return TrainConfig.with_features(FORMS[form], untranslated=form == UNTRANSLATED, **kwargs)
 
 
 def flight_split_samples(split_name: str, seed: int) -> tuple[Samples, Split]:
@@ -362,7 +356,7 @@ def bearing_sector(position: np.ndarray) -> np.ndarray:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--forms", nargs="+", choices=list(FORMS), default=[f for f in FORMS if f not in FORM_TRAINING])
+    parser.add_argument("--forms", nargs="+", choices=list(FORMS), default=list(FORMS))
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--splits", nargs="+",
                         default=[*FLIGHT_SPLITS, *ESTIMATE_SPLITS, "anchors", "region", "sector"])

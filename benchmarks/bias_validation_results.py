@@ -35,9 +35,12 @@ UNTRANSLATED_TOLERANCE_M = 0.005
 # "offset": experiment/tag-offset-constant; session 62's "huber": experiment/huber-loss;
 # session 65's "distilled": experiment/distill, "refit": experiment/refit and
 # "six-restarts": experiment/six-restarts and, on fresh seeds, experiment/six-restarts-replication;
-# session 68's "installation": experiment/installation-delays)
-NOT_RANKED = (UNTRANSLATED, "offset", "huber", "distilled", "refit", "six-restarts", "installation", "weight-decay", "balanced-days",
-              "corrected-features")
+# session 68's "installation": experiment/installation-delays; session 71's "weight-decay":
+# experiment/weight-decay and "balanced-days": experiment/balanced-days; session 73's
+# "corrected-features": experiment/corrected-features and, on fresh seeds,
+# experiment/corrected-features-replication)
+NOT_RANKED = (UNTRANSLATED, "offset", "huber", "distilled", "refit", "six-restarts", "installation", "weight-decay",
+              "balanced-days", "corrected-features")
 
 
 def merge_folds(rows: list[dict]) -> list[dict]:

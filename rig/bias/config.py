@@ -39,16 +39,10 @@ class TrainConfig:
     # (rig.bias.tag_offset): the correction then carries none, as no flight can tell one
     # from where the tag really is
     untranslated: bool = False
-    # 2: train, replay the training and validation flights with that network's correction,
-    # and train again on the samples of both replays (the features the network is fed in
-    # flight come from an estimate it has itself corrected; dataset aggregation, as DAgger)
-    feature_rounds: int = 1
 
     def __post_init__(self) -> None:
         if self.restarts < 1:
             raise ValueError(f"restarts must be at least 1, got {self.restarts}")
-        if self.feature_rounds < 1:
-            raise ValueError(f"feature_rounds must be at least 1, got {self.feature_rounds}")
         if self.max_epochs < 1:
             raise ValueError(f"max_epochs must be at least 1, got {self.max_epochs}")
         if not 0 <= self.first_restart <= RESTART_STRIDE - self.restarts:

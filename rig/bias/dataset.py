@@ -119,23 +119,21 @@ def tag_rotations(truth: PoseSeries, t: np.ndarray) -> np.ndarray:
     return slerp(np.clip(t, times[0], times[-1])).as_matrix()
 
 
-def estimated_poses(rec: Recording, t: np.ndarray, model=None) -> tuple[np.ndarray, np.ndarray]:
+def estimated_poses(rec: Recording, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The robust estimator's position and rotation matrix at times `t`, from a replay of
-    `rec` without bias correction (what the network's input is computed from in flight),
-    or with `model`'s correction (a BiasNet), as the shipped estimator runs it."""
+    `rec` without bias correction (what the network's input is computed from in flight)."""
     from rig.estimator.evaluate import estimator_config, replay
 
-    run = replay(rec, *estimator_config(robust=True, use_nn=model is not None, model=model))
+    run = replay(rec, *estimator_config(robust=True, use_nn=False))
     estimate = PoseSeries(run.t, run.position, run.outputs["quat"].astype(float))
     return metrics.interpolate_positions(estimate, t), tag_rotations(estimate, t)
 
 
-def measurement_features(rec: Recording, sel: np.ndarray, latency: float, features_from: str = "estimate",
-                         model=None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def measurement_features(rec: Recording, sel: np.ndarray, latency: float, features_from: str = "estimate"
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The 14 features of the selected TDOA rows (known anchors), with the true tag
     position (ground truth read `latency` later) and both anchors' positions. The
-    features' tag pose is the estimator's (`features_from="estimate"`, corrected by
-    `model` if given) or the truth's."""
+    features' tag pose is the estimator's (`features_from="estimate"`) or the truth's."""
     if features_from not in FEATURES_FROM:
         raise ValueError(f"features_from must be one of {FEATURES_FROM}, not {features_from!r}")
     world = World.surveyed(rec.anchors)
@@ -145,19 +143,19 @@ def measurement_features(rec: Recording, sel: np.ndarray, latency: float, featur
     if features_from == "truth":
         pos, rot = tag_pos, tag_rotations(rec.truth, t + latency)
     else:
-        pos, rot = estimated_poses(rec, t, model)
+        pos, rot = estimated_poses(rec, t)
     feats = native.features_batch(pos, rot, a_pos, a_rot, b_pos, b_rot)
     return feats, tag_pos, a_pos, b_pos
 
 
 def flight_samples(rec: Recording, name: str, latency: float | None = None,
-                   features_from: str = "estimate", model=None) -> Samples:
+                   features_from: str = "estimate") -> Samples:
     """Every in-flight TDOA measurement of `rec` with |error| <= MAX_ABS_ERROR_M."""
     if latency is None:
         latency = truth_latency(rec)
     sel = airborne_tdoa(rec)
     id_a, id_b, t = rec.tdoa.id_a[sel], rec.tdoa.id_b[sel], rec.tdoa.t[sel]
-    feats, tag_pos, a_pos, b_pos = measurement_features(rec, sel, latency, features_from, model)
+    feats, tag_pos, a_pos, b_pos = measurement_features(rec, sel, latency, features_from)
     label = rec.tdoa.distance_diff[sel] - true_tdoa(tag_pos, a_pos, b_pos)
     keep = np.abs(label) <= MAX_ABS_ERROR_M
     log.info("%s: %d samples (%d outliers dropped), ground-truth latency %.0f ms", name, keep.sum(),
@@ -172,20 +170,6 @@ def shared_flight_samples(flight: Path, features_from: str = "estimate") -> tupl
     rec = load_any(flight)
     latency = truth_latency(rec)
     return flight_samples(rec, Path(flight).name, latency, features_from), latency
-
-
-def corrected_features(samples: Samples, recordings: dict[str, Recording], model) -> Samples:
-    """The same measurements of the flights in `recordings` (name -> recording), with
-    features computed from an estimate that `model` corrects (as in flight), not from the
-    uncorrected one. Labels, times and anchors are those of `samples`."""
-    parts = []
-    for name, rec in recordings.items():
-        rows = samples.select(samples.flight == name)
-        again = flight_samples(rec, name, truth_latency(rec), model=model)
-        if not (np.array_equal(again.t, rows.t) and np.array_equal(again.label, rows.label)):
-            raise ValueError(f"{name}: the recording's measurements are not those of the samples")
-        parts.append(again)
-    return Samples.concatenate(parts)
 
 
 def build_dataset(flights: list[Path], workers: int = 2, progress=None, features_from: str = "estimate"

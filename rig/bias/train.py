@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from rig.bias.config import ANCHOR_OFFSET_BOUND_M, TrainConfig
-from rig.bias.dataset import Samples, corrected_features
+from rig.bias.dataset import Samples
 from rig.bias.tag_offset import untranslated
 from rig.data import paths
 from rig.data.files import write_text_whole
@@ -289,23 +289,9 @@ def fit(samples: Samples, split: Split, config: TrainConfig = TrainConfig(), exc
         progress=None, flight_dir: Path | None = None) -> tuple[BiasNet, dict]:
     """Train on `split`; with `exclude_anchors`, training and validation never see a measurement
     involving them and the test set is exactly the test flights' measurements that do. The
-    validation flights' recordings (for selecting a restart in closed loop, and for
-    `config.feature_rounds`) are read from `flight_dir`, by default the shared flights.
-    With `config.untranslated`, every flight's labels lose their own constant tag offset
-    first."""
-    flight_dir = paths.data_dir() / "flights" if flight_dir is None else Path(flight_dir)
-    net, report = _fit_round(samples, split, config, exclude_anchors, progress, flight_dir)
-    for _ in range(config.feature_rounds - 1):
-        from rig.data.importer import load_any
-
-        recordings = {name: load_any(flight_dir / name) for name in [*split.train, *split.validation]}
-        samples = Samples.concatenate([samples, corrected_features(samples, recordings, net)])
-        net, report = _fit_round(samples, split, config, exclude_anchors, progress, flight_dir)
-    return net, report
-
-
-def _fit_round(samples: Samples, split: Split, config: TrainConfig, exclude_anchors: list[int],
-               progress, flight_dir: Path) -> tuple[BiasNet, dict]:
+    validation flights' recordings (for selecting a restart in closed loop) are read from
+    `flight_dir`, by default the shared flights. With `config.untranslated`, every
+    flight's labels lose their own constant tag offset first."""
     exclude_anchors = list(exclude_anchors)
     absent = sorted(set(exclude_anchors) - set(samples.id_a.tolist()) - set(samples.id_b.tolist()))
     if absent:
@@ -321,6 +307,7 @@ def _fit_round(samples: Samples, split: Split, config: TrainConfig, exclude_anch
     if config.select_by == "rmse_3d" and not exclude_anchors and config.restarts > 1:
         from rig.data.importer import load_any
 
+        flight_dir = paths.data_dir() / "flights" if flight_dir is None else Path(flight_dir)
         recordings = [load_any(flight_dir / name) for name in split.validation]
         score = lambda net: closed_loop_rmse(recordings, net)  # noqa: E731
     net, info = train(train_set, validation_set, config, progress, score)

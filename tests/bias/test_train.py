@@ -5,7 +5,6 @@ reproduced by a fresh training."""
 from __future__ import annotations
 
 import json
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -385,30 +384,3 @@ def test_a_damaged_dataset_cache_is_built_again_never_an_error(tmp_path: Path, d
         assert "unreadable" not in caplog.text
         np.testing.assert_array_equal(reread.label, samples.label)
     assert not list(tmp_path.glob("*.partial"))
-
-
-def test_a_second_feature_round_trains_on_the_features_of_an_estimate_its_first_network_corrects(
-        data_dir: Path) -> None:
-    from rig.bias.dataset import build_dataset, corrected_features
-    from rig.data.importer import load_any
-
-    names = ["0425-traj1", "0425-traj2"]
-    samples, _ = build_dataset([data_dir / "flights" / n for n in names])
-    split = Split(train=names[:1], validation=names[1:], test=[])
-    config = TrainConfig(max_epochs=2, restarts=1)
-    first, _ = fit(samples, split, config, flight_dir=data_dir / "flights")
-    recordings = {n: load_any(data_dir / "flights" / n) for n in names}
-    again = corrected_features(samples, recordings, first)
-    np.testing.assert_array_equal(again.label, samples.label)      # the same measurements, labelled alike
-    np.testing.assert_array_equal(again.flight, samples.flight)
-    moved = np.linalg.norm(again.features[:, 0:3] - samples.features[:, 0:3], axis=1)
-    assert 0.001 < np.median(moved) < 0.5                           # from another estimate of the same flight
-    net, report = fit(samples, split, replace(config, feature_rounds=2), flight_dir=data_dir / "flights")
-    assert report["samples"]["train"] == 2 * int(np.sum(samples.flight == names[0]))
-    assert report["samples"]["validation"] == 2 * int(np.sum(samples.flight == names[1]))
-    assert net.to_json() != first.to_json()
-    other = load_any(data_dir / "flights" / "0426-traj1")
-    with pytest.raises(ValueError, match="not those of the samples"):
-        corrected_features(samples, {names[0]: other}, first)
-    with pytest.raises(ValueError, match="feature_rounds"):
-        TrainConfig(feature_rounds=0)

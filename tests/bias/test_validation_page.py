@@ -37,7 +37,7 @@ def test_the_pages_are_rewritten_from_their_kept_results(tmp_path: Path, rows: l
 def test_every_row_is_of_the_protocol_on_the_pinned_branch(rows: list[dict]) -> None:
     assert {r.get("mkl_cbwr") for r in rows} == {MKL_BRANCH}
     assert {r["split"] for r in rows} == {*results.FLIGHT_SPLITS, *results.ESTIMATE_SPLITS, "anchors", "region", "sector"}
-    assert {r["form"] for r in rows} == set(bv.FORMS) - set(bv.FORM_TRAINING)
+    assert {r["form"] for r in rows} == set(bv.FORMS)
     assert len({results.row_key(r) for r in rows}) == len(rows)
 
 
