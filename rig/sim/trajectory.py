@@ -1,7 +1,7 @@
 """Trajectories the simulator flies: parametric ones and a recording's own ground truth.
 
-A trajectory gives position p(t) and attitude R(t) (body→world); velocity,
-acceleration and the body-frame angular rate follow by differentiation. Parametric
+A trajectory gives position p(t) and attitude R(t) (body→world); the acceleration
+and the body-frame angular rate follow by differentiation. Parametric
 trajectories take off from the floor, fly a pattern and land, all C²-smooth so that
 the specific force is continuous; their attitude is a quadrotor's: body z along the
 thrust direction a + g·e_z, with a prescribed yaw.
@@ -37,10 +37,6 @@ class Trajectory:
 
     def position(self, t: np.ndarray) -> np.ndarray:
         raise NotImplementedError
-
-    def velocity(self, t: np.ndarray) -> np.ndarray:
-        t = np.asarray(t, float)
-        return (self.position(t + _H) - self.position(t - _H)) / (2 * _H)
 
     def acceleration(self, t: np.ndarray) -> np.ndarray:
         t = np.asarray(t, float)
@@ -237,9 +233,6 @@ class RecordedTrajectory(Trajectory):
 
     def position(self, t: np.ndarray) -> np.ndarray:
         return np.stack([s(t) for s in self._splines], axis=-1)
-
-    def velocity(self, t: np.ndarray) -> np.ndarray:
-        return np.stack([s.derivative(1)(t) for s in self._splines], axis=-1)
 
     def acceleration(self, t: np.ndarray) -> np.ndarray:
         return np.stack([s.derivative(2)(t) for s in self._splines], axis=-1)
