@@ -113,7 +113,23 @@ def tables(reports: dict) -> str:
         ways = [{"alternative_to" in f for f in r["findings"] if f["effect"] == effect} for r in reports.values()]
         named, alternative = sum(False in w for w in ways), sum(True in w for w in ways)
         print(f"| {effect} | {named} | {alternative or '—'} |")
+    print("")
+    print(bound_check(reports))
     return "\n".join(lines)
+
+
+def bound_check(reports: dict) -> str:
+    """The report's contract, checked on every flight: each finding, rebuilt as its
+    catalog effect, lies within that effect's physical bounds (what is beyond them is
+    under `not_explained`, never a finding)."""
+    findings = [(name, f) for name, r in reports.items() for f in r["findings"]]
+    beyond = [f"{name}: {f['effect']} {', '.join(fx.make_effect(f['effect'], f['params']).beyond_bound())}"
+              for name, f in findings
+              if f.get("beyond_physical_bound") or fx.make_effect(f["effect"], f["params"]).beyond_bound()]
+    moved = sum(len(r.get("not_explained", [])) for r in reports.values())
+    return (f"Findings beyond their effect's physical bound: {len(beyond)} of {len(findings)} on "
+            f"{len(reports)} flights" + (f" ({'; '.join(beyond)})" if beyond else "")
+            + f"; {moved} fits beyond it are under `not_explained`.")
 
 
 def on_ground(reports: dict) -> str:

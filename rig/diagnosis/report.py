@@ -24,7 +24,7 @@ from rig.diagnosis.imu_spectrum import vibration_spread  # noqa: E402
 from rig.diagnosis.floor_error import ON_GROUND_M  # noqa: E402
 from rig.diagnosis.identifiability import figures  # noqa: E402
 from rig.diagnosis.mismatch import CELL_M  # noqa: E402
-from rig.diagnosis.wording import describe, per_anchor  # noqa: E402
+from rig.diagnosis.wording import describe, how_far_beyond, per_anchor, place, where_not_explained  # noqa: E402
 from rig.sim import effects as fx  # noqa: E402
 
 REPORT_JSON, REPORT_MD, MODEL_JSON = "report.json", "report.md", "model.json"
@@ -119,20 +119,22 @@ def _markdown(diagnosis: Diagnosis, report: dict, images: list[tuple[str, str]])
 
 
 def _not_explained_lines(diagnosis: Diagnosis) -> list[str]:
-    """Where the residual lies that no effect of the catalog explains within its bounds."""
+    """Where the residual lies that no effect of the catalog explains within its bounds:
+    a short section, one row per fit, the largest evidence first."""
     if not diagnosis.not_explained:
         return []
     lines = ["## Not explained", "",
-             "The mismatch these fits remove is real, but each is larger than its effect can physically be, so "
-             "none is a finding and the re-simulation leaves them out (report.json's `not_explained`). They say "
-             "where the residual lies; on real flights it is mostly the part of the UWB's pose-dependent bias "
-             "that the link bias every link shares does not carry: each anchor's own, and each place's. "
-             "A change to the flight (an anchor moved, an effect injected) of one of these kinds shows only as a "
-             "change of its fit here: compare with a recording of the flight before it (`--control`).", ""]
+             f"{len(diagnosis.not_explained)} fits remove real mismatch but are larger than their effect can "
+             "physically be: none is a finding, and the re-simulation leaves them out (report.json's "
+             "`not_explained`). They say where the residual lies: "
+             f"{where_not_explained(diagnosis.not_explained)}. On real flights it is mostly the part of the UWB's "
+             "pose-dependent bias that the link bias every link shares does not carry: each anchor's own, and "
+             "each place's. A change to the flight of one of these kinds (an anchor moved, an effect injected) "
+             "shows only as a change of its fit: compare with a recording of the flight before it (`--control`).",
+             "", "| fitted as | where | fit | beyond its bound: the largest component | evidence |",
+             "|---|---|---|---|---|"]
     for f in diagnosis.not_explained:
-        place = f"anchor {', '.join(map(str, f.anchors))}" if f.anchors else f"the {f.channel} channel"
-        article = "an" if f.effect[0] in "aeiou" else "a"
-        lines.append(f"- on {place}, as {article} {f.effect} would (evidence {f.evidence:.1f}): {describe(f)}")
+        lines.append(f"| {f.effect} | {place(f)} | {_params_text(f.params)} | {how_far_beyond(f)} | {f.evidence:.1f} |")
     return lines + [""]
 
 

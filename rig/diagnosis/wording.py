@@ -64,19 +64,56 @@ def beyond_bound_by(effect: str, params: dict, std_err: dict | None) -> tuple[fl
     error of its bounded parameter. Beyond by less than two may be the flight's slow
     error."""
     param = next(iter(std_err or {}), None)
-    bound = fx.EFFECTS[effect].bounds.get(param) if effect in fx.EFFECTS else None
+    kind = fx.EFFECTS.get(effect)
+    bound = kind.bounds.get(param) if kind is not None else None
     if bound is None or param not in params:
         return None
-    values, errors = np.abs(np.ravel(params[param])), np.ravel(std_err[param])
+    values = np.abs(np.ravel(np.asarray(params[param], float)) - kind.neutral)   # a scale's size is from 1
+    errors = np.ravel(std_err[param])
     k = int(np.argmax(values))
     if values[k] <= bound:
         return None
     return float(values[k]), float(bound), float((values[k] - bound) / max(errors[k], 1e-12))
 
 
+def _beyond_text(beyond: tuple[float, float, float]) -> str:
+    return f"{beyond[0]:.3g} against {beyond[1]:.3g}, {beyond[2]:.1f} standard errors beyond"
+
+
 def _beyond_by(finding: Finding) -> str:
     beyond = beyond_bound_by(finding.effect, finding.params, finding.std_err)
-    return "" if beyond is None else f" ({beyond[0]:.3g} against {beyond[1]:.3g}, {beyond[2]:.1f} standard errors beyond)"
+    return "" if beyond is None else f" ({_beyond_text(beyond)})"
+
+
+def place(finding: Finding) -> str:
+    """Where a fit lies: its anchors, or its channel."""
+    return f"anchor {', '.join(map(str, finding.anchors))}" if finding.anchors else f"the {finding.channel} channel"
+
+
+def not_explained_line(finding: Finding) -> str:
+    """A fit beyond its bound in one line: what it was fitted as, where, and how far beyond
+    ('anchor_position on anchor 2: 2.18 against 1, 2.6 standard errors beyond')."""
+    return f"{finding.effect} on {place(finding)}: {how_far_beyond(finding)}"
+
+
+def how_far_beyond(finding: Finding) -> str:
+    """'2.2 against 1, 3.0 standard errors beyond', or without a standard error of the
+    bounded parameter (an NLOS's mean excess) 'mean_excess_m 1.75 (bound 1)'."""
+    beyond = beyond_bound_by(finding.effect, finding.params, finding.std_err)
+    if beyond is not None:
+        return _beyond_text(beyond)
+    params = {k: v for k, v in finding.params.items() if k in fx.EFFECTS[finding.effect].bounds}
+    return "; ".join(f"{k} {np.round(v, 3).tolist()} (bound {fx.EFFECTS[finding.effect].bounds[k]:g})"
+                     for k, v in params.items()) or "beyond its bound"
+
+
+def where_not_explained(findings: list[Finding]) -> str:
+    """The places of the fits beyond their bounds, each with the effects fitted there
+    ('anchor 0 (anchor_position, antenna_pattern); the tdoa channel (lever_arm)')."""
+    by_place: dict[str, list[str]] = {}
+    for f in findings:
+        by_place.setdefault(place(f), []).append(f.effect)
+    return "; ".join(f"{where} ({', '.join(dict.fromkeys(effects))})" for where, effects in sorted(by_place.items()))
 
 
 def describe(finding: Finding) -> str:

@@ -1,15 +1,17 @@
 """How report.md and `rig diagnose` word a finding: its standard errors follow its
 parameters, as report.json gives them (a noise-level finding has none), and a fit
-beyond its physical bound says by how many of them."""
+beyond its physical bound says by how many of them, in one line where it is listed
+among the fits not explained."""
 
 from __future__ import annotations
 
 from rig.diagnosis.findings import Finding
-from rig.diagnosis.wording import describe
+from rig.diagnosis.wording import describe, not_explained_line, where_not_explained
 
 
-def _finding(effect: str, params: dict, std_err: dict | None) -> Finding:
-    return Finding(effect, "tdoa", [], params, 40.0, 1.0, 0.9, {}, std_err=std_err)
+def _finding(effect: str, params: dict, std_err: dict | None, anchors: list[int] = (), channel: str = "tdoa"
+             ) -> Finding:
+    return Finding(effect, channel, list(anchors), params, 40.0, 1.0, 0.9, {}, std_err=std_err)
 
 
 def test_a_fitted_finding_gives_its_standard_errors() -> None:
@@ -36,3 +38,26 @@ def test_a_fit_beyond_its_bound_says_by_how_many_standard_errors() -> None:
     assert "(0.45 against 0.15, 2.5 standard errors beyond)" in describe(lever)
     lever.beyond_bound = False
     assert "standard errors beyond" not in describe(lever)
+
+
+def test_a_scale_beyond_its_bound_is_measured_from_one() -> None:
+    """A scale's bound (0.5) is of its distance from 1: 1.6 ± 0.05 is 0.6 from it, 2 standard
+    errors beyond, not 1.6 against 0.5."""
+    scale = _finding("imu_accel_scale", {"scale": [1.6, 1.0, 0.98]}, {"scale": [0.05, 0.01, 0.01]}, channel="accel")
+    scale.beyond_bound = True
+    assert "(0.6 against 0.5, 2.0 standard errors beyond)" in describe(scale)
+
+
+def test_the_fits_not_explained_are_listed_short_by_where_they_lie() -> None:
+    lever = _finding("lever_arm", {"offset_m": [0.1, -0.3, -0.8]}, {"offset_m": [0.04, 0.04, 0.06]})
+    moved = _finding("anchor_position", {"anchor": 2, "offset_m": [-2.2, -1.3, 1.2]}, {"offset_m": [0.4, 0.4, 0.9]},
+                     anchors=[2])
+    pattern = _finding("antenna_pattern", {"anchor": 2, "coeffs_m": [2.0, 0.1, 0.1]}, {"coeffs_m": [1.0, 0.3, 0.3]},
+                       anchors=[2])
+    assert not_explained_line(moved) == "anchor_position on anchor 2: 2.2 against 1, 3.0 standard errors beyond"
+    assert not_explained_line(lever) == "lever_arm on the tdoa channel: 0.8 against 0.15, 10.8 standard errors beyond"
+    nlos = _finding("nlos", {"anchor": 2, "fraction": 1.0, "mean_excess_m": 1.748}, {"mean_shift_m": 0.05},
+                    anchors=[2])     # its standard error is of the mean shift, not of the bounded excess
+    assert not_explained_line(nlos) == "nlos on anchor 2: mean_excess_m 1.748 (bound 1)"
+    assert where_not_explained([lever, moved, pattern, moved]) == \
+        "anchor 2 (anchor_position, antenna_pattern); the tdoa channel (lever_arm)"
