@@ -158,7 +158,7 @@ def test_a_fit_beyond_its_physical_bound_is_not_explained_never_a_finding(tmp_pa
         assert not make_effect(listed["effect"], listed["params"]).beyond_bound(), listed
     markdown = (tmp_path / "report.md").read_text()
     assert "## Not explained" in markdown and "(`--control`)" in markdown      # how a change to them shows
-    rows = re.findall(r"\n\| (\w+) \| (anchor \d|the tdoa channel) \| [^|]+ \| ([^|]+) \| [0-9.]+ \|", markdown)
+    rows = re.findall(r"\n\| (\w+) \| (anchor \d|the \w+ channel) \| [^|]+ \| ([^|]+) \| [0-9.]+ \|", markdown)
     assert len(rows) == len(report["not_explained"])          # one row each, saying how far beyond its bound
     assert all(re.fullmatch(r"[0-9.]+ against [0-9.]+, -?[0-9.]+ standard errors beyond|\w+ .* \(bound [0-9.]+\)", r[2])
                for r in rows), rows

@@ -41,11 +41,11 @@ def test_a_fit_beyond_its_bound_says_by_how_many_standard_errors() -> None:
 
 
 def test_a_scale_beyond_its_bound_is_measured_from_one() -> None:
-    """A scale's bound (0.5) is of its distance from 1: 1.6 ± 0.05 is 0.6 from it, 2 standard
-    errors beyond, not 1.6 against 0.5."""
-    scale = _finding("imu_accel_scale", {"scale": [1.6, 1.0, 0.98]}, {"scale": [0.05, 0.01, 0.01]}, channel="accel")
+    """A scale's bound (0.15) is of its distance from 1: 1.25 ± 0.05 is 0.25 from it, 2
+    standard errors beyond, not 1.25 against 0.15."""
+    scale = _finding("imu_accel_scale", {"scale": [1.25, 1.0, 0.98]}, {"scale": [0.05, 0.01, 0.01]}, channel="accel")
     scale.beyond_bound = True
-    assert "(0.6 against 0.5, 2.0 standard errors beyond)" in describe(scale)
+    assert "(0.25 against 0.15, 2.0 standard errors beyond)" in describe(scale)
 
 
 def test_the_fits_not_explained_are_listed_short_by_where_they_lie() -> None:

@@ -300,9 +300,9 @@ def test_an_effect_beyond_its_physical_bound_is_injected_with_a_warning_naming_i
     from rig.sim import effects as fx
 
     assert make_effect("time_offset", {"seconds": 0.4}).beyond_bound() == []
-    assert make_effect("imu_gyro_scale", {"scale": [1.4, 0.7, 1.0]}).beyond_bound() == []     # |scale − 1|
-    assert make_effect("imu_gyro_scale", {"scale": [1.6, 1.0, 1.0]}).beyond_bound() == \
-        ["scale [1.6, 1.0, 1.0] (bound 0.5)"]
+    assert make_effect("imu_gyro_scale", {"scale": [1.1, 0.9, 1.0]}).beyond_bound() == []     # |scale − 1|
+    assert make_effect("imu_gyro_scale", {"scale": [1.2, 1.0, 1.0]}).beyond_bound() == \
+        ["scale [1.2, 1.0, 1.0] (bound 0.15)"]
     assert make_effect("link_bias", {"coeffs_m": [0.1] * len(fx.LINK_TERMS), "gain": -1.0}).beyond_bound() == \
         ["gain -1 (bound: not negative)"]
     assert Candidate("anchor_delay", "tdoa", "meters", 1).bound == fx.AnchorDelay.bounds["meters"] == 1.5

@@ -72,16 +72,23 @@ class _ImuScale(_ImuVectorEffect):
         return values * self.value
 
 
+# A MEMS sensor's scale is within about 10 % of nominal: the Crazyflie's MPU-9250 gives
+# ±3 % tolerance, ±4 % over temperature (gyroscope) and ±2 % cross-axis. The bound adds
+# half again for the fit's own error; a larger fit stands for something else (on the
+# real flights, rotor drag read more strongly than the ground truth's: benchmarks/accel_drag.py).
+SCALE_BOUND = 0.15
+
+
 class ImuAccelScale(_ImuScale):
     """Accelerometer scale factors."""
 
-    name, stream, bounds = "imu_accel_scale", "accel", {"scale": 0.5}
+    name, stream, bounds = "imu_accel_scale", "accel", {"scale": SCALE_BOUND}
 
 
 class ImuGyroScale(_ImuScale):
     """Gyroscope scale factors."""
 
-    name, stream, bounds = "imu_gyro_scale", "gyro", {"scale": 0.5}
+    name, stream, bounds = "imu_gyro_scale", "gyro", {"scale": SCALE_BOUND}
 
 
 class ImuAccelBias(_ImuConstantBias):
