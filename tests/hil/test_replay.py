@@ -491,7 +491,7 @@ def test_real_time_mode_exposes_the_slow_qemu_usart_that_lock_step_hides(tmp_pat
     """QEMU's emulated UART takes one byte per turn of its main loop: lock-step hides it
     (every window still meets the board's budget), real time at 10x the recording's clock
     shows the estimates falling ever further behind; --assert-deadlines fails the run, the
-    run record carries each window's latency. The UART's pace depends on the host (2.7 to
+    run record carries each window's latency, and a byte the board had no room for is reported. The UART's pace depends on the host (2.7 to
     5 ms a window measured, faster with other work beside it; at 3x a loaded CI run kept
     up with 60 % of the windows), so the run is 10x, a 1 ms deadline."""
     out = tmp_path / "rt"
@@ -503,9 +503,14 @@ def test_real_time_mode_exposes_the_slow_qemu_usart_that_lock_step_hides(tmp_pat
     result = json.loads((out / "metrics.json").read_text())
     rt = result["realtime"]
     assert result["mode"] == "realtime" and result["timing"]["overruns"] == 0
-    assert rt["late_windows"] > rt["windows_sent"] // 2, rt
+    # behind on most windows: answered late, or not at all before the run ended (how the two
+    # split depends on the host: 557 and 242 of 799 here, 280 and 519 on a loaded CI run)
+    assert rt["late_windows"] > 0 and rt["late_windows"] + rt["missed_windows"] > rt["windows_sent"] // 2, rt
     assert result["n_estimates"] + rt["missed_windows"] == rt["windows_sent"]
-    assert result["board_link"]["bytes_dropped"] == 0         # the backlog waits in the link, not lost
+    # the backlog waits in the link, or (when the emulator brings bytes faster than the firmware
+    # drains them: 0 to 13 000 bytes on this host) overruns the board's receive buffer: never silently
+    board = result["board_link"]
+    assert board["bytes_dropped"] == 0 or board["reports"].get("lost bytes to a full receive buffer", 0) > 0, board
     assert rt["latency_ms"]["max"] > 10 * rt["deadline_ms"]       # a backlog that grows, not jitter
     from rig.hil.runrecord import TOPIC_TIMING, read_run
     latency = [r["latency_ms"] for r in read_run(out / "run.mcap")[TOPIC_TIMING]]
