@@ -133,7 +133,8 @@ def simulate(cfg: SimConfig) -> Recording:
 
     t_imu = _quantize(np.arange(t0, t1, 1.0 / cfg.imu_hz), res["time"])
     force = trajectory.specific_force(t_imu)
-    imu = fx.ImuBatch(t_imu, force, trajectory.angular_rate(t_imu), rotor=trajectory.rotor_speed(t_imu, force))
+    imu = fx.ImuBatch(t_imu, force, trajectory.angular_rate(t_imu), rotor=trajectory.rotor_speed(t_imu, force),
+                      velocity=trajectory.body_velocity(t_imu), velocity_rate=trajectory.body_velocity_rate(t_imu))
     fx.apply_imu(effects, rng, imu)
 
     t_uwb, id_a, id_b = tdoa_schedule(t0, t1, cfg.tdoa_hz, cfg.uwb_mode, [a.id for a in anchors], rng)
@@ -184,6 +185,8 @@ class Predictor:
         self.accel_rotor = self.trajectory.rotor_speed(rec.accel.t, self.accel_true)
         self.gyro_true = self.trajectory.angular_rate(rec.gyro.t)
         self.gyro_rotor = _resampled(rec.gyro.t, rec.accel.t, self.accel_rotor)     # the gyroscope's own clock
+        self.motion = {stream: (self.trajectory.body_velocity(t), self.trajectory.body_velocity_rate(t))
+                       for stream, t in (("accel", rec.accel.t), ("gyro", rec.gyro.t))}
         self._kinematics: dict[bytes, tuple[np.ndarray, object]] = {}
 
     def world(self, effects: list[fx.Effect]) -> fx.World:
@@ -224,12 +227,14 @@ class Predictor:
             rng: np.random.Generator | None = None) -> tuple[np.ndarray, np.ndarray]:
         """IMU readings under `effects`, from the true ones (or from the given readings)."""
         a = fx.ImuBatch(self.rec.accel.t, (self.accel_true if accel is None else accel).copy(),
-                        np.zeros_like(self.accel_true), vibration=self.accel_vibration, rotor=self.accel_rotor)
+                        np.zeros_like(self.accel_true), vibration=self.accel_vibration, rotor=self.accel_rotor,
+                        velocity=self.motion["accel"][0], velocity_rate=self.motion["accel"][1])
         # each batch is one stream's samples (the streams may have their own clocks); the
         # gyroscope's carries no accelerometer readings, so no vibration to measure on them
         nothing = np.zeros_like(self.gyro_true)
         g = fx.ImuBatch(self.rec.gyro.t, nothing.copy(), (self.gyro_true if gyro is None else gyro).copy(),
-                        vibration=nothing, rotor=self.gyro_rotor)
+                        vibration=nothing, rotor=self.gyro_rotor,
+                        velocity=self.motion["gyro"][0], velocity_rate=self.motion["gyro"][1])
         fx.apply_imu(effects, rng, a, g)
         return a.accel, g.gyro
 

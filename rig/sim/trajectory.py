@@ -50,6 +50,16 @@ class Trajectory:
         t = np.asarray(t, float)
         return (self.rotation(t - _H).inv() * self.rotation(t + _H)).as_rotvec() / (2 * _H)
 
+    def body_velocity(self, t: np.ndarray) -> np.ndarray:
+        """Velocity in the body frame: Rᵀ dp/dt."""
+        t = np.asarray(t, float)
+        return self.rotation(t).inv().apply((self.position(t + _H) - self.position(t - _H)) / (2 * _H))
+
+    def body_velocity_rate(self, t: np.ndarray) -> np.ndarray:
+        """d/dt of the body-frame velocity (what a lean that follows it turns at)."""
+        t = np.asarray(t, float)
+        return (self.body_velocity(t + _H) - self.body_velocity(t - _H)) / (2 * _H)
+
     def specific_force(self, t: np.ndarray) -> np.ndarray:
         """What an ideal accelerometer reads: Rᵀ (a − g), g = (0, 0, −9.81)."""
         force_world = self.acceleration(t) + np.array([0.0, 0.0, GRAVITY])

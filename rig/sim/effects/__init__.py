@@ -27,7 +27,9 @@ from rig.sim.effects.base import (
     staged,
 )
 from rig.sim.effects.imu import (
+    LEAN_BOUND,
     LOWPASS_MAX_SHARE,
+    AttitudeLean,
     ImuAccelBias,
     ImuAccelScale,
     ImuGyroBias,
@@ -81,14 +83,14 @@ __all__ = ["CORRUPTION", "FILTERED", "NOISE", "RECTIFIED", "SCALE", "SIGNAL", "T
            "anchor_sign", "ranges", "staged", "apply_imu", "sample_rate", "vibration_level", "lowpass",
            "lowpass_design", "LOWPASS_MAX_SHARE", "resonance_design", "resonance_gain", "resonant_noise",
            "filter_noise_gain", "on_ground_weight", "pattern_basis", "viewing_angles", "link_basis", "tdoa_basis",
-           "LINK_TERMS", "LINK_BOUND_M", "calibrated_link_bias",
+           "LINK_TERMS", "LINK_BOUND_M", "calibrated_link_bias", "LEAN_BOUND", "AttitudeLean",
            "ImuAccelBias", "ImuGyroBias", "ImuAccelScale", "ImuGyroScale", "ImuVibrationRectification", "ImuNoise",
            "ImuVibration", "ImuResonance", "ImuLowpass", "TdoaNoise", "Outliers", "TimeOffset", "ClockDrift",
            "AnchorPosition", "LeverArm", "AnchorDelay", "AntennaPattern", "TagAntennaPattern", "Nlos",
            "MultipathFloor", "OnGroundDelay", "LearnedBias", "LinkBias"]
 
 EFFECTS: dict[str, type[Effect]] = {
-    cls.name: cls for cls in (ImuAccelBias, ImuGyroBias, ImuAccelScale, ImuGyroScale, ImuVibrationRectification,
+    cls.name: cls for cls in (AttitudeLean, ImuAccelBias, ImuGyroBias, ImuAccelScale, ImuGyroScale, ImuVibrationRectification,
                               ImuNoise, ImuVibration, ImuResonance, ImuLowpass, TdoaNoise, Outliers,
                               TimeOffset, ClockDrift, AnchorPosition, LeverArm, AnchorDelay, AntennaPattern,
                               TagAntennaPattern, LinkBias, Nlos, MultipathFloor, OnGroundDelay, LearnedBias)

@@ -66,6 +66,10 @@ class ImuBatch:
     # the rotors' speed at each sample relative to hover, 0 with the motors stopped
     # (Trajectory.rotor_speed); None when not known: taken as hover all along
     rotor: np.ndarray | None = None
+    # the body-frame velocity (m/s) and its rate of change at each sample, when the
+    # batch comes from a trajectory (Trajectory.body_velocity); None otherwise
+    velocity: np.ndarray | None = None
+    velocity_rate: np.ndarray | None = None
 
 
 @dataclass

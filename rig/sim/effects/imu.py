@@ -1,6 +1,6 @@
-"""IMU effects: biases, scale factors, vibration rectification, noise (white,
-vibration, the airframe's resonance) and the flight controller's low-pass before
-logging."""
+"""IMU effects: the airframe's lean into its motion, biases, scale factors, vibration
+rectification, noise (white, vibration, the airframe's resonance) and the flight
+controller's low-pass before logging."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ from typing import ClassVar
 import numpy as np
 from scipy.ndimage import uniform_filter1d
 from scipy.signal import butter, iirpeak, lfilter, lfilter_zi
+from scipy.spatial.transform import Rotation
 
 from rig.sim.effects.base import (
     FILTERED,
@@ -16,6 +17,7 @@ from rig.sim.effects.base import (
     RECTIFIED,
     SCALE,
     SIGNAL,
+    WORLD,
     Effect,
     ImuBatch,
     _finite,
@@ -89,6 +91,44 @@ class ImuGyroScale(_ImuScale):
     """Gyroscope scale factors."""
 
     name, stream, bounds = "imu_gyro_scale", "gyro", {"scale": SCALE_BOUND}
+
+
+# The lean is a share of the tilt rotor drag asks for at speed v, k·v/g: at most all of
+# it, with k ≤ 0.5 /s for a Crazyflie-class airframe (the ground truth's own k is
+# 0.33–0.39 /s on the 0426 flights: benchmarks/accel_drag.py).
+LEAN_BOUND = 0.05
+
+
+class AttitudeLean(Effect):
+    """The airframe leans into its horizontal motion by `rad_per_mps` × its body velocity
+    (x, y) more than the ground truth's attitude shows: about body y by c_x·v_x, about
+    body x by −c_y·v_y, each axis tilting body z towards the motion. Both IMU sensors
+    feel the lean: the accelerometer reads g·c·v more drag on each axis, the gyroscope
+    the lean's rate. On the real flights both sensors show it alike, against the
+    motion capture's attitude (benchmarks/accel_drag.py); which of the two attitudes
+    carries it is not identified. Needs the batch's body velocity (ImuBatch.velocity)."""
+
+    name, stage, bounds = "attitude_lean", WORLD, {"rad_per_mps": LEAN_BOUND}
+
+    def __init__(self, rad_per_mps=(0.0, 0.0)):
+        value = np.asarray(rad_per_mps, float)
+        if value.shape != (2,) or not np.all(np.isfinite(value)):
+            raise ValueError(f"rad_per_mps must be two finite numbers (x, y), got {rad_per_mps!r}")
+        self.value = value
+
+    def params(self) -> dict:
+        return {"rad_per_mps": self.value.tolist()}
+
+    def lean(self, velocity: np.ndarray) -> np.ndarray:
+        """The lean as a rotation vector in the body frame, per sample."""
+        cx, cy = self.value
+        return np.column_stack([-cy * velocity[:, 1], cx * velocity[:, 0], np.zeros(len(velocity))])
+
+    def apply_imu(self, imu: ImuBatch, rng: np.random.Generator | None) -> None:
+        if imu.velocity is None or imu.velocity_rate is None:
+            raise ValueError("attitude_lean needs the body velocity of the IMU's samples (a batch from a trajectory)")
+        imu.accel[:] = Rotation.from_rotvec(self.lean(imu.velocity)).inv().apply(imu.accel)
+        imu.gyro += self.lean(imu.velocity_rate)
 
 
 class ImuAccelBias(_ImuConstantBias):
