@@ -1,4 +1,5 @@
-"""What a flight's horizontal accelerometer readings follow: rotor drag.
+"""What a flight's horizontal accelerometer readings follow: rotor drag, and a lean
+into the motion that both IMU sensors feel and the ground truth's attitude does not show.
 
     .venv/bin/python benchmarks/accel_drag.py [--flights 0426-traj1 ...] [--json out/accel_drag.json]
 
@@ -7,8 +8,15 @@ force is the rotor drag, about −k·v along that axis. Per flight, over 0.2 s m
 the time in the air (tag above 0.5 m, 3 s cut at each end), the accelerometer's x and
 y and the ground truth's specific force (rig.sim.trajectory) are each fitted as
 k·v_body + c: k of each, their ratio (what a scale of the truth's specific force can
-stand in for), and each one's correlation with the velocity. Seconds per flight; it
-decides nothing (docs/notebook/diagnosis-experiments.md, session 74)."""
+stand in for), and each one's correlation with the velocity (session 74).
+
+Then the lean (session 75), over the longest stretch in the air, in mrad per m/s of
+body velocity (`attitude_lean`'s c): the gyroscope's rates and the ground truth's,
+each integrated, a slow cubic trend taken out, their difference regressed on the
+velocity (about body y for x, about −x for y); and the accelerometer's excess over
+the truth's specific force regressed on −g·v. A lean shows alike in both; what the
+accelerometer alone shows is not one. Seconds per flight; it decides nothing
+(docs/notebook/diagnosis-experiments.md)."""
 
 from __future__ import annotations
 
@@ -24,7 +32,7 @@ sys.path.insert(0, str(ROOT))
 
 from rig.data import paths  # noqa: E402
 from rig.data.importer import load_any  # noqa: E402
-from rig.sim.trajectory import RecordedTrajectory  # noqa: E402
+from rig.sim.trajectory import GRAVITY, RecordedTrajectory  # noqa: E402
 
 BLOCK_S = 0.2
 AIRBORNE_M = 0.5
@@ -52,14 +60,49 @@ def flight_drag(flight: Path) -> dict:
     air = truth.position(t)[:, 2] > AIRBORNE_M
     tb, measured = block_means(t[air], accel[air])
     force = truth.specific_force(tb)
-    h = 1e-3
-    velocity = truth.rotation(tb).inv().apply((truth.position(tb + h) - truth.position(tb - h)) / (2 * h))
+    velocity = truth.body_velocity(tb)
     out = {}
     for axis, name in enumerate("xy"):
         k_meas, r_meas = drag_fit(measured[:, axis], velocity[:, axis])
         k_truth, r_truth = drag_fit(force[:, axis], velocity[:, axis])
         out[name] = {"k_measured": k_meas, "k_truth": k_truth, "ratio": k_meas / k_truth,
                      "r_measured": r_meas, "r_truth": r_truth}
+    return out
+
+
+def longest_stretch(t: np.ndarray, gap_s: float = 0.1) -> np.ndarray:
+    """The indices of the longest run of samples without a gap longer than `gap_s`."""
+    runs = np.split(np.arange(len(t)), np.where(np.diff(t) > gap_s)[0] + 1)
+    return max(runs, key=len)
+
+
+def integrated(t: np.ndarray, rates: np.ndarray) -> np.ndarray:
+    """The angle each rate turns through from the first sample (trapezoids)."""
+    steps = (rates[1:] + rates[:-1]) / 2 * np.diff(t)[:, None]
+    return np.vstack([np.zeros(rates.shape[1]), np.cumsum(steps, axis=0)])
+
+
+def flight_lean(flight: Path, decimate: int = 5) -> dict:
+    """The lean c (rad per m/s) on x and y as the gyroscope and as the accelerometer
+    measure it against the ground truth."""
+    rec = load_any(flight)
+    truth = RecordedTrajectory(rec.truth)
+    t = rec.gyro.t
+    keep = (t > truth.t_start + CUT_S) & (t < truth.t_end - CUT_S) & (truth.position(t)[:, 2] > AIRBORNE_M)
+    t, gyro = t[keep], rec.gyro.xyz[keep]
+    run = longest_stretch(t)[::decimate]
+    t, gyro = t[run], gyro[run]
+    accel = np.column_stack([np.interp(t, rec.accel.t, rec.accel.xyz[:, i]) for i in range(3)])
+    turned = integrated(t, gyro) - integrated(t, truth.angular_rate(t))
+    excess = accel - truth.specific_force(t)
+    velocity = truth.body_velocity(t)
+    s = (t - t[0]) / max(t[-1] - t[0], 1e-9)
+    out = {}
+    for axis, (about, sign) in zip("xy", ((1, 1.0), (0, -1.0))):
+        k = "xy".index(axis)
+        design = np.column_stack([velocity[:, k], np.ones_like(s), s, s ** 2, s ** 3])
+        out[axis] = {"gyroscope": float(np.linalg.lstsq(design, sign * turned[:, about], rcond=None)[0][0]),
+                     "accelerometer": float(-np.linalg.lstsq(design, excess[:, k] / GRAVITY, rcond=None)[0][0])}
     return out
 
 
@@ -71,14 +114,17 @@ def main() -> None:
     root = paths.data_dir() / "flights"
     names = args.flights or sorted(p.name for p in root.iterdir())
     rows = {}
-    print("| flight | x: k accelerometer / truth [1/s], ratio | r accelerometer, truth | y: k, ratio | r |")
-    print("|---|---|---|---|---|")
+    print("| flight | x: k accelerometer / truth [1/s], ratio | r accelerometer, truth | y: k, ratio | r "
+          "| lean x: gyroscope, accelerometer [mrad per m/s] | lean y |")
+    print("|---|---|---|---|---|---|---|")
     for name in names:
-        rows[name] = fit = flight_drag(root / name)
-        x, y = fit["x"], fit["y"]
+        rows[name] = fit = {**flight_drag(root / name), "lean": flight_lean(root / name)}
+        x, y, lean = fit["x"], fit["y"], fit["lean"]
         print(f"| {name} | {x['k_measured']:+.3f} / {x['k_truth']:+.3f}, {x['ratio']:.2f} | "
               f"{x['r_measured']:+.2f}, {x['r_truth']:+.2f} | {y['k_measured']:+.3f} / {y['k_truth']:+.3f}, "
-              f"{y['ratio']:.2f} | {y['r_measured']:+.2f}, {y['r_truth']:+.2f} |")
+              f"{y['ratio']:.2f} | {y['r_measured']:+.2f}, {y['r_truth']:+.2f} | "
+              + " | ".join(f"{1e3 * lean[a]['gyroscope']:+.1f}, {1e3 * lean[a]['accelerometer']:+.1f}" for a in "xy")
+              + " |")
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(rows, indent=1))

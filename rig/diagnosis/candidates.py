@@ -122,8 +122,7 @@ def candidates(problem: Problem) -> list[Candidate]:
                 Candidate("imu_vibration_rectification", "accel", "gain", 3, step=1.0, prior=5.0)]
     if len(problem.imu_rows["gyro"]):
         out += [Candidate("imu_gyro_bias", "gyro", "bias_rps", 3, step=1e-3, prior=0.2),
-                gyro_scale_candidate(problem),
-                Candidate("attitude_lean", "gyro", "rad_per_mps", 2, step=1e-3, prior=0.02)]
+                gyro_scale_candidate(problem)]
     for c in out:
         c.columns = design_columns(problem, c)
     return out

@@ -283,8 +283,6 @@ class Problem:
         """The tag's true position at each TDOA row (untouched simulation)."""
         return self._tag_positions
 
-    def channel(self, name: str, base: list[fx.Effect] = ()) -> Channel:
-        """The channel's rows against the untouched simulation, or against one under
-        `base` (effects another channel has measured)."""
-        residual = self.recorded(name) - self.predict_channel(name, list(base)) if base else self.residual_before[name]
-        return Channel(name, self.times(name), residual, self.scales[name])
+    def channel(self, name: str) -> Channel:
+        """The channel's rows against the untouched simulation."""
+        return Channel(name, self.times(name), self.residual_before[name], self.scales[name])

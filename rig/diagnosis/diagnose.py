@@ -146,25 +146,14 @@ def shared_link_bias(problem: Problem, channel: Channel, as_recorded: Channel, n
     return term, refit(channel.z, judged)
 
 
-# The airframe's lean against the ground truth's attitude (attitude_lean) is felt by both
-# IMU sensors. On the accelerometer it reads as more rotor drag, which an x or y scale
-# of the truth's small horizontal force reads as too, and the two fitted together cancel
-# at sizes neither has; the gyroscope sees the lean's rate with no such look-alike. So it
-# is fitted on the gyroscope, and the accelerometer is predicted under what was found
-# there (docs/notebook/diagnosis-experiments.md, session 75).
-MEASURED_ON_GYRO = {"attitude_lean"}
-CHANNEL_ORDER = ("tdoa", "gyro", "accel")
-
-
 def diagnose(rec: Recording, progress=None, link_bias: bool = True) -> Diagnosis:
     """The module's method on `rec`; `link_bias=False` leaves out step 6 (the catalog alone)."""
     problem = Problem(rec)
     pool = candidates(problem)
     before = problem.residual_before
-    findings, model, unnamed, in_place, tdoa_left = [], [], [], [], None
-    names = sorted(before, key=lambda name: CHANNEL_ORDER.index(name))
+    findings, model, names, unnamed, in_place, tdoa_left = [], [], list(before), [], [], None
     for name in progress(names) if progress else names:
-        as_recorded = problem.channel(name, [e for e in model if e.name in MEASURED_ON_GYRO] if name == "accel" else ())
+        as_recorded = problem.channel(name)
         selected, channel, shapes = select(problem, as_recorded, pool)     # fitted jointly
         unnamed += unnamed_estimates(problem, channel, as_recorded, selected, pool)
         if name == "tdoa":

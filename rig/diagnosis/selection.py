@@ -204,8 +204,7 @@ LOOK_ALIKES = {"anchor_delay": ("anchor_position", "antenna_pattern"),
                "time_offset": ("clock_drift",), "clock_drift": ("time_offset",),
                "imu_accel_bias": ("imu_accel_scale", "imu_vibration_rectification"),
                "imu_accel_scale": ("imu_accel_bias",), "imu_vibration_rectification": ("imu_accel_bias",),
-               "imu_gyro_bias": ("imu_gyro_scale",), "imu_gyro_scale": ("imu_gyro_bias",),
-               "attitude_lean": ("imu_gyro_scale",)}
+               "imu_gyro_bias": ("imu_gyro_scale",), "imu_gyro_scale": ("imu_gyro_bias",)}
 
 
 def _note_look_alikes(z: np.ndarray, kept: list[Term], pool: list[Term]) -> None:

@@ -184,7 +184,6 @@ ORDER = {"time_offset": ("tdoa", 0), "clock_drift": ("tdoa", 0),
          "anchor_position": ("tdoa", 1),
          "antenna_pattern": ("tdoa", 2), "nlos": ("tdoa", 3),
          "imu_accel_bias": ("accel", 0), "imu_accel_scale": ("accel", 0), "imu_vibration_rectification": ("accel", 1),
-         "attitude_lean": ("gyro", 0),
          "imu_gyro_bias": ("gyro", 0), "imu_gyro_scale": ("gyro", 0)}
 
 

@@ -28,8 +28,6 @@ PLAIN = {
                                    "rectification: a bias that follows the rotors' shaking and is gone with the "
                                    "motors off)",
     "imu_gyro_scale": "the gyroscope's scale factors are {scale}",
-    "attitude_lean": "the airframe leans into its motion by {rad_per_mps} rad per m/s (x, y) more than the ground "
-                     "truth's attitude shows (the accelerometer reads as much more rotor drag)",
     "lever_arm": "the UWB antenna sits at {offset_m} m from the body origin (body frame)",
     "link_bias": "every tag–anchor link's range carries the link bias calibrated on the shared flights (the "
                  "antennas' patterns, the airframe, the received power) at {gain:.2f} × its calibrated size",

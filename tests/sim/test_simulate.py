@@ -243,6 +243,34 @@ def test_the_floors_error_fades_out_linearly_over_its_fade(survey_0425: Path) ->
         make_effect("on_ground_delay", {"fade_m": -0.1})
 
 
+def test_the_airframes_lean_reads_as_more_drag_and_turns_the_gyroscope_as_far(survey_0425: Path) -> None:
+    """A lean of c rad per m/s into the motion: each horizontal accelerometer axis reads
+    g·c·v more drag along it, and the gyroscope's extra rate, integrated, is the lean
+    itself (about body y for x, about −x for y)."""
+    lean = np.array([0.01, 0.02])
+    cfg = SimConfig(trajectory="circle", duration=20.0, survey=str(survey_0425), resolution=dict(FULL_PRECISION),
+                    effects=[{"effect": "attitude_lean", "params": {"rad_per_mps": lean.tolist()}}])
+    leaning, upright = simulate(cfg), simulate(replace(cfg, effects=[]))
+    t = leaning.accel.t
+    velocity = RecordedTrajectory(upright.truth).body_velocity(t)
+    moving = np.linalg.norm(velocity, axis=1) > 0.3
+    extra = leaning.accel.xyz - upright.accel.xyz
+    for axis in (0, 1):
+        slope = np.polyfit(velocity[moving, axis], extra[moving, axis], 1)[0]
+        assert slope == pytest.approx(-GRAVITY * lean[axis], rel=0.02)
+    turned = np.cumsum(leaning.gyro.xyz - upright.gyro.xyz, axis=0) * np.gradient(t)[:, None]
+    assert np.polyfit(velocity[moving, 0], turned[moving, 1], 1)[0] == pytest.approx(lean[0], rel=0.05)
+    assert np.polyfit(velocity[moving, 1], turned[moving, 0], 1)[0] == pytest.approx(-lean[1], rel=0.05)
+
+
+def test_a_lean_needs_the_velocity_of_the_imus_samples() -> None:
+    batch = ImuBatch(np.arange(3.0), np.zeros((3, 3)), np.zeros((3, 3)))
+    with pytest.raises(ValueError, match="body velocity"):
+        make_effect("attitude_lean", {"rad_per_mps": [0.01, 0.0]}).apply_imu(batch, None)
+    with pytest.raises(ValueError, match="two finite numbers"):
+        make_effect("attitude_lean", {"rad_per_mps": [0.01, 0.0, 0.0]})
+
+
 def test_the_tags_antenna_pattern_biases_each_range_by_its_anchors_direction_in_the_body_frame(
         survey_0425: Path) -> None:
     """Each range reads c · [u_z² − 1/3, u_x² − u_y², 2 u_x u_y], u the unit vector

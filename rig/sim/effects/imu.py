@@ -106,7 +106,9 @@ class AttitudeLean(Effect):
     feel the lean: the accelerometer reads g·c·v more drag on each axis, the gyroscope
     the lean's rate. On the real flights both sensors show it alike, against the
     motion capture's attitude (benchmarks/accel_drag.py); which of the two attitudes
-    carries it is not identified. Needs the batch's body velocity (ImuBatch.velocity)."""
+    carries it is not identified. Needs the batch's body velocity (ImuBatch.velocity).
+    Simulator only: fitted by the diagnosis it cost concealed cases, and was not kept
+    (docs/notebook/diagnosis-experiments.md, session 75)."""
 
     name, stage, bounds = "attitude_lean", WORLD, {"rad_per_mps": LEAN_BOUND}
 
