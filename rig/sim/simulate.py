@@ -12,6 +12,7 @@ import json
 import logging
 import math
 from dataclasses import asdict, dataclass, field
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -185,9 +186,14 @@ class Predictor:
         self.accel_rotor = self.trajectory.rotor_speed(rec.accel.t, self.accel_true)
         self.gyro_true = self.trajectory.angular_rate(rec.gyro.t)
         self.gyro_rotor = _resampled(rec.gyro.t, rec.accel.t, self.accel_rotor)     # the gyroscope's own clock
-        self.motion = {stream: (self.trajectory.body_velocity(t), self.trajectory.body_velocity_rate(t))
-                       for stream, t in (("accel", rec.accel.t), ("gyro", rec.gyro.t))}
         self._kinematics: dict[bytes, tuple[np.ndarray, object]] = {}
+
+    @cached_property
+    def motion(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """Each IMU stream's body velocity and its rate, at its samples (what a lean
+        needs; computed once, when first asked for)."""
+        return {stream: (self.trajectory.body_velocity(t), self.trajectory.body_velocity_rate(t))
+                for stream, t in (("accel", self.rec.accel.t), ("gyro", self.rec.gyro.t))}
 
     def world(self, effects: list[fx.Effect]) -> fx.World:
         world = fx.World.surveyed(self.rec.anchors)
