@@ -431,6 +431,20 @@ def test_imu_effects_predict_a_recording_whose_gyroscope_has_its_own_clock(data_
                                + ((rec.accel.t >= 30.0) & (rec.accel.t < 40.0)), atol=1e-12)
 
 
+def test_a_lean_injected_into_a_real_flight_reads_on_both_sensors_along_its_velocity(data_dir: Path) -> None:
+    """`rig inject` acts on the recorded readings along the flight's ground truth: the
+    accelerometer reads g·c·v more drag, the gyroscope turns by the lean."""
+    rec = load_any(data_dir / "flights" / "0426-traj1")
+    leaning = inject(rec, [{"effect": "attitude_lean", "params": {"rad_per_mps": [0.01, 0.0]}}])
+    velocity = RecordedTrajectory(rec.truth).body_velocity(rec.accel.t)
+    extra = leaning.accel.xyz - rec.accel.xyz
+    assert np.polyfit(velocity[:, 0], extra[:, 0], 1)[0] == pytest.approx(-GRAVITY * 0.01, rel=0.02)
+    assert np.abs(extra[:, 1]).max() < 1e-3
+    turned = np.cumsum((leaning.gyro.xyz - rec.gyro.xyz)[:, 1] * np.gradient(rec.gyro.t))
+    assert np.polyfit(RecordedTrajectory(rec.truth).body_velocity(rec.gyro.t)[:, 0], turned, 1)[0] \
+        == pytest.approx(0.01, rel=0.05)
+
+
 def test_windowed_mean_attitude_averages_out_pose_noise_across_sign_flips() -> None:
     """Motion-capture attitude noise averaged over a window drops by √(poses); a pose
     reported as −q (the same rotation) must not cancel its neighbours."""
