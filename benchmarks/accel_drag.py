@@ -10,13 +10,11 @@ y and the ground truth's specific force (rig.sim.trajectory) are each fitted as
 k·v_body + c: k of each, their ratio (what a scale of the truth's specific force can
 stand in for), and each one's correlation with the velocity (session 74).
 
-Then the lean (session 75), over the longest stretch in the air, in mrad per m/s of
-body velocity (`attitude_lean`'s c): the gyroscope's rates and the ground truth's,
-each integrated, a slow cubic trend taken out, their difference regressed on the
-velocity (about body y for x, about −x for y); and the accelerometer's excess over
-the truth's specific force regressed on −g·v. A lean shows alike in both; what the
-accelerometer alone shows is not one. Seconds per flight; it decides nothing
-(docs/notebook/diagnosis-experiments.md)."""
+Then the lean into the motion (session 75), in mrad per m/s of body velocity
+(`attitude_lean`'s c), as the gyroscope and as the accelerometer measure it against
+the ground truth (rig.diagnosis.lean, which `rig diagnose` reports too). A lean shows
+alike in both; what the accelerometer alone shows is not one. Seconds per flight; it
+decides nothing (docs/notebook/diagnosis-experiments.md)."""
 
 from __future__ import annotations
 
@@ -32,7 +30,8 @@ sys.path.insert(0, str(ROOT))
 
 from rig.data import paths  # noqa: E402
 from rig.data.importer import load_any  # noqa: E402
-from rig.sim.trajectory import GRAVITY, RecordedTrajectory  # noqa: E402
+from rig.diagnosis.lean import measure_lean  # noqa: E402
+from rig.sim.trajectory import RecordedTrajectory  # noqa: E402
 
 BLOCK_S = 0.2
 AIRBORNE_M = 0.5
@@ -70,40 +69,12 @@ def flight_drag(flight: Path) -> dict:
     return out
 
 
-def longest_stretch(t: np.ndarray, gap_s: float = 0.1) -> np.ndarray:
-    """The indices of the longest run of samples without a gap longer than `gap_s`."""
-    runs = np.split(np.arange(len(t)), np.where(np.diff(t) > gap_s)[0] + 1)
-    return max(runs, key=len)
-
-
-def integrated(t: np.ndarray, rates: np.ndarray) -> np.ndarray:
-    """The angle each rate turns through from the first sample (trapezoids)."""
-    steps = (rates[1:] + rates[:-1]) / 2 * np.diff(t)[:, None]
-    return np.vstack([np.zeros(rates.shape[1]), np.cumsum(steps, axis=0)])
-
-
-def flight_lean(flight: Path, decimate: int = 5) -> dict:
-    """The lean c (rad per m/s) on x and y as the gyroscope and as the accelerometer
-    measure it against the ground truth."""
+def flight_lean(flight: Path) -> dict:
+    """The lean on x and y by each sensor (rig.diagnosis.lean), rad per m/s."""
     rec = load_any(flight)
-    truth = RecordedTrajectory(rec.truth)
-    t = rec.gyro.t
-    keep = (t > truth.t_start + CUT_S) & (t < truth.t_end - CUT_S) & (truth.position(t)[:, 2] > AIRBORNE_M)
-    t, gyro = t[keep], rec.gyro.xyz[keep]
-    run = longest_stretch(t)[::decimate]
-    t, gyro = t[run], gyro[run]
-    accel = np.column_stack([np.interp(t, rec.accel.t, rec.accel.xyz[:, i]) for i in range(3)])
-    turned = integrated(t, gyro) - integrated(t, truth.angular_rate(t))
-    excess = accel - truth.specific_force(t)
-    velocity = truth.body_velocity(t)
-    s = (t - t[0]) / max(t[-1] - t[0], 1e-9)
-    out = {}
-    for axis, (about, sign) in zip("xy", ((1, 1.0), (0, -1.0))):
-        k = "xy".index(axis)
-        design = np.column_stack([velocity[:, k], np.ones_like(s), s, s ** 2, s ** 3])
-        out[axis] = {"gyroscope": float(np.linalg.lstsq(design, sign * turned[:, about], rcond=None)[0][0]),
-                     "accelerometer": float(-np.linalg.lstsq(design, excess[:, k] / GRAVITY, rcond=None)[0][0])}
-    return out
+    lean = measure_lean(rec, RecordedTrajectory(rec.truth))
+    return {axis: {"gyroscope": float(lean.gyroscope[k]), "accelerometer": float(lean.accelerometer[k])}
+            for k, axis in enumerate("xy")}
 
 
 def main() -> None:

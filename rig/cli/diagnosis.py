@@ -54,7 +54,7 @@ def print_diagnosis(result, report: dict) -> None:
     """The channels' mismatch, the findings, the IMU's noise and the largest changes against a control."""
     from rig.diagnosis import compare
     from rig.diagnosis.report import SENSORS, change_text
-    from rig.diagnosis.wording import describe, not_explained_line
+    from rig.diagnosis.wording import describe, lean_line, not_explained_line
     from rig.sim import effects as fx
 
     for name, c in report["channels"].items():
@@ -65,6 +65,8 @@ def print_diagnosis(result, report: dict) -> None:
         print(f"  not explained ({len(result.not_explained)} fits beyond their effect's physical bound, in report.md):")
     for f in result.not_explained:
         print(f"    evidence {f.evidence:9.1f}  {not_explained_line(f)}")
+    if lean_line(result):
+        print(f"    {lean_line(result)}")
     noise = fx.params_by_name(report["model"])
     if "imu_lowpass" in noise:
         lowpass = noise["imu_lowpass"]

@@ -70,6 +70,7 @@ from rig.diagnosis.channels import AXES, Channel, Problem
 from rig.diagnosis.confined import nlos_candidate, nlos_shape
 from rig.diagnosis.findings import Diagnosis, Finding, Unnamed, rounded_floats
 from rig.diagnosis.floor_error import ON_GROUND_PRIOR, ON_GROUND_SHAPES, floor_multipath, local_noise, on_ground_fits
+from rig.diagnosis.lean import measure_lean
 from rig.diagnosis.mismatch import locate
 from rig.diagnosis.robust import delay_centre, huber_loss, irls, robust_nll, robust_rms
 from rig.diagnosis.selection import LOOK_ALIKES, fresh_terms, select, unnamed_simplest_terms
@@ -203,7 +204,8 @@ def diagnose(rec: Recording, progress=None, link_bias: bool = True) -> Diagnosis
             model.append(fx.make_effect("multipath_floor", floor.params))
     findings.sort(key=lambda f: -f.evidence)
     return Diagnosis(problem, findings, model, before, after, identifiability(pool), lever_arm_cross_talk(pool),
-                     unnamed, in_place, tdoa_left, locate(problem, before))
+                     unnamed, in_place, tdoa_left, locate(problem, before),
+                     measure_lean(rec, problem.predictor.trajectory))
 
 
 def identifiability(pool: list[Candidate]) -> list[ident.Identifiability]:

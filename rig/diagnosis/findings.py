@@ -14,6 +14,7 @@ import numpy as np
 from rig.diagnosis import identifiability as ident
 from rig.diagnosis import imu_spectrum
 from rig.diagnosis.channels import Problem
+from rig.diagnosis.lean import Lean
 from rig.diagnosis.robust import mad_scale, robust_rms
 from rig.sim import effects as fx
 
@@ -76,6 +77,7 @@ class Diagnosis:
     # fitted: where an NLOS of this recording or another of the flight is estimated
     tdoa_left: np.ndarray | None = None
     mismatch: dict = field(default_factory=dict)       # where recording and simulation differ (mismatch.locate)
+    lean: Lean | None = None                           # the airframe's lean by each IMU sensor (lean.measure_lean)
 
     @property
     def explained(self) -> list[Finding]:
@@ -110,7 +112,8 @@ class Diagnosis:
                 "lever_arm_cross_talk": [{"anchor": k, "delay_m_per_m": rounded_floats(v)}
                                          for k, v in self.cross_talk.items()],
                 "unnamed_estimates": [u.to_json() for u in self.unnamed],
-                "in_place_estimates": [u.to_json() for u in self.in_place]}
+                "in_place_estimates": [u.to_json() for u in self.in_place],
+                "lean_against_truth": None if self.lean is None else self.lean.to_json()}
 
     def vibration_rms(self) -> list[float] | None:
         """The accelerometer's mean vibration RMS per axis over the compared rows: what

@@ -24,7 +24,7 @@ from rig.diagnosis.imu_spectrum import vibration_spread  # noqa: E402
 from rig.diagnosis.floor_error import ON_GROUND_M  # noqa: E402
 from rig.diagnosis.identifiability import figures  # noqa: E402
 from rig.diagnosis.mismatch import CELL_M  # noqa: E402
-from rig.diagnosis.wording import describe, how_far_beyond, per_anchor, place, where_not_explained  # noqa: E402
+from rig.diagnosis.wording import describe, how_far_beyond, lean_line, per_anchor, place, where_not_explained  # noqa: E402
 from rig.sim import effects as fx  # noqa: E402
 
 REPORT_JSON, REPORT_MD, MODEL_JSON = "report.json", "report.md", "model.json"
@@ -135,7 +135,8 @@ def _not_explained_lines(diagnosis: Diagnosis) -> list[str]:
              "|---|---|---|---|---|"]
     for f in diagnosis.not_explained:
         lines.append(f"| {f.effect} | {place(f)} | {_params_text(f.params)} | {how_far_beyond(f)} | {f.evidence:.1f} |")
-    return lines + [""]
+    lean = lean_line(diagnosis)
+    return lines + ([] if lean is None else ["", lean[0].upper() + lean[1:] + "."]) + [""]
 
 
 def _against_control_lines(against: dict | None) -> list[str]:

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from rig.diagnosis.findings import Finding
+from rig.diagnosis.findings import Diagnosis, Finding
 from rig.sim import effects as fx
 
 PLAIN = {
@@ -105,6 +105,18 @@ def how_far_beyond(finding: Finding) -> str:
     params = {k: v for k, v in finding.params.items() if k in fx.EFFECTS[finding.effect].bounds}
     return "; ".join(f"{k} {np.round(v, 3).tolist()} (bound {fx.EFFECTS[finding.effect].bounds[k]:g})"
                      for k, v in params.items()) or "beyond its bound"
+
+
+def lean_line(diagnosis: Diagnosis) -> str | None:
+    """What an accelerometer scale beyond its bound stands for, when the flight was
+    measured for a lean (rig.diagnosis.lean); None otherwise."""
+    if diagnosis.lean is None or not any(f.effect == "imu_accel_scale" for f in diagnosis.not_explained):
+        return None
+    mrad = {name: ", ".join(f"{1e3 * v:+.1f}" for v in values)
+            for name, values in (("gyroscope", diagnosis.lean.gyroscope), ("accelerometer", diagnosis.lean.accelerometer))}
+    return (f"against the ground truth's attitude the airframe leans into its motion by [{mrad['gyroscope']}] mrad "
+            f"per m/s (x, y) by the gyroscope and [{mrad['accelerometer']}] by the accelerometer (`attitude_lean`): "
+            "where the two agree, the accelerometer's scale stands for that lean, read as more rotor drag")
 
 
 def where_not_explained(findings: list[Finding]) -> str:
