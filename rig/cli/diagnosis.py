@@ -65,8 +65,9 @@ def print_diagnosis(result, report: dict) -> None:
         print(f"  not explained ({len(result.not_explained)} fits beyond their effect's physical bound, in report.md):")
     for f in result.not_explained:
         print(f"    evidence {f.evidence:9.1f}  {not_explained_line(f)}")
-    if lean_line(result):
-        print(f"    {lean_line(result)}")
+    lean = lean_line(result)
+    if lean:
+        print(f"    {lean}")
     noise = fx.params_by_name(report["model"])
     if "imu_lowpass" in noise:
         lowpass = noise["imu_lowpass"]

@@ -44,14 +44,17 @@ def measure_lean(rec: Recording, truth: RecordedTrajectory) -> Lean | None:
     t = rec.gyro.t
     if not len(t) or not len(rec.accel.t):
         return None
-    lowest = np.percentile(rec.truth.position[:, 2], 1)
+    lowest = np.nanpercentile(rec.truth.position[:, 2], 1)
     air = ((t > truth.t_start + CUT_S) & (t < truth.t_end - CUT_S)
            & (truth.position(t)[:, 2] > lowest + AIRBORNE_M) & np.all(np.isfinite(rec.gyro.xyz), axis=1))
     run = np.flatnonzero(air)[longest_stretch(t[air])][::DECIMATE]
     if len(run) < 10 or t[run[-1]] - t[run[0]] < MIN_STRETCH_S:
         return None
     t, gyro = t[run], rec.gyro.xyz[run]
-    accel = np.column_stack([np.interp(t, rec.accel.t, rec.accel.xyz[:, i]) for i in range(3)])
+    finite = np.all(np.isfinite(rec.accel.xyz), axis=1)
+    if finite.sum() < 2:
+        return None
+    accel = np.column_stack([np.interp(t, rec.accel.t[finite], rec.accel.xyz[finite, i]) for i in range(3)])
     turned = integrated(t, gyro) - integrated(t, truth.angular_rate(t))
     excess = accel - truth.specific_force(t)
     velocity = truth.body_velocity(t)

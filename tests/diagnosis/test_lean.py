@@ -33,3 +33,16 @@ def test_a_flight_too_short_in_the_air_is_not_measured(survey_0425: Path) -> Non
     rec = simulate_exact(survey_0425, "circle", duration=40.0)
     short = replace(rec, gyro=replace(rec.gyro, t=rec.gyro.t[:2000], xyz=rec.gyro.xyz[:2000]))
     assert _lean_of(short) is None
+
+
+def test_lost_readings_are_flown_through(survey_0425: Path) -> None:
+    """An accelerometer reading that is not finite (a corrupt log row) and a lost motion
+    capture pose leave the lean measured on the rest."""
+    rec = simulate_exact(survey_0425, "circle", [{"effect": "attitude_lean", "params": {"rad_per_mps": [0.01, 0.0]}}],
+                         duration=40.0)
+    accel = rec.accel.xyz.copy()
+    accel[5000] = np.nan
+    position = rec.truth.position.copy()
+    position[100] = np.nan
+    damaged = replace(rec, accel=replace(rec.accel, xyz=accel), truth=replace(rec.truth, position=position))
+    np.testing.assert_allclose(_lean_of(damaged).accelerometer, [0.01, 0.0], atol=5e-4)

@@ -90,10 +90,11 @@ __all__ = ["CORRUPTION", "FILTERED", "NOISE", "RECTIFIED", "SCALE", "SIGNAL", "T
            "MultipathFloor", "OnGroundDelay", "LearnedBias", "LinkBias"]
 
 EFFECTS: dict[str, type[Effect]] = {
-    cls.name: cls for cls in (AttitudeLean, ImuAccelBias, ImuGyroBias, ImuAccelScale, ImuGyroScale, ImuVibrationRectification,
-                              ImuNoise, ImuVibration, ImuResonance, ImuLowpass, TdoaNoise, Outliers,
-                              TimeOffset, ClockDrift, AnchorPosition, LeverArm, AnchorDelay, AntennaPattern,
-                              TagAntennaPattern, LinkBias, Nlos, MultipathFloor, OnGroundDelay, LearnedBias)
+    cls.name: cls for cls in (AttitudeLean, ImuAccelBias, ImuGyroBias, ImuAccelScale, ImuGyroScale,
+                              ImuVibrationRectification, ImuNoise, ImuVibration, ImuResonance, ImuLowpass,
+                              TdoaNoise, Outliers, TimeOffset, ClockDrift, AnchorPosition, LeverArm, AnchorDelay,
+                              AntennaPattern, TagAntennaPattern, LinkBias, Nlos, MultipathFloor, OnGroundDelay,
+                              LearnedBias)
 }
 
 
