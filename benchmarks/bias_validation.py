@@ -159,11 +159,7 @@ from bias_validation_results import (  # noqa: E402
 
 CACHE = ROOT / "out" / "cache" / "all.npz"
 SAVE_MODELS_ENV = "UWB_RIG_SAVE_MODELS"
-# Session 76's experiment, registered before its run: the link form with its weights
-# averaged over the optimiser's steps (rig.bias.train._weight_average), decay per step.
-WEIGHT_AVERAGE, WEIGHT_AVERAGE_DECAY = "weight-average", 0.999
-FORMS = {"link": "7", "shared": "shared", "pair": "14", UNTRANSLATED: "7",   # form -> rig train's feature set
-         WEIGHT_AVERAGE: "7"}
+FORMS = {"link": "7", "shared": "shared", "pair": "14", UNTRANSLATED: "7"}   # form -> rig train's feature set
 VALIDATION_SHARE = 0.15
 
 
@@ -254,8 +250,7 @@ def clamped_correction(net, samples: Samples, trained: Samples) -> tuple[np.ndar
 
 def form_config(form: str, **kwargs) -> TrainConfig:
     """The training configuration of a form of this page."""
-    return TrainConfig.with_features(FORMS[form], untranslated=form == UNTRANSLATED,
-                                     weight_average=WEIGHT_AVERAGE_DECAY if form == WEIGHT_AVERAGE else 0.0, **kwargs)
+    return TrainConfig.with_features(FORMS[form], untranslated=form == UNTRANSLATED, **kwargs)
 
 
 def flight_split_samples(split_name: str, seed: int) -> tuple[Samples, Split]:
