@@ -21,8 +21,16 @@ ENTRY_PAGE = ROOT / "docs" / "bias.md"     # its table of estimates is written f
 
 FLIGHT_SPLITS = ("day-0426", "day-0425", "mode-tdoa3", "mode-tdoa2")   # the splits the rule weighs
 ESTIMATE_SPLITS = ("within-0426", "day-0422")       # flight splits that estimate a held-out check, weighing nothing
+# the split that chooses a training change (benchmarks/form_rule.py, session 77): new
+# flights of a trained day, as within-0426, on the other day with many flights, so that
+# the 0426 estimate is not also what chooses; folds by flight number mod 3, fixed before
+# its first run (each holds TDOA2 and TDOA3 flights, flat and sinusoidal heights)
+SELECTION_SPLITS = ("within-0425",)
 WITHIN_0426_FOLDS = {"a": ["0426-traj1", "0426-traj4", "0426-traj5", "0426-traj8"],
                      "b": ["0426-traj2", "0426-traj3", "0426-traj6", "0426-traj7"]}
+WITHIN_0425_FOLDS = {fold: [f"0425-traj{n}" for n in range(1, 24) if n % 3 == rest]
+                     for fold, rest in (("a", 0), ("b", 1), ("c", 2))}
+WITHIN_FOLDS = {"within-0426": WITHIN_0426_FOLDS, "within-0425": WITHIN_0425_FOLDS}   # split -> its folds
 REGION_Z = (1.3, 1.7)            # the training band of the region split (tag height, m)
 SECTORS = 4                      # the sector split's quarters of the circle
 ACCURACY_TOLERANCE_M = 0.01
@@ -38,19 +46,20 @@ UNTRANSLATED_TOLERANCE_M = 0.005
 # session 68's "installation": experiment/installation-delays; session 71's "weight-decay":
 # experiment/weight-decay and "balanced-days": experiment/balanced-days; session 73's
 # "corrected-features": experiment/corrected-features and, on fresh seeds,
-# experiment/corrected-features-replication)
+# experiment/corrected-features-replication; session 76's "weight-average", cc3dcd2, judged
+# again in session 77)
 NOT_RANKED = (UNTRANSLATED, "offset", "huber", "distilled", "refit", "six-restarts", "installation", "weight-decay",
-              "balanced-days", "corrected-features")
+              "balanced-days", "corrected-features", "weight-average")
 
 
 def merge_folds(rows: list[dict]) -> list[dict]:
-    """A split run in folds (within-0426) as one row per form and seed, over the test
+    """A split run in folds (WITHIN_FOLDS) as one row per form and seed, over the test
     flights of all its folds; a seed whose folds are not all run is left out."""
     merged, whole = [], [r for r in rows if "fold" not in r]
     for key in sorted({(r["split"], r["form"], r["seed"]) for r in rows if "fold" in r}):
         folds = sorted((r for r in rows if "fold" in r and (r["split"], r["form"], r["seed"]) == key),
                        key=lambda r: r["fold"])
-        if {r["fold"] for r in folds} != set(WITHIN_0426_FOLDS):
+        if {r["fold"] for r in folds} != set(WITHIN_FOLDS[key[0]]):
             continue
         flights = [f for r in folds for f in r["flights"]]
         rmse = np.array([f["rmse_3d"] for f in flights])
@@ -154,6 +163,8 @@ SPLIT_WORDS = {"day-0426": "trained on 0422 + 0425, tested on the 0426 flights",
                "mode-tdoa3": "trained on TDOA2 flights, tested on the TDOA3 flights",
                "mode-tdoa2": "trained on TDOA3 flights, tested on the TDOA2 flights",
                "within-0426": "trained on every other flight, 0426 flights among them, tested on 0426 flights (two folds)",
+               "within-0425": "trained on every other flight, 0425 flights among them, tested on 0425 flights "
+                              "(three folds; chooses training changes, benchmarks/form_rule.py)",
                "anchors": "each anchor left out of training, tested on its pairs in the test flights",
                "region": f"trained with the tag {REGION_Z[0]}–{REGION_Z[1]} m high, tested above and below",
                "sector": "each quarter of the circle left out of training, tested there"}

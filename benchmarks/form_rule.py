@@ -1,22 +1,39 @@
-"""The rule that decides whether the link form trained otherwise replaces the recipe
-(sessions 71 on; the weight decay's rule, made for any form), fixed before each run: the
-form's rows of an experiment's JSON against the kept link rows
-(docs/notebook/bias-validation.json, the same seeds, splits and MKL branch; session 70
-reran them to the last digit). Seconds, once the run is done:
+"""The rule that decides whether the link form trained otherwise (a training change)
+replaces the recipe, fixed before each run: the form's rows of an experiment's JSON
+against the link rows of the same seeds and splits (the kept ones,
+docs/notebook/bias-validation.json, and any link rows of the experiment's JSON; the same
+MKL branch, so that training repeats to the last digit). Seconds, once the run is done:
 
     .venv/bin/python benchmarks/bias_validation.py --forms FORM \\
-        --splits day-0426 day-0425 mode-tdoa3 mode-tdoa2 within-0426 day-0422 --json out/FORM.json   # 12 min
-    .venv/bin/python benchmarks/form_rule.py --form FORM [--json out/FORM.json] [--link-json JSON]
+        --splits within-0425 day-0426 day-0425 within-0426 day-0422 mode-tdoa3 mode-tdoa2 --json out/FORM.json
+    .venv/bin/python benchmarks/bias_validation.py --forms FORM link --seeds 3 4 5 \\
+        --splits within-0425 --json out/FORM.json        # the replication, if seeds 0-2 pass
+    .venv/bin/python benchmarks/form_rule.py --form FORM [--json out/FORM.json] [--rule 71]
 
 Each flight's figure is the shipped estimator's (the share of the correction the flight
-supports, `rmse_3d`). Accuracy is the mean over the four day and mode splits of the mean
-3D RMSE over seeds; flights worse is the sum over those splits of the mean over seeds of
-the flights the correction makes worse than none. The form is kept only if
-(1) neither figure is higher than the link rows', and
-(2) accuracy is lower by at least 0.005 m, or flights worse by at least 1.0, and
-(3) within-0426 its mean is at most 0.002 m higher, with no flight worse on any seed.
-day-0422 is reported and decides nothing. With --link-json, the link rows are that
-file's (a replication on fresh seeds trains both forms into one JSON).
+supports, `rmse_3d`); a split's figure is the mean over seeds of its mean 3D RMSE, and the
+mean over seeds of the flights the correction makes worse than none.
+
+The rule of session 77 (the default), registered before any run of within-0425. The form
+is kept only if, on seeds 0-2:
+(1) within-0425 (new flights of a trained day: the situation of the issue's 0426 check,
+    on the other day) its mean is lower by at least 0.005 m, with no more flights worse;
+(2) on a new day (day-0426 and day-0425) the mean of the two is at most 0.002 m higher,
+    with at most 1.0 more flights worse over both;
+(3) within-0426 no flight is worse on any seed;
+and (4) on fresh seeds 3-5, (1) holds again.
+within-0426 and day-0422 are the estimates of the issue's two checks (new flights of
+0426, another day) and decide nothing else; the mode splits are not among its checks and
+are reported only.
+
+Why it changed: the rule of sessions 71-76 (`--rule 71`) weighed the four day and mode
+splits: (1) neither accuracy (their mean) nor flights worse (their sum) higher, (2)
+accuracy lower by 0.005 m or 1.0 fewer flights worse, (3) within-0426 at most 0.002 m
+higher, no flight worse on any seed. Two changes (sessions 73 and 76) lowered within-0426
+on every seed and lost TDOA2 -> TDOA3, which is not a check of the issue: the shipped
+model trains on both modes. Choosing on within-0426 would make the estimate of the
+0426 check also what chooses the recipe; within-0425 is that situation on flights no
+estimate rests on.
 """
 
 from __future__ import annotations
@@ -28,24 +45,68 @@ from pathlib import Path
 from trust_rule import ACCURACY_SPLITS, ESTIMATORS, KEPT, mean_over_seeds, per_seed
 
 ROOT = Path(__file__).resolve().parent.parent
-SPLITS = (*ACCURACY_SPLITS, "within-0426", "day-0422")
 GAIN_M, FEWER_WORSE, WITHIN_TOLERANCE_M = 0.005, 1.0, 0.002
+SEEDS, FRESH_SEEDS = (0, 1, 2), (3, 4, 5)
+SELECTION, NEW_DAYS, ESTIMATES = "within-0425", ("day-0426", "day-0425"), ("within-0426", "day-0422")
+SPLITS = {71: (*ACCURACY_SPLITS, "within-0426", "day-0422"),
+          77: (SELECTION, *NEW_DAYS, *ESTIMATES, "mode-tdoa3", "mode-tdoa2")}
 
 
-def figures(rows: list[dict]) -> dict[str, tuple[float, float]]:
-    return {split: mean_over_seeds(rows, split, ESTIMATORS["trust"]) for split in SPLITS}
+def of_seeds(rows: list[dict], seeds: tuple[int, ...]) -> list[dict]:
+    return [r for r in rows if r["seed"] in seeds]
 
 
-def verdict(link: list[dict], form: list[dict]) -> dict:
-    fig = {"link": figures(link), "form": figures(form)}
+def figures(rows: list[dict], splits: tuple[str, ...]) -> dict[str, tuple[float, float]]:
+    """Each split's mean 3D RMSE and flights worse, means over seeds (the splits run)."""
+    return {split: mean_over_seeds(rows, split, ESTIMATORS["trust"]) for split in splits
+            if any(r["split"] == split for r in rows)}
+
+
+def no_flight_worse_within_0426(form: list[dict]) -> bool:
+    return max(w for _, w in per_seed(form, "within-0426", ESTIMATORS["trust"]).values()) == 0
+
+
+def verdict_71(link: list[dict], form: list[dict]) -> dict:
+    """The rule of sessions 71-76, on seeds 0-2."""
+    link, form = of_seeds(link, SEEDS), of_seeds(form, SEEDS)
+    fig = {"link": figures(link, SPLITS[71]), "form": figures(form, SPLITS[71])}
     accuracy = {name: sum(f[s][0] for s in ACCURACY_SPLITS) / len(ACCURACY_SPLITS) for name, f in fig.items()}
     worse = {name: sum(f[s][1] for s in ACCURACY_SPLITS) for name, f in fig.items()}
     one = accuracy["form"] <= accuracy["link"] and worse["form"] <= worse["link"]
     two = accuracy["form"] <= accuracy["link"] - GAIN_M or worse["form"] <= worse["link"] - FEWER_WORSE
-    within_worse = max(w for _, w in per_seed(form, "within-0426", ESTIMATORS["trust"]).values())
-    three = fig["form"]["within-0426"][0] <= fig["link"]["within-0426"][0] + WITHIN_TOLERANCE_M and within_worse == 0
+    three = (fig["form"]["within-0426"][0] <= fig["link"]["within-0426"][0] + WITHIN_TOLERANCE_M
+             and no_flight_worse_within_0426(form))
     return {"figures": fig, "accuracy_m": accuracy, "worse_flights": worse, "1": one, "2": two, "3": three,
             "kept": one and two and three}
+
+
+def selection_holds(link: dict, form: dict) -> bool:
+    """(1): within-0425 lower by GAIN_M, with no more flights worse."""
+    (lm, lw), (fm, fw) = link[SELECTION], form[SELECTION]
+    return fm <= lm - GAIN_M and fw <= lw
+
+
+def verdict_77(link: list[dict], form: list[dict]) -> dict:
+    """The rule of session 77: (1)-(3) on seeds 0-2, (4) on seeds 3-5 if they were run."""
+    fig = {"link": figures(of_seeds(link, SEEDS), SPLITS[77]), "form": figures(of_seeds(form, SEEDS), SPLITS[77])}
+    new_day = {name: (sum(f[s][0] for s in NEW_DAYS) / len(NEW_DAYS), sum(f[s][1] for s in NEW_DAYS))
+               for name, f in fig.items()}
+    one = selection_holds(fig["link"], fig["form"])
+    two = (new_day["form"][0] <= new_day["link"][0] + WITHIN_TOLERANCE_M
+           and new_day["form"][1] <= new_day["link"][1] + FEWER_WORSE)
+    three = no_flight_worse_within_0426(of_seeds(form, SEEDS))
+    fresh = {"link": figures(of_seeds(link, FRESH_SEEDS), (SELECTION,)),
+             "form": figures(of_seeds(form, FRESH_SEEDS), (SELECTION,))}
+    four = selection_holds(fresh["link"], fresh["form"]) if all(SELECTION in f for f in fresh.values()) else None
+    return {"figures": fig, "fresh_seeds": fresh, "new_day": new_day, "1": one, "2": two, "3": three, "4": four,
+            "kept": bool(one and two and three and four)}
+
+
+VERDICTS = {71: verdict_71, 77: verdict_77}
+
+
+def rows_of(path: Path, form: str) -> list[dict]:
+    return [r for r in json.loads(path.read_text())["rows"] if r["form"] == form and "flights" in r]
 
 
 def main() -> None:
@@ -53,19 +114,24 @@ def main() -> None:
     parser.add_argument("--form", required=True, help="the experiment's form, as bias_validation.py --forms names it")
     parser.add_argument("--json", type=Path, help="the experiment's rows (default: out/FORM.json)")
     parser.add_argument("--link-json", type=Path, default=KEPT, help="the link rows compared with (default: the kept ones)")
+    parser.add_argument("--rule", type=int, choices=sorted(VERDICTS), default=77,
+                        help="the session whose rule judges (71: sessions 71-76's)")
     args = parser.parse_args()
     path = args.json or ROOT / "out" / f"{args.form}.json"
-    link = [r for r in json.loads(args.link_json.read_text())["rows"] if r["form"] == "link" and "flights" in r]
+    # the experiment's own link rows (fresh seeds) join the kept ones, in their place if both hold a row
+    link = list({(r["split"], r["seed"], r.get("fold")): r
+                 for r in rows_of(args.link_json, "link") + rows_of(path, "link")}.values())
     if not link:
         parser.error(f"{args.link_json} holds no rows of the link form")
-    form = [r for r in json.loads(path.read_text())["rows"] if r["form"] == args.form and "flights" in r]
+    form = rows_of(path, args.form)
     if not form:
         parser.error(f"{path} holds no rows of the form {args.form!r}")
-    result = verdict(link, form)
-    for split in SPLITS:
-        (lm, lw), (fm, fw) = result["figures"]["link"][split], result["figures"]["form"][split]
-        print(f"{split:12s} link {lm:.4f} m, {lw:.2f} worse | {args.form} {fm:.4f} m, {fw:.2f} worse")
-    print(json.dumps({"form": args.form, **{k: v for k, v in result.items() if k != "figures"}}))
+    result = VERDICTS[args.rule](link, form)
+    for split in SPLITS[args.rule]:
+        if split in result["figures"]["link"] and split in result["figures"]["form"]:
+            (lm, lw), (fm, fw) = result["figures"]["link"][split], result["figures"]["form"][split]
+            print(f"{split:12s} link {lm:.4f} m, {lw:.2f} worse | {args.form} {fm:.4f} m, {fw:.2f} worse")
+    print(json.dumps({"form": args.form, "rule": args.rule, **{k: v for k, v in result.items() if k != "figures"}}))
 
 
 if __name__ == "__main__":

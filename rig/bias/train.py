@@ -236,6 +236,8 @@ def _train_once(torch, data: tuple, config: TrainConfig, restart: int, progress=
     rng = np.random.default_rng(init_seed)
     model = _model(torch, config)
     optimiser = torch.optim.Adam(model.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay)
+    averaged = _weight_average(torch, model, config.weight_average)
+    trained = averaged.module if averaged is not None else model       # what is validated and kept
     loss_fn = torch.nn.MSELoss()
     best, best_state, best_epoch, history = np.inf, None, -1, []
     epochs = range(config.max_epochs)
@@ -248,18 +250,31 @@ def _train_once(torch, data: tuple, config: TrainConfig, restart: int, progress=
             loss = loss_fn(model(xt[idx]), yt[idx])
             loss.backward()
             optimiser.step()
-        model.eval()
+            if averaged is not None:
+                averaged.update_parameters(model)
+        trained.eval()
         with torch.no_grad():
-            val = float(loss_fn(model(xv), yv)) if len(xv) else float(loss)
+            val = float(loss_fn(trained(xv), yv)) if len(xv) else float(loss)
         history.append({"epoch": epoch, "validation_mse": val})
         if val < best - 1e-6:
             best, best_epoch = val, epoch
-            best_state = {k: v.clone() for k, v in model.state_dict().items()}
+            best_state = {k: v.clone() for k, v in trained.state_dict().items()}
         elif epoch - best_epoch >= config.patience:
             break
     model.load_state_dict(best_state)
     return model, {"restart": restart, "init_seed": init_seed, "validation_mse": best,
                    "epochs": len(history), "best_epoch": best_epoch, "history": history}
+
+
+def _weight_average(torch, model, decay: float):
+    """An exponential average of `model`'s weights over the optimiser's steps (Polyak
+    averaging), or None for decay 0. Each step's weights carry the noise of its batch;
+    their average sits nearer the middle of the basin the steps wander in."""
+    if decay == 0.0:
+        return None
+    from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
+
+    return AveragedModel(model, multi_avg_fn=get_ema_multi_avg_fn(decay))
 
 
 def _anchor_ids(samples: Samples) -> np.ndarray:

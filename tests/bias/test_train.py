@@ -16,7 +16,9 @@ from rig.bias.config import ANCHOR_OFFSET_BOUND_M, TrainConfig
 from rig.bias.dataset import Samples, flight_samples
 from rig.bias.train import (
     Split,
+    _weight_average,
     fit,
+    import_torch,
     load_or_build_dataset,
     provenance_path,
     run_training,
@@ -67,6 +69,36 @@ def test_training_recovers_a_known_learnable_bias(form: str) -> None:
     residual = test_set.label - net.quantized().predict(test_set.features)
     assert test_set.label.std() > 0.15
     assert residual.std() < 0.07  # noise is 0.05: the bias itself is learned
+
+
+def test_the_weight_average_is_every_steps_weights_averaged_with_its_decay() -> None:
+    torch = import_torch()
+    model = torch.nn.Linear(2, 1)
+    assert _weight_average(torch, model, 0.0) is None
+    averaged, expected = _weight_average(torch, model, 0.9), None
+    for step in range(5):
+        with torch.no_grad():
+            model.weight.mul_(-1.5).add_(step)              # an optimiser's step, any step
+        averaged.update_parameters(model)
+        now = model.weight.detach().clone()
+        expected = now if expected is None else 0.9 * expected + 0.1 * now
+    assert torch.allclose(averaged.module.weight, expected)
+    assert not torch.allclose(averaged.module.weight, model.weight)
+
+
+def test_averaged_weights_are_what_is_trained_and_kept() -> None:
+    data = synthetic_samples(6, 3000, seed=1)
+    train_set = data.select(np.isin(data.flight, ["sim0", "sim1", "sim2", "sim3"]))
+    val_set, test_set = data.select(data.flight == "sim4"), data.select(data.flight == "sim5")
+    plain, _ = train(train_set, val_set, TrainConfig(max_epochs=40))
+    averaged, info = train(train_set, val_set, TrainConfig(max_epochs=40, weight_average=0.99))
+    residual = test_set.label - averaged.quantized().predict(test_set.features)
+    assert residual.std() < 0.07                          # noise is 0.05: the bias is learned
+    assert info["config"]["weight_average"] == 0.99
+    x = test_set.features[:50]
+    assert np.abs(averaged.predict(x) - plain.predict(x)).max() > 1e-4
+    with pytest.raises(ValueError, match="weight_average"):
+        TrainConfig(weight_average=1.0)
 
 
 def test_the_link_form_learns_each_links_own_bias() -> None:

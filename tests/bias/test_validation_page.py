@@ -36,8 +36,10 @@ def test_the_pages_are_rewritten_from_their_kept_results(tmp_path: Path, rows: l
 
 def test_every_row_is_of_the_protocol_on_the_pinned_branch(rows: list[dict]) -> None:
     assert {r.get("mkl_cbwr") for r in rows} == {MKL_BRANCH}
-    assert {r["split"] for r in rows} == {*results.FLIGHT_SPLITS, *results.ESTIMATE_SPLITS, "anchors", "region", "sector"}
-    assert {r["form"] for r in rows} == set(bv.FORMS)
+    assert {r["split"] for r in rows} == {*results.FLIGHT_SPLITS, *results.ESTIMATE_SPLITS, *results.SELECTION_SPLITS,
+                                          "anchors", "region", "sector"}
+    # every form but an experiment's, which runs into its own JSON
+    assert {r["form"] for r in rows} == {f for f in bv.FORMS if f not in results.NOT_RANKED} | {results.UNTRANSLATED}
     assert len({results.row_key(r) for r in rows}) == len(rows)
 
 
@@ -69,14 +71,17 @@ def test_session_59s_rule_on_the_rows(untranslated: float, worse: int, met: bool
 
 
 
-def _flight_rows(form: str, rmse: float, without: float = 0.25, worse_on: tuple[str, ...] = ()) -> list[dict]:
+def _flight_rows(form: str, rmse: float, without: float = 0.25, worse_on: tuple[str, ...] = (),
+                 seeds: tuple[int, ...] = (0, 1, 2), at: dict[str, float] | None = None) -> list[dict]:
     """Rows with flights, as the closed-loop splits write them: one flight a split and
-    seed, `rmse` everywhere, above `without` on the splits in `worse_on`."""
-    splits = (*results.FLIGHT_SPLITS, "within-0426", "day-0422")
+    seed, `rmse` everywhere but on the splits `at` names, above `without` on the splits in
+    `worse_on`."""
+    splits = (*results.FLIGHT_SPLITS, *results.ESTIMATE_SPLITS, *results.SELECTION_SPLITS)
+    at = at or {}
     return [{"split": split, "form": form, "seed": seed,
-             "flights": [{"flight": "f", "rmse_3d": rmse + (without if split in worse_on else 0.0),
+             "flights": [{"flight": "f", "rmse_3d": at.get(split, rmse) + (without if split in worse_on else 0.0),
                           "rmse_3d_without": without}]}
-            for split in splits for seed in (0, 1, 2)]
+            for split in splits for seed in seeds]
 
 
 @pytest.mark.parametrize("rmse, worse_on, kept", [
@@ -85,12 +90,36 @@ def _flight_rows(form: str, rmse: float, without: float = 0.25, worse_on: tuple[
     (0.194, ("within-0426",), False),     # a new flight of a trained day made worse
     (0.194, ("day-0426",), False),        # more flights worse
 ])
-def test_the_form_rule_on_made_up_rows(rmse: float, worse_on: tuple, kept: bool) -> None:
+def test_the_rule_of_sessions_71_to_76_on_made_up_rows(rmse: float, worse_on: tuple, kept: bool) -> None:
     import form_rule
 
-    verdict = form_rule.verdict(_flight_rows("link", 0.200), _flight_rows("x", rmse, worse_on=worse_on))
+    verdict = form_rule.verdict_71(_flight_rows("link", 0.200), _flight_rows("x", rmse, worse_on=worse_on))
     assert verdict["kept"] is kept
     assert verdict["accuracy_m"]["link"] == pytest.approx(0.200)
+
+
+@pytest.mark.parametrize("at, worse_on, fresh, kept", [
+    ({"within-0425": 0.194}, (), 0.194, True),                       # 0.006 m lower where it chooses, on both seed sets
+    ({"within-0425": 0.194}, (), 0.197, False),                      # not again on fresh seeds
+    ({"within-0425": 0.194}, (), None, False),                       # the replication not run
+    ({"within-0425": 0.197}, (), 0.194, False),                      # 0.003 m: not enough
+    ({"within-0425": 0.194, "day-0426": 0.204, "day-0425": 0.203}, (), 0.194, False),   # a new day 0.0035 m higher
+    ({"within-0425": 0.194, "day-0426": 0.203}, (), 0.194, True),    # 0.0015 m higher: within its tolerance
+    ({"within-0425": 0.194}, ("within-0426",), 0.194, False),        # a new flight of 0426 made worse
+    ({"within-0425": 0.194}, ("within-0425",), 0.194, False),        # more flights worse where it chooses
+    ({"within-0425": 0.194}, ("day-0426", "day-0425"), 0.194, False),   # two more flights worse on new days
+    ({"within-0425": 0.194, "mode-tdoa3": 0.250, "day-0422": 0.240}, (), 0.194, True),   # these decide nothing
+])
+def test_the_rule_of_session_77_on_made_up_rows(at: dict, worse_on: tuple, fresh: float | None, kept: bool) -> None:
+    import form_rule
+
+    link = _flight_rows("link", 0.200) + _flight_rows("link", 0.200, seeds=(3, 4, 5))
+    form = _flight_rows("x", 0.200, worse_on=worse_on, at=at)
+    if fresh is not None:
+        form += _flight_rows("x", 0.200, seeds=(3, 4, 5), at={"within-0425": fresh})
+    verdict = form_rule.verdict_77(link, form)
+    assert verdict["kept"] is kept
+    assert verdict["4"] is (None if fresh is None else fresh < 0.195)
 
 
 def test_the_form_rule_compares_a_replications_link_rows_from_its_own_json(tmp_path: Path) -> None:
@@ -101,10 +130,16 @@ def test_the_form_rule_compares_a_replications_link_rows_from_its_own_json(tmp_p
     command = [sys.executable, str(ROOT / "benchmarks" / "form_rule.py"), "--form", "x", "--json", str(both)]
     against_own = subprocess.run([*command, "--link-json", str(both)], capture_output=True, text=True, check=True)
     verdict = json.loads(against_own.stdout.splitlines()[-1])
+    assert verdict["rule"] == 77 and verdict["4"] is None and not verdict["kept"]    # no fresh seeds run
+    assert verdict["new_day"]["link"][0] == pytest.approx(0.210)
+    by_71 = subprocess.run([*command, "--link-json", str(both), "--rule", "71"], capture_output=True, text=True,
+                           check=True)
+    verdict = json.loads(by_71.stdout.splitlines()[-1])
     assert verdict["kept"] and verdict["accuracy_m"]["link"] == pytest.approx(0.210)
     alone = tmp_path / "x.json"
     alone.write_text(json.dumps({"rows": _flight_rows("x", 0.200)}))
-    refused = subprocess.run([*command, "--link-json", str(alone)], capture_output=True, text=True)
+    refused = subprocess.run([*command[:-2], "--json", str(alone), "--link-json", str(alone)],
+                             capture_output=True, text=True)
     assert refused.returncode == 2 and "no rows of the link form" in refused.stderr
 
 
