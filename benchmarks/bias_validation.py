@@ -95,8 +95,13 @@ The protocol is fixed here, before any result is looked at:
   mean 3D RMSE on the validation flights (the shipped recipe, `rig train`);
 - seeds 0, 1 and 2 (each its own cut and initialisations);
 - since session 62, training on one MKL code branch (COMPATIBLE unless MKL_CBWR names
-  another; each row says which, `mkl_cbwr`), so that a figure repeats on any x86-64
-  machine; rows without it were made on their machine's own branch;
+  another; each row says which, `mkl_cbwr`), so that a figure repeats on another
+  machine with the same CPU; rows without it were made on their machine's own branch.
+  Not on another CPU: since session 77 each row says its CPU (`cpu`, vendor family
+  model). The rows without it were made on the Intel Xeon of sessions 62–76
+  (GenuineIntel 6 207), where the link rows repeated to the last digit in sessions 70
+  and 76; an AMD EPYC trains other networks from the same seeds. Rows are compared
+  only with rows of the same CPU (benchmarks/form_rule.py);
 - metrics: on the test flights, the robust estimator's 3D RMSE with and without the
   correction (mean, and how many flights the correction makes worse), and the TDOA
   error's standard deviation on the test samples before and after the correction
@@ -140,7 +145,7 @@ sys.path.insert(0, str(ROOT))
 
 from rig.bias.config import TrainConfig  # noqa: E402
 from rig.bias.dataset import Samples  # noqa: E402
-from rig.bias.train import MKL_BRANCH, Split, fit, involves, load_or_build_dataset, split_flights  # noqa: E402
+from rig.bias.train import MKL_BRANCH, Split, cpu_identity, fit, involves, load_or_build_dataset, split_flights  # noqa: E402
 from rig.data import paths  # noqa: E402
 from rig.estimator.bias_net import link_features  # noqa: E402
 from rig.estimator.trained_region import outside_share  # noqa: E402
@@ -166,12 +171,7 @@ from bias_validation_results import (  # noqa: E402
 
 CACHE = ROOT / "out" / "cache" / "all.npz"
 SAVE_MODELS_ENV = "UWB_RIG_SAVE_MODELS"
-# Session 77's experiment, registered before its run: session 76's link form with its
-# weights averaged over the optimiser's steps (rig.bias.train._weight_average, decay per
-# step), judged again by the rule of session 77 on the split none of its runs had met
-WEIGHT_AVERAGE, WEIGHT_AVERAGE_DECAY = "weight-average", 0.999
-FORMS = {"link": "7", "shared": "shared", "pair": "14", UNTRANSLATED: "7",   # form -> rig train's feature set
-         WEIGHT_AVERAGE: "7"}
+FORMS = {"link": "7", "shared": "shared", "pair": "14", UNTRANSLATED: "7"}   # form -> rig train's feature set
 VALIDATION_SHARE = 0.15
 
 
@@ -263,8 +263,7 @@ def clamped_correction(net, samples: Samples, trained: Samples) -> tuple[np.ndar
 
 def form_config(form: str, **kwargs) -> TrainConfig:
     """The training configuration of a form of this page."""
-    return TrainConfig.with_features(FORMS[form], untranslated=form == UNTRANSLATED,
-                                     weight_average=WEIGHT_AVERAGE_DECAY if form == WEIGHT_AVERAGE else 0.0, **kwargs)
+    return TrainConfig.with_features(FORMS[form], untranslated=form == UNTRANSLATED, **kwargs)
 
 
 def flight_split_samples(split_name: str, seed: int) -> tuple[Samples, Split]:
@@ -418,7 +417,7 @@ def main() -> None:
     with Pool(args.workers) as pool:
         pending = [pool.apply_async(fn, (job,)) for fn, job in jobs]
         for p in pending:
-            row = {**p.get(), "mkl_cbwr": os.environ["MKL_CBWR"]}
+            row = {**p.get(), "mkl_cbwr": os.environ["MKL_CBWR"], "cpu": cpu_identity()}
             rows = [r for r in rows if row_key(r) != row_key(row)] + [row]
             brief = {k: row[k] for k in ("split", "form", "seed", "mean_rmse_3d", "mean_rmse_3d_without",
                                          "worse_flights", "anchor", "sector", "fold") if k in row}

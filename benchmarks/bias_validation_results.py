@@ -34,6 +34,9 @@ WITHIN_FOLDS = {"within-0426": WITHIN_0426_FOLDS, "within-0425": WITHIN_0425_FOL
 REGION_Z = (1.3, 1.7)            # the training band of the region split (tag height, m)
 SECTORS = 4                      # the sector split's quarters of the circle
 ACCURACY_TOLERANCE_M = 0.01
+# the CPU of the rows made before rows said theirs (session 77): a training's figures
+# repeat on its CPU only, so rows are compared with rows of one CPU
+EARLIER_CPU = "GenuineIntel 6 207"
 # the link form trained on labels without each flight's constant tag offset (`rig train
 # --untranslated`): not a form of its own, so it does not take part in choose_form; session
 # 59's rule (benchmarks/tag_offset.py) decides whether it replaces the link form's labels
@@ -46,8 +49,8 @@ UNTRANSLATED_TOLERANCE_M = 0.005
 # session 68's "installation": experiment/installation-delays; session 71's "weight-decay":
 # experiment/weight-decay and "balanced-days": experiment/balanced-days; session 73's
 # "corrected-features": experiment/corrected-features and, on fresh seeds,
-# experiment/corrected-features-replication; session 76's "weight-average", cc3dcd2, judged
-# again in session 77)
+# experiment/corrected-features-replication; session 76's "weight-average", cc3dcd2, and
+# judged again in session 77 by the split that chooses, 0901f37)
 NOT_RANKED = (UNTRANSLATED, "offset", "huber", "distilled", "refit", "six-restarts", "installation", "weight-decay",
               "balanced-days", "corrected-features", "weight-average")
 
@@ -170,13 +173,28 @@ SPLIT_WORDS = {"day-0426": "trained on 0422 + 0425, tested on the 0426 flights",
                "sector": "each quarter of the circle left out of training, tested there"}
 
 
+def row_cpu(row: dict) -> str:
+    """The CPU a row was trained on (rig.bias.train.cpu_identity)."""
+    return row.get("cpu", EARLIER_CPU)
+
+
 def branch_sentence(rows: list[dict]) -> str:
-    """Which MKL branch the rows were trained on: torch's BLAS picks its kernels by CPU
-    unless pinned (rig.bias.train.MKL_BRANCH), and the figures move with it."""
+    """Which MKL branch and CPU the rows were trained on: torch's BLAS picks its kernels
+    by CPU unless pinned (rig.bias.train.MKL_BRANCH), and the figures move with it and
+    with the CPU itself."""
     branches = sorted({r.get("mkl_cbwr", "unpinned") for r in rows})
     if branches == [MKL_BRANCH]:
-        return f"Every row was trained on MKL's {MKL_BRANCH} branch (`mkl_cbwr`), as `rig train` trains."
-    return "The rows were trained on MKL branches " + ", ".join(branches) + " (`mkl_cbwr`): they may differ by branch."
+        words = f"Every row was trained on MKL's {MKL_BRANCH} branch (`mkl_cbwr`), as `rig train` trains"
+    else:
+        words = "The rows were trained on MKL branches " + ", ".join(branches) + " (`mkl_cbwr`): they may differ by branch"
+    cpus = {}
+    for r in rows:
+        cpus.setdefault(row_cpu(r), set()).add(r["split"])
+    if len(cpus) == 1:
+        return f"{words}, on one CPU ({next(iter(cpus))})."
+    others = "; ".join(f"{cpu}: {', '.join(sorted(splits))}" for cpu, splits in sorted(cpus.items()) if cpu != EARLIER_CPU)
+    return (f"{words}, on the CPU {EARLIER_CPU} unless the row says another (`cpu`; {others}). A training "
+            "repeats on its CPU only: rows of different CPUs are not compared.")
 
 
 def _anchor_cell(row: dict) -> str:

@@ -2,7 +2,7 @@
 replaces the recipe, fixed before each run: the form's rows of an experiment's JSON
 against the link rows of the same seeds and splits (the kept ones,
 docs/notebook/bias-validation.json, and any link rows of the experiment's JSON; the same
-MKL branch, so that training repeats to the last digit). Seconds, once the run is done:
+MKL branch and CPU, so that training repeats to the last digit). Seconds, once the run is done:
 
     .venv/bin/python benchmarks/bias_validation.py --forms FORM \\
         --splits within-0425 day-0426 day-0425 within-0426 day-0422 mode-tdoa3 mode-tdoa2 --json out/FORM.json
@@ -42,6 +42,7 @@ import argparse
 import json
 from pathlib import Path
 
+from bias_validation_results import row_cpu
 from trust_rule import ACCURACY_SPLITS, ESTIMATORS, KEPT, mean_over_seeds, per_seed
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -126,6 +127,15 @@ def main() -> None:
     form = rows_of(path, args.form)
     if not form:
         parser.error(f"{path} holds no rows of the form {args.form!r}")
+    # a training repeats on its CPU only: the link rows it is compared with are of its CPU
+    cpus = {row_cpu(r) for r in form}
+    if len(cpus) > 1:
+        parser.error(f"{path}: the {args.form} rows were trained on several CPUs ({', '.join(sorted(cpus))})")
+    link = [r for r in link if row_cpu(r) in cpus]
+    missing = sorted({(r["split"], r["seed"]) for r in form} - {(r["split"], r["seed"]) for r in link})
+    if missing:
+        parser.error(f"no link rows of the CPU {', '.join(cpus)} for " + ", ".join(f"{s} seed {n}" for s, n in missing)
+                     + ": run bias_validation.py --forms link on those splits and seeds into the experiment's JSON")
     result = VERDICTS[args.rule](link, form)
     for split in SPLITS[args.rule]:
         if split in result["figures"]["link"] and split in result["figures"]["form"]:

@@ -27,9 +27,6 @@ class TrainConfig:
     weight_decay: float = 1e-5
     max_epochs: int = 60
     patience: int = 5           # epochs without validation improvement before stopping
-    # 0: the weights as trained; d in (0, 1): an exponential average of the weights over the
-    # optimiser's steps (decay d per step), validated, stopped on and exported in their place
-    weight_average: float = 0.0
     # "link": one network of a tag-anchor link's features, TDOA bias = g(B) - g(A); "pair":
     # a network of the measurement's 14 features (rig.estimator.bias_net)
     form: str = FORMS[0]
@@ -51,8 +48,6 @@ class TrainConfig:
         if not 0 <= self.first_restart <= RESTART_STRIDE - self.restarts:
             raise ValueError(f"restarts {self.first_restart}..{self.first_restart + self.restarts - 1} "
                              f"are outside 0..{RESTART_STRIDE - 1}")
-        if not 0.0 <= self.weight_average < 1.0:
-            raise ValueError(f"weight_average must be in [0, 1), got {self.weight_average}")
         if self.select_by not in SELECT_BY:
             raise ValueError(f"select_by must be one of {SELECT_BY}, got {self.select_by!r}")
         if self.form not in FORMS:

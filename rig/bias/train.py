@@ -8,8 +8,9 @@ initialisations; the one kept is the one with which the robust estimator tracks 
 validation flights best (lowest mean 3D RMSE, replayed in closed loop): on the shared
 flights the end-to-end result varies by 0.01-0.02 m from one initialisation to the
 next, and the validation TDOA error ranks them poorly (docs/notebook/bias.md). Seeded: the same
-data and seed give the same network, on any x86-64 machine (`import_torch` pins the
-kernels of torch's BLAS, which otherwise follow the CPU).
+data and seed give the same network on the same CPU (`import_torch` pins the kernels of
+torch's BLAS, which otherwise follow the machine). Another CPU gives another network, so
+the provenance says which CPU trained it (`cpu_identity`).
 """
 
 from __future__ import annotations
@@ -76,9 +77,27 @@ def error_stats(residual: np.ndarray) -> dict:
 # MKL, torch's BLAS on x86-64, picks its kernels by CPU (SSE2 ... AVX-512) and the
 # training's path parts with them: one split and seed gave 0.191, 0.198 and 0.197 m
 # under three of its branches (docs/notebook/bias.md). Its reproducibility branch
-# COMPATIBLE runs on every x86-64 CPU, so a training repeats from machine to machine.
-# MKL_CBWR set beforehand (e.g. AVX512, to repeat a figure made with that branch) wins.
+# COMPATIBLE takes that choice away, so a training repeats from one machine to another
+# of the same CPU. Not across CPUs: on an AMD EPYC the shipped recipe gives another
+# network than on the Intel Xeon it was made on (session 77), so every provenance says
+# its CPU (cpu_identity). MKL_CBWR set beforehand (e.g. AVX512, to repeat a figure made
+# with that branch) wins.
 MKL_BRANCH = "COMPATIBLE"
+
+
+def cpu_identity(cpuinfo: Path = Path("/proc/cpuinfo")) -> str:
+    """The CPU a training runs on, as "vendor family model" (e.g. "GenuineIntel 6 207"),
+    or the machine's architecture where /proc/cpuinfo does not say."""
+    fields = {}
+    if cpuinfo.is_file():
+        for line in cpuinfo.read_text(errors="replace").splitlines():
+            key, _, value = line.partition(":")
+            fields.setdefault(key.strip(), value.strip())
+    if {"vendor_id", "cpu family", "model"} <= set(fields):
+        return f"{fields['vendor_id']} {fields['cpu family']} {fields['model']}"
+    import platform
+
+    return platform.machine() or "unknown"
 
 
 def import_torch():
@@ -236,8 +255,6 @@ def _train_once(torch, data: tuple, config: TrainConfig, restart: int, progress=
     rng = np.random.default_rng(init_seed)
     model = _model(torch, config)
     optimiser = torch.optim.Adam(model.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay)
-    averaged = _weight_average(torch, model, config.weight_average)
-    trained = averaged.module if averaged is not None else model       # what is validated and kept
     loss_fn = torch.nn.MSELoss()
     best, best_state, best_epoch, history = np.inf, None, -1, []
     epochs = range(config.max_epochs)
@@ -250,31 +267,18 @@ def _train_once(torch, data: tuple, config: TrainConfig, restart: int, progress=
             loss = loss_fn(model(xt[idx]), yt[idx])
             loss.backward()
             optimiser.step()
-            if averaged is not None:
-                averaged.update_parameters(model)
-        trained.eval()
+        model.eval()
         with torch.no_grad():
-            val = float(loss_fn(trained(xv), yv)) if len(xv) else float(loss)
+            val = float(loss_fn(model(xv), yv)) if len(xv) else float(loss)
         history.append({"epoch": epoch, "validation_mse": val})
         if val < best - 1e-6:
             best, best_epoch = val, epoch
-            best_state = {k: v.clone() for k, v in trained.state_dict().items()}
+            best_state = {k: v.clone() for k, v in model.state_dict().items()}
         elif epoch - best_epoch >= config.patience:
             break
     model.load_state_dict(best_state)
     return model, {"restart": restart, "init_seed": init_seed, "validation_mse": best,
                    "epochs": len(history), "best_epoch": best_epoch, "history": history}
-
-
-def _weight_average(torch, model, decay: float):
-    """An exponential average of `model`'s weights over the optimiser's steps (Polyak
-    averaging), or None for decay 0. Each step's weights carry the noise of its batch;
-    their average sits nearer the middle of the basin the steps wander in."""
-    if decay == 0.0:
-        return None
-    from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
-
-    return AveragedModel(model, multi_avg_fn=get_ema_multi_avg_fn(decay))
 
 
 def _anchor_ids(samples: Samples) -> np.ndarray:
@@ -433,7 +437,7 @@ def run_training(flights: list[Path], out: Path, *, test_prefixes: list[str] | N
     provenance = {"model": out.name, "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
                   "command": command or [], "data_dir": str(Path(flights[0]).parent) if flights else "",
                   "flights": names, "ground_truth_latency_s": latency, "torch": torch.__version__,
-                  "mkl_cbwr": os.environ.get("MKL_CBWR"),
+                  "mkl_cbwr": os.environ.get("MKL_CBWR"), "cpu": cpu_identity(),
                   "features": config.features, "features_from": features_from, **labels, **report}
     write_text_whole(provenance_path(out), json.dumps(provenance, indent=2) + "\n")
     return provenance

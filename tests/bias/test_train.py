@@ -5,6 +5,9 @@ reproduced by a fresh training."""
 from __future__ import annotations
 
 import json
+import logging
+import platform
+from hashlib import sha256
 from pathlib import Path
 
 import numpy as np
@@ -16,9 +19,8 @@ from rig.bias.config import ANCHOR_OFFSET_BOUND_M, TrainConfig
 from rig.bias.dataset import Samples, flight_samples
 from rig.bias.train import (
     Split,
-    _weight_average,
+    cpu_identity,
     fit,
-    import_torch,
     load_or_build_dataset,
     provenance_path,
     run_training,
@@ -31,6 +33,8 @@ from rig.estimator import native
 from rig.estimator.bias_net import DEFAULT_NETWORK, BiasNet, link_features
 from rig.estimator.evaluate import evaluate
 from rig.sim.effects import calibrated_link_bias
+
+log = logging.getLogger(__name__)
 
 pytestmark = pytest.mark.slow        # left out of `make test-fast`
 
@@ -69,36 +73,6 @@ def test_training_recovers_a_known_learnable_bias(form: str) -> None:
     residual = test_set.label - net.quantized().predict(test_set.features)
     assert test_set.label.std() > 0.15
     assert residual.std() < 0.07  # noise is 0.05: the bias itself is learned
-
-
-def test_the_weight_average_is_every_steps_weights_averaged_with_its_decay() -> None:
-    torch = import_torch()
-    model = torch.nn.Linear(2, 1)
-    assert _weight_average(torch, model, 0.0) is None
-    averaged, expected = _weight_average(torch, model, 0.9), None
-    for step in range(5):
-        with torch.no_grad():
-            model.weight.mul_(-1.5).add_(step)              # an optimiser's step, any step
-        averaged.update_parameters(model)
-        now = model.weight.detach().clone()
-        expected = now if expected is None else 0.9 * expected + 0.1 * now
-    assert torch.allclose(averaged.module.weight, expected)
-    assert not torch.allclose(averaged.module.weight, model.weight)
-
-
-def test_averaged_weights_are_what_is_trained_and_kept() -> None:
-    data = synthetic_samples(6, 3000, seed=1)
-    train_set = data.select(np.isin(data.flight, ["sim0", "sim1", "sim2", "sim3"]))
-    val_set, test_set = data.select(data.flight == "sim4"), data.select(data.flight == "sim5")
-    plain, _ = train(train_set, val_set, TrainConfig(max_epochs=40))
-    averaged, info = train(train_set, val_set, TrainConfig(max_epochs=40, weight_average=0.99))
-    residual = test_set.label - averaged.quantized().predict(test_set.features)
-    assert residual.std() < 0.07                          # noise is 0.05: the bias is learned
-    assert info["config"]["weight_average"] == 0.99
-    x = test_set.features[:50]
-    assert np.abs(averaged.predict(x) - plain.predict(x)).max() > 1e-4
-    with pytest.raises(ValueError, match="weight_average"):
-        TrainConfig(weight_average=1.0)
 
 
 def test_the_link_form_learns_each_links_own_bias() -> None:
@@ -266,9 +240,14 @@ def test_restarts_are_chosen_by_the_estimator_replaying_the_validation_flights(t
 # follows the CPU's float arithmetic (its SIMD paths) through every epoch: on an
 # AMX/AVX-512 Xeon the room network's read 0.2097 against the recorded 0.2066, of a
 # correction from 0.299. The room network predates the pinned MKL branch
-# (rig.bias.train.import_torch); the shipped correction is trained on it and repeats
-# exactly on any x86-64 machine.
+# (rig.bias.train.import_torch).
 RETRAINED_STD = 0.01
+# The shipped network's recipe repeats to the byte on one CPU, not across CPUs, even on
+# the pinned branch: what its kept restart gives on each CPU checked, by cpu_identity.
+REPRODUCTIONS = DEFAULT_NETWORK.with_name("bias_net.reproductions.json")
+# On a CPU not checked yet: the retrained network's validation error against the shipped
+# one's (relative). The AMD EPYC's reads 1.06 % above it.
+RETRAINED_MSE_REL = 0.03
 
 
 def test_fresh_training_reproduces_the_shipped_model(tmp_path: Path, data_dir: Path) -> None:
@@ -283,13 +262,33 @@ def test_fresh_training_reproduces_the_shipped_model(tmp_path: Path, data_dir: P
     assert not kept["config"]["untranslated"]          # the labels as measured (docs/bias.md)
     config = TrainConfig(seed=kept["config"]["seed"], first_restart=kept["restart"], restarts=1, form="link")
     prov = run_training(flights, tmp_path / "bias_net.json", config=config, all_flights=True)
-    assert shipped["mkl_cbwr"] == prov["mkl_cbwr"] == "COMPATIBLE"      # the branch every x86-64 CPU runs
+    assert shipped["mkl_cbwr"] == prov["mkl_cbwr"] == "COMPATIBLE"
     assert prov["split"] == shipped["split"]
-    assert prov["training"]["validation_mse"] == kept["validation_mse"]
-    assert prov["validation"] == shipped["validation"]
-    assert (tmp_path / "bias_net.json").read_bytes() == DEFAULT_NETWORK.read_bytes()
+    assert prov["validation"]["before"] == shipped["validation"]["before"]       # the same labels, on any CPU
+    reproductions = json.loads(REPRODUCTIONS.read_text())
+    first = next(cpu for cpu in reproductions if cpu != "about")
+    assert reproductions[first]["network_sha256"] == sha256(DEFAULT_NETWORK.read_bytes()).hexdigest()
+    assert reproductions[first]["validation_mse"] == kept["validation_mse"]
+    here = reproductions.get(prov["cpu"])
+    if here is not None:
+        assert sha256((tmp_path / "bias_net.json").read_bytes()).hexdigest() == here["network_sha256"], prov["cpu"]
+        assert prov["training"]["validation_mse"] == here["validation_mse"]
+    else:
+        # a CPU not checked yet: the same recipe, to the float arithmetic of this CPU
+        log.warning("CPU %s is not in %s: the retrained network's validation MSE is %r", prov["cpu"],
+                    REPRODUCTIONS.name, prov["training"]["validation_mse"])
+        assert prov["training"]["validation_mse"] == pytest.approx(kept["validation_mse"], rel=RETRAINED_MSE_REL)
     assert prov["validation"]["after"]["std"] < prov["validation"]["before"]["std"] - 0.02
     assert prov["validation"]["after_int8"]["std"] == pytest.approx(prov["validation"]["after"]["std"], abs=0.002)
+
+
+def test_a_cpu_is_named_by_vendor_family_and_model(tmp_path: Path) -> None:
+    cpuinfo = tmp_path / "cpuinfo"
+    cpuinfo.write_text("processor\t: 0\nvendor_id\t: GenuineIntel\ncpu family\t: 6\nmodel\t\t: 207\n"
+                       "model name\t: Intel(R) Xeon(R)\n\nprocessor\t: 1\nvendor_id\t: AuthenticAMD\n")
+    assert cpu_identity(cpuinfo) == "GenuineIntel 6 207"
+    assert cpu_identity(tmp_path / "missing") == platform.machine()
+    assert set(json.loads(REPRODUCTIONS.read_text())) - {"about"} >= {"GenuineIntel 6 207"}
 
 
 ROOM_NETWORK = ROOT / "recordings" / "room_bias_net.json"
@@ -378,7 +377,7 @@ def test_rig_train_untranslated_learns_labels_without_each_flights_tag_offset(tm
 
 def test_training_runs_on_a_pinned_mkl_branch_and_says_which(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """MKL's kernels follow the CPU unless pinned, and a training's path follows them:
-    `rig train` pins them (COMPATIBLE, any x86-64 CPU) unless MKL_CBWR names a branch,
+    `rig train` pins them (COMPATIBLE) unless MKL_CBWR names a branch,
     records which in the provenance, and the same command gives the same network."""
     monkeypatch.delenv("MKL_CBWR", raising=False)
     args = ("train", "--flights", "0422", "--restarts", "1", "--max-epochs", "2",
