@@ -10,6 +10,10 @@ MKL branch and CPU, so that training repeats to the last digit). Seconds, once t
         --splits within-0425 --json out/FORM.json        # the replication, if seeds 0-2 pass
     .venv/bin/python benchmarks/form_rule.py --form FORM [--json out/FORM.json] [--rule 71]
 
+A training repeats on its CPU only (rig.bias.train.cpu_identity): the form's rows are
+compared with link rows of their CPU, and on a CPU the kept rows were not made on the
+first command takes `--forms FORM link`.
+
 Each flight's figure is the shipped estimator's (the share of the correction the flight
 supports, `rmse_3d`); a split's figure is the mean over seeds of its mean 3D RMSE, and the
 mean over seeds of the flights the correction makes worse than none.

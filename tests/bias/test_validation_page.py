@@ -143,6 +143,23 @@ def test_the_form_rule_compares_a_replications_link_rows_from_its_own_json(tmp_p
     assert refused.returncode == 2 and "no rows of the link form" in refused.stderr
 
 
+def test_the_form_rule_compares_rows_of_one_cpu_only(tmp_path: Path) -> None:
+    import subprocess
+
+    elsewhere = [{**row, "cpu": "AuthenticAMD 25 17"} for row in _flight_rows("x", 0.200)]
+    kept_rows, experiment = tmp_path / "kept.json", tmp_path / "x.json"
+    kept_rows.write_text(json.dumps({"rows": _flight_rows("link", 0.210)}))       # made on the earlier CPU
+    experiment.write_text(json.dumps({"rows": elsewhere}))
+    command = [sys.executable, str(ROOT / "benchmarks" / "form_rule.py"), "--form", "x", "--json", str(experiment),
+               "--link-json", str(kept_rows), "--rule", "71"]
+    refused = subprocess.run(command, capture_output=True, text=True)
+    assert refused.returncode == 2 and "no link rows of the CPU AuthenticAMD 25 17" in refused.stderr
+    same_cpu = [{**row, "cpu": "AuthenticAMD 25 17"} for row in _flight_rows("link", 0.210)]
+    experiment.write_text(json.dumps({"rows": elsewhere + same_cpu}))
+    verdict = json.loads(subprocess.run(command, capture_output=True, text=True, check=True).stdout.splitlines()[-1])
+    assert verdict["kept"] and verdict["accuracy_m"]["link"] == pytest.approx(0.210)
+
+
 @pytest.mark.parametrize("lower, day_0422, kept", [
     (0.196, 0.200, 0.3),                  # 0.004 m more accurate: the lower value replaces 0.4
     (0.198, 0.200, 0.4),                  # 0.002 m: not enough
