@@ -175,3 +175,29 @@ def test_the_parameter_rule_on_made_up_rows(lower: float, day_0422: float, kept:
             flight["by_level"] = {"0.3": at_lower, "0.4": 0.200, "0.55": 0.210}
             flight["without_by_level"] = {"0.3": 0.25, "0.4": 0.25, "0.55": 0.25}
     assert param_transfer.verdict(rows, (0.3, 0.4, 0.55), 0.4)["value"] == kept
+
+
+def test_the_cpu_comparison_on_made_up_rows() -> None:
+    import cpu_repeat
+
+    kept = _flight_rows("link", 0.210)                                            # made on the earlier CPU
+    other = [{**row, "cpu": "AuthenticAMD 25 17"} for row in _flight_rows("link", 0.214, worse_on=("day-0422",))]
+    result = cpu_repeat.compare(kept, other, form="link")
+    assert list(result["splits"]) == [results.EARLIER_CPU, "AuthenticAMD 25 17"]
+    assert result["splits"]["AuthenticAMD 25 17"]["day-0422"]["worse"] == 1.0
+    assert result["estimates_0426"][results.EARLIER_CPU]["pooled_m"] == pytest.approx(0.276 * 0.210 / 0.25)
+    assert "| within-0426 | 0.2100 m (0.2100–0.2100), 0.0 | 0.2140 m (0.2140–0.2140), 0.0 | +0.0040 m |" \
+        in cpu_repeat.table(result)
+
+
+def test_the_other_cpus_rows_are_of_another_cpu_and_cover_the_estimates(rows: list[dict]) -> None:
+    import subprocess
+
+    import cpu_repeat
+
+    other = json.loads(cpu_repeat.OTHER_CPU_ROWS.read_text())["rows"]
+    assert {results.row_cpu(r) for r in other} == {"AuthenticAMD 25 17"}
+    assert {(r["split"], r["seed"]) for r in other} >= {(s, seed) for s in cpu_repeat.SPLITS[1:] for seed in (0, 1, 2)}
+    printed = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "cpu_repeat.py")],
+                             capture_output=True, text=True, check=True).stdout
+    assert "0426 check from AuthenticAMD 25 17's within-0426 rows" in printed
