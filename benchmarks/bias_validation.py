@@ -1,6 +1,6 @@
 """Honest validation of the bias correction: does it transfer to flights, days, modes,
-anchors and places it was not trained on? Regenerates docs/notebook/bias-validation.md
-and the table of estimates in docs/bias.md (every split and form: 71 min on two cores
+anchors and places it was not trained on? Regenerates docs/notebook/bias-validation.md,
+the table of estimates in docs/bias.md and its figure, docs/img/bias_validation.png (every split and form: 71 min on two cores
 before session 77 added within-0425, whose nine networks took 5 min a form on an AMD
 EPYC).
 
@@ -155,6 +155,7 @@ from rig.estimator.trained_region import outside_share  # noqa: E402
 from bias_validation_results import (  # noqa: E402
     ENTRY_PAGE,
     ESTIMATE_SPLITS,
+    FIGURE,
     FLIGHT_SPLITS,
     PAGE,
     REGION_Z,
@@ -169,6 +170,7 @@ from bias_validation_results import (  # noqa: E402
     summary,
     write_doc,
     write_estimates,
+    write_figure,
 )
 
 CACHE = ROOT / "out" / "cache" / "all.npz"
@@ -390,10 +392,13 @@ def main() -> None:
     kept = args.json.resolve() == RESULTS.resolve()
     args.doc = args.doc or (PAGE if kept else args.json.with_suffix(".md"))
     entry = ENTRY_PAGE if kept else None
+    figure = FIGURE if kept else args.json.with_suffix(".png")
     if args.from_json:
         if not args.json.is_file():
             parser.error(f"--from-json: {args.json} does not exist (run without --from-json to make it)")
-        write_pages(json.loads(args.json.read_text())["rows"], args.doc, entry)
+        rows = json.loads(args.json.read_text())["rows"]
+        write_pages(rows, args.doc, entry)
+        write_figure(rows, figure)
         return
     if args.save_models:
         args.save_models.mkdir(parents=True, exist_ok=True)
@@ -430,6 +435,7 @@ def main() -> None:
         print(json.dumps(line))
     print(json.dumps(choose_form(rows)))
     write_pages(rows, args.doc, entry)
+    write_figure(rows, figure)
 
 
 def write_pages(rows: list[dict], doc: Path = PAGE, entry: Path | None = ENTRY_PAGE) -> None:

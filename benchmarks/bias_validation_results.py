@@ -18,6 +18,7 @@ ROOT = Path(__file__).resolve().parents[1]
 PAGE = ROOT / "docs" / "notebook" / "bias-validation.md"
 RESULTS = PAGE.with_suffix(".json")        # every row the page shows, kept beside it
 ENTRY_PAGE = ROOT / "docs" / "bias.md"     # its table of estimates is written from the rows
+FIGURE = ROOT / "docs" / "img" / "bias_validation.png"   # each test flight with and without correction
 
 FLIGHT_SPLITS = ("day-0426", "day-0425", "mode-tdoa3", "mode-tdoa2")   # the splits the rule weighs
 ESTIMATE_SPLITS = ("within-0426", "day-0422")       # flight splits that estimate a held-out check, weighing nothing
@@ -497,3 +498,47 @@ def write_estimates(rows: list[dict], page: Path = ENTRY_PAGE) -> None:
     after = rest.split(ESTIMATES_END, 1)[1]
     page.write_text(before + ESTIMATES_BEGIN + "\n" + "\n".join(estimate_lines(rows)) + "\n" + ESTIMATES_END + after)
     print(f"wrote {page}")
+
+
+# the panels of the figure: the flight splits of the shipped recipe, the estimates first
+FIGURE_SPLITS = ("within-0426", "within-0425", "day-0426", "day-0425", "day-0422", "mode-tdoa3", "mode-tdoa2")
+
+
+def write_figure(rows: list[dict], path: Path = FIGURE, form: str | None = None) -> None:
+    """Each test flight's 3D RMSE with the correction of `form` (default: the shipped
+    recipe's) against without, one panel per flight split, one mark per seed: a mark
+    above the diagonal is a flight the correction made worse."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    recipe = form or shipped_recipe(rows)
+    shipped = [r for r in rows if r["form"] == recipe and "flights" in r]
+    splits = [s for s in FIGURE_SPLITS if any(r["split"] == s for r in shipped)]
+    columns = 4
+    fig, axes = plt.subplots(-(-len(splits) // columns), columns, figsize=(10, 5.6), squeeze=False)
+    values = [f[k] for r in shipped for f in r["flights"] for k in ("rmse_3d", "rmse_3d_without")]
+    low, top = 0.9 * min(values), 1.05 * max(values)
+    for ax, split in zip(axes.flat, splits):
+        for seed, marker in zip(sorted({r["seed"] for r in shipped if r["split"] == split}), "o^s"):
+            flights = [f for r in shipped if r["split"] == split and r["seed"] == seed for f in r["flights"]]
+            ax.scatter([f["rmse_3d_without"] for f in flights], [f["rmse_3d"] for f in flights], s=12,
+                       marker=marker, alpha=0.7, label=f"seed {seed}")
+        ax.plot([low, top], [low, top], color="grey", linewidth=0.8)
+        ax.set(xlim=(low, top), ylim=(low, top), title=split, aspect="equal")
+        ax.tick_params(labelsize=7)
+    for ax in axes[-1]:
+        ax.set_xlabel("without correction (m)", fontsize=8)
+    for ax in axes[:, 0]:
+        ax.set_ylabel(f"with the {recipe} correction (m)", fontsize=8)
+    for ax in list(axes.flat)[len(splits):]:
+        ax.axis("off")
+    axes.flat[0].legend(fontsize=7, loc="upper left")
+    fig.suptitle("Each test flight's 3D RMSE, one mark per seed: above the diagonal, the correction made it worse",
+                 fontsize=10)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    print(f"wrote {path}")

@@ -201,3 +201,10 @@ def test_the_other_cpus_rows_are_of_another_cpu_and_cover_the_estimates(rows: li
     printed = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "cpu_repeat.py")],
                              capture_output=True, text=True, check=True).stdout
     assert "0426 check from AuthenticAMD 25 17's within-0426 rows" in printed
+
+
+def test_the_figure_draws_every_flight_split_of_the_shipped_recipe(tmp_path: Path) -> None:
+    figure = tmp_path / "bias_validation.png"
+    made_up = [{**row, "test": ["f"]} for row in _flight_rows("link", 0.2)]
+    results.write_figure(made_up, figure, form="link")
+    assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and figure.stat().st_size > 10_000
