@@ -1,8 +1,8 @@
 """Honest validation of the bias correction: does it transfer to flights, days, modes,
 anchors and places it was not trained on? Regenerates docs/notebook/bias-validation.md,
-the table of estimates in docs/bias.md and its figure, docs/img/bias_validation.png (every split and form: 71 min on two cores
-before session 77 added within-0425, whose nine networks took 5 min a form on an AMD
-EPYC).
+the table of estimates in docs/bias.md and its figure, docs/img/bias_validation.png
+(every split and form: 71 min on two cores before session 77 added within-0425, whose
+nine networks took 5 min a form on an AMD EPYC).
 
     .venv/bin/python benchmarks/bias_validation.py [--forms link shared pair] [--seeds 0 1 2]
         [--splits day-0426 day-0425 mode-tdoa3 mode-tdoa2 within-0426 day-0422 within-0425 anchors region sector]
