@@ -53,7 +53,7 @@ UNTRANSLATED_TOLERANCE_M = 0.005
 # experiment/corrected-features-replication; session 76's "weight-average", cc3dcd2, and
 # judged again in session 77 by the split that chooses, 0901f37)
 NOT_RANKED = (UNTRANSLATED, "offset", "huber", "distilled", "refit", "six-restarts", "installation", "weight-decay",
-              "balanced-days", "corrected-features", "weight-average", "per-second")
+              "balanced-days", "corrected-features", "weight-average")
 
 
 def merge_folds(rows: list[dict]) -> list[dict]:

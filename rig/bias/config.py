@@ -14,10 +14,6 @@ RESTART_STRIDE = 1000
 # (closed loop), or the validation TDOA error (no replay; also used with excluded anchors,
 # whose measurements the validation flights' replays would correct).
 SELECT_BY = ("rmse_3d", "mse")
-# What each training sample weighs in the loss: one sample as much as another, or each
-# second of flight as much as another whatever the UWB mode's rate (a slowly varying
-# error gives a second at 400 Hz hardly more to learn from than a second at 200 Hz).
-WEIGHT_BY = ("sample", "second")
 
 
 @dataclass
@@ -43,7 +39,6 @@ class TrainConfig:
     # (rig.bias.tag_offset): the correction then carries none, as no flight can tell one
     # from where the tag really is
     untranslated: bool = False
-    weight_by: str = WEIGHT_BY[0]
 
     def __post_init__(self) -> None:
         if self.restarts < 1:
@@ -53,8 +48,6 @@ class TrainConfig:
         if not 0 <= self.first_restart <= RESTART_STRIDE - self.restarts:
             raise ValueError(f"restarts {self.first_restart}..{self.first_restart + self.restarts - 1} "
                              f"are outside 0..{RESTART_STRIDE - 1}")
-        if self.weight_by not in WEIGHT_BY:
-            raise ValueError(f"weight_by must be one of {WEIGHT_BY}, got {self.weight_by!r}")
         if self.select_by not in SELECT_BY:
             raise ValueError(f"select_by must be one of {SELECT_BY}, got {self.select_by!r}")
         if self.form not in FORMS:

@@ -219,9 +219,6 @@ def train(train_set: Samples, validation_set: Samples, config: TrainConfig = Tra
         return torch.tensor(x, dtype=torch.float32), torch.tensor(y[:, None], dtype=torch.float32)
 
     data = (*tensors(train_set), *tensors(validation_set))
-    if config.weight_by == "second":
-        data += tuple(torch.tensor(seconds_weights(s)[:, None], dtype=torch.float32)
-                      for s in (train_set, validation_set))
     seen = np.unique(np.concatenate([train_set.id_a, train_set.id_b]).astype(int))
     tic = time.perf_counter()
     runs = []
@@ -250,37 +247,15 @@ def closed_loop_rmse(recordings: list, net: BiasNet) -> float:
     return float(np.mean([r["rmse_3d"] for r in results]))
 
 
-def seconds_weights(samples: Samples) -> np.ndarray:
-    """Each sample's weight when every second of flight weighs the same: its flight's
-    seconds per sample (the span of its samples' times over their number), normalised
-    to a mean of 1 over `samples`."""
-    weights = np.ones(len(samples))
-    for flight in np.unique(samples.flight):
-        mine = samples.flight == flight
-        weights[mine] = max(float(np.ptp(samples.t[mine])), 1e-3) / mine.sum()
-    return weights / weights.mean() if len(weights) else weights
-
-
 def _train_once(torch, data: tuple, config: TrainConfig, restart: int, progress=None) -> tuple:
-    """One training run from the initialisation `config.init_seed(restart)`; with
-    sample weights in `data` (train, validation), the loss is their weighted mean."""
-    xt, yt, xv, yv = data[:4]
+    """One training run from the initialisation `config.init_seed(restart)`."""
+    xt, yt, xv, yv = data
     init_seed = config.init_seed(restart)
     torch.manual_seed(init_seed)
     rng = np.random.default_rng(init_seed)
     model = _model(torch, config)
     optimiser = torch.optim.Adam(model.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay)
-    if len(data) > 4:
-        wt, wv = data[4:]
-
-        def loss_fn(prediction, target, weight=None):
-            return (weight * (prediction - target) ** 2).mean()
-    else:
-        wt = wv = None
-        mse = torch.nn.MSELoss()
-
-        def loss_fn(prediction, target, weight=None):
-            return mse(prediction, target)
+    loss_fn = torch.nn.MSELoss()
     best, best_state, best_epoch, history = np.inf, None, -1, []
     epochs = range(config.max_epochs)
     for epoch in progress(epochs) if progress else epochs:
@@ -289,12 +264,12 @@ def _train_once(torch, data: tuple, config: TrainConfig, restart: int, progress=
         for start in range(0, len(xt), config.batch_size):
             idx = order[start:start + config.batch_size]
             optimiser.zero_grad()
-            loss = loss_fn(model(xt[idx]), yt[idx], None if wt is None else wt[idx])
+            loss = loss_fn(model(xt[idx]), yt[idx])
             loss.backward()
             optimiser.step()
         model.eval()
         with torch.no_grad():
-            val = float(loss_fn(model(xv), yv, wv)) if len(xv) else float(loss)
+            val = float(loss_fn(model(xv), yv)) if len(xv) else float(loss)
         history.append({"epoch": epoch, "validation_mse": val})
         if val < best - 1e-6:
             best, best_epoch = val, epoch

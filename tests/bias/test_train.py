@@ -415,18 +415,3 @@ def test_a_damaged_dataset_cache_is_built_again_never_an_error(tmp_path: Path, d
         assert "unreadable" not in caplog.text
         np.testing.assert_array_equal(reread.label, samples.label)
     assert not list(tmp_path.glob("*.partial"))
-
-
-def test_every_second_of_flight_weighs_the_same() -> None:
-    """A flight logged at twice the rate gives each sample half the weight."""
-    from rig.bias.dataset import Samples
-    from rig.bias.train import seconds_weights
-
-    fast, slow = np.arange(0, 10, 0.0025), np.arange(0, 10, 0.005)       # 400 Hz and 200 Hz for 10 s
-    n = len(fast) + len(slow)
-    samples = Samples(np.zeros((n, 14), np.float32), np.zeros(n), np.array(["a"] * len(fast) + ["b"] * len(slow)),
-                      np.zeros(n), np.ones(n), np.concatenate([fast, slow]))
-    weights = seconds_weights(samples)
-    assert weights.mean() == pytest.approx(1.0)
-    assert weights[-1] / weights[0] == pytest.approx(2.0, rel=1e-3)
-    assert weights[:len(fast)].sum() == pytest.approx(weights[len(fast):].sum(), rel=1e-3)
