@@ -51,9 +51,10 @@ UNTRANSLATED_TOLERANCE_M = 0.005
 # experiment/weight-decay and "balanced-days": experiment/balanced-days; session 73's
 # "corrected-features": experiment/corrected-features and, on fresh seeds,
 # experiment/corrected-features-replication; session 76's "weight-average", cc3dcd2, and
-# judged again in session 77 by the split that chooses, 0901f37)
+# judged again in session 77 by the split that chooses, 0901f37; session 78's "per-second",
+# every second of flight weighing the same, 135ebab)
 NOT_RANKED = (UNTRANSLATED, "offset", "huber", "distilled", "refit", "six-restarts", "installation", "weight-decay",
-              "balanced-days", "corrected-features", "weight-average")
+              "balanced-days", "corrected-features", "weight-average", "per-second")
 
 
 def merge_folds(rows: list[dict]) -> list[dict]:
