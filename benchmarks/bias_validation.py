@@ -175,9 +175,7 @@ from bias_validation_results import (  # noqa: E402
 
 CACHE = ROOT / "out" / "cache" / "all.npz"
 SAVE_MODELS_ENV = "UWB_RIG_SAVE_MODELS"
-FORMS = {"link": "7", "shared": "shared", "pair": "14", UNTRANSLATED: "7",   # form -> rig train's feature set
-         "narrow": "7"}         # session 79's experiment: the link form, 10 neurons wide instead of 20
-NARROW_HIDDEN = 10
+FORMS = {"link": "7", "shared": "shared", "pair": "14", UNTRANSLATED: "7"}   # form -> rig train's feature set
 VALIDATION_SHARE = 0.15
 
 
@@ -269,8 +267,7 @@ def clamped_correction(net, samples: Samples, trained: Samples) -> tuple[np.ndar
 
 def form_config(form: str, **kwargs) -> TrainConfig:
     """The training configuration of a form of this page."""
-    return TrainConfig.with_features(FORMS[form], untranslated=form == UNTRANSLATED,
-                                     hidden=NARROW_HIDDEN if form == "narrow" else None, **kwargs)
+    return TrainConfig.with_features(FORMS[form], untranslated=form == UNTRANSLATED, **kwargs)
 
 
 def flight_split_samples(split_name: str, seed: int) -> tuple[Samples, Split]:

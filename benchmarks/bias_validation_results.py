@@ -52,7 +52,7 @@ UNTRANSLATED_TOLERANCE_M = 0.005
 # "corrected-features": experiment/corrected-features and, on fresh seeds,
 # experiment/corrected-features-replication; session 76's "weight-average", cc3dcd2, and
 # judged again in session 77 by the split that chooses, 0901f37; session 78's "per-second",
-# every second of flight weighing the same, 135ebab; session 79's "narrow", 10 neurons wide)
+# every second of flight weighing the same, 135ebab; session 79's "narrow", 10 neurons wide, 95f3ca1)
 NOT_RANKED = (UNTRANSLATED, "offset", "huber", "distilled", "refit", "six-restarts", "installation", "weight-decay",
               "balanced-days", "corrected-features", "weight-average", "per-second", "narrow")
 

@@ -39,9 +39,6 @@ class TrainConfig:
     # (rig.bias.tag_offset): the correction then carries none, as no flight can tell one
     # from where the tag really is
     untranslated: bool = False
-    # the hidden layers' width trained (None: the form's, bias_net.shape); a narrower
-    # network is stored in the form's layout with its missing neurons zero
-    hidden: int | None = None
 
     def __post_init__(self) -> None:
         if self.restarts < 1:
@@ -55,9 +52,7 @@ class TrainConfig:
             raise ValueError(f"select_by must be one of {SELECT_BY}, got {self.select_by!r}")
         if self.form not in FORMS:
             raise ValueError(f"form must be one of {FORMS}, got {self.form!r}")
-        n_in, widest = shape(self.form)
-        if self.hidden is not None and not 1 <= self.hidden <= widest:
-            raise ValueError(f"the {self.form} form's hidden width is 1..{widest}, got {self.hidden}")
+        n_in = shape(self.form)[0]
         if self.features is not None and (not self.features or not set(self.features) <= set(range(n_in))):
             raise ValueError(f"the {self.form} form's features are 0..{n_in - 1}, got {self.features}")
         if self.anchor_offsets and self.form != "link":
@@ -71,9 +66,6 @@ class TrainConfig:
 
     def kept_features(self) -> list[int]:
         return list(range(shape(self.form)[0])) if self.features is None else sorted(self.features)
-
-    def hidden_width(self) -> int:
-        return shape(self.form)[1] if self.hidden is None else self.hidden
 
     def init_seed(self, restart: int) -> int:
         """Restart i of seed s initialises with s * RESTART_STRIDE + i: two seeds never share one."""

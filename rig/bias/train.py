@@ -119,7 +119,7 @@ def _model(torch, config: TrainConfig):
     to its bias; the link form applies one network g to both links' 7 standardised
     features and returns g(B) − g(A), plus d[B] − d[A] with anchor offsets."""
     nn = torch.nn
-    n_in, hidden = shape(config.form)[0], config.hidden_width()
+    n_in, hidden = shape(config.form)
     mlp = nn.Sequential(nn.Linear(n_in, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU(),
                         nn.Linear(hidden, hidden), nn.ReLU(), nn.Linear(hidden, 1))
     if config.form == "pair":
@@ -180,23 +180,10 @@ def _standardisation(train_set: Samples, config: TrainConfig) -> tuple[np.ndarra
 
 def _to_bias_net(model, in_mean, in_scale, out_scale, out_offset, form: str, seen: np.ndarray) -> BiasNet:
     linears = _linears(model)
-    weights = [m.weight.detach().double().numpy() for m in linears]
-    biases = [m.bias.detach().double().numpy() for m in linears]
-    weights, biases = _padded(weights, biases, shape(form)[1])
-    return BiasNet(weights, biases, in_mean, in_scale, float(out_scale), float(out_offset), form,
+    return BiasNet([m.weight.detach().double().numpy().copy() for m in linears],
+                   [m.bias.detach().double().numpy().copy() for m in linears],
+                   in_mean, in_scale, float(out_scale), float(out_offset), form,
                    _anchor_offsets(model, out_scale, seen))
-
-
-def _padded(weights: list, biases: list, hidden: int) -> tuple[list, list]:
-    """A narrower network's layers in the form's width: the missing neurons have zero
-    weights and bias, so they output relu(0) = 0 and the network computes the same."""
-    def grown(a: np.ndarray, rows: int, cols: int | None) -> np.ndarray:
-        out = np.zeros((rows, a.shape[1] if cols is None else cols) if a.ndim == 2 else rows)
-        out[tuple(slice(0, n) for n in a.shape)] = a
-        return out
-    last = len(weights) - 1
-    return ([grown(w, 1 if i == last else hidden, None if i == 0 else hidden) for i, w in enumerate(weights)],
-            [grown(b, 1 if i == last else hidden, None) for i, b in enumerate(biases)])
 
 
 def _anchor_offsets(model, out_scale: float, seen: np.ndarray) -> np.ndarray | None:

@@ -415,30 +415,3 @@ def test_a_damaged_dataset_cache_is_built_again_never_an_error(tmp_path: Path, d
         assert "unreadable" not in caplog.text
         np.testing.assert_array_equal(reread.label, samples.label)
     assert not list(tmp_path.glob("*.partial"))
-
-
-def test_a_narrower_network_is_stored_in_the_forms_layout_and_computes_the_same() -> None:
-    """A link network trained 10 wide fills the C layout's 20 with zero neurons: same
-    shapes as a full one, and the padded float network and its int8 copy predict what
-    a 10-wide network of the stored neurons alone does."""
-    data = synthetic_samples(4, 2000, seed=6)
-    net, _ = train(data.select(data.flight != "sim3"), data.select(data.flight == "sim3"),
-                   TrainConfig(max_epochs=8, form="link", hidden=10))
-    assert [w.shape for w in net.weights] == [(20, 7), (20, 20), (20, 20), (1, 20)]
-    assert not np.any(net.weights[0][10:]) and not np.any(net.weights[1][:, 10:]) and not np.any(net.biases[2][10:])
-    assert np.any(net.weights[1][:10, :10])
-    links = np.vstack(link_features(data.features[:500]))
-    (w1, w2, w3, w4), (b1, b2, b3, b4) = net.weights, net.biases
-    narrow = [(w1[:10], b1[:10]), (w2[:10, :10], b2[:10]), (w3[:10, :10], b3[:10]), (w4[:, :10], b4)]
-    x = (links - net.in_mean) * net.in_scale
-    for k, (w, b) in enumerate(narrow):                        # the stored neurons alone, 10 wide
-        x = x @ w.T + b
-        x = np.maximum(x, 0.0) if k < 3 else x
-    np.testing.assert_allclose(net.link_bias(links), x[:, 0] * net.out_scale, atol=1e-12)
-    assert np.abs(net.quantized().predict(data.features[:500]) - net.predict(data.features[:500])).max() < 0.02
-
-
-@pytest.mark.parametrize("hidden", [0, 21])
-def test_a_hidden_width_outside_the_forms_layout_is_refused(hidden: int) -> None:
-    with pytest.raises(ValueError, match="hidden width is 1..20"):
-        TrainConfig(form="link", hidden=hidden)
