@@ -115,10 +115,11 @@ def register_train(sub) -> None:
     p = sub.add_parser("train", help="train the TDOA bias network on the shared flights (torch, CPU)",
                        description="Build the dataset (14 features from the C feature code at the estimator's own "
                                    "pose, label = measured - true TDOA, |error| <= 1 m, in flight), split by "
-                                   "flight 70/15/15, train the 14-30-30-30-1 network with early stopping from a "
-                                   "few initialisations, keep the one the estimator does best with on the "
-                                   "validation flights and write the model JSON and a provenance file. Seeded "
-                                   "and reproducible.")
+                                   "flight 70/15/15, train the network (link form: 7-20-20-20-1 on each link's 7 "
+                                   "of them; pair form: 14-30-30-30-1) with early stopping from a few "
+                                   "initialisations, keep the one the estimator does best with on the validation "
+                                   "flights and write the model JSON and a provenance file. Seeded, and "
+                                   "reproducible to the byte on the same CPU (the provenance names it).")
     p.add_argument("--flights", nargs="+", metavar="PREFIX", help="use flights whose names start with these")
     p.add_argument("--apart-from", type=Path, metavar="MODEL",
                    help="leave out the flights this model (a `rig train` output) trained on, so that it can be "
