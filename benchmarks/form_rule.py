@@ -16,7 +16,9 @@ first command takes `--forms FORM link`.
 
 Each flight's figure is the shipped estimator's (the share of the correction the flight
 supports, `rmse_3d`); a split's figure is the mean over seeds of its mean 3D RMSE, and the
-mean over seeds of the flights the correction makes worse than none.
+mean over seeds of the flights the correction makes worse than none. Under each split it
+prints the flights that moved most and, on which seeds, every flight either form makes
+worse: what the notebook's entries say about a run. The rule does not read them.
 
 The rule of session 77 (the default), registered before any run of within-0425. The form
 is kept only if, on seeds 0-2:
@@ -67,6 +69,33 @@ def figures(rows: list[dict], splits: tuple[str, ...]) -> dict[str, tuple[float,
             if any(r["split"] == split for r in rows)}
 
 
+def flight_changes(link: list[dict], form: list[dict], split: str) -> list[dict]:
+    """Each flight of a split, largest change first: the form's mean 3D RMSE over seeds
+    less the link form's, and the seeds on which each makes the flight worse than no
+    correction. Descriptive: the notebook's entries say which flights moved; the rule
+    does not read it."""
+    def by_flight(rows: list[dict]) -> dict[str, dict[int, dict]]:
+        out: dict[str, dict[int, dict]] = {}
+        for r in rows:
+            if r["split"] == split:
+                for f in r["flights"]:
+                    out.setdefault(f["flight"], {})[r["seed"]] = f
+        return out
+
+    key = ESTIMATORS["trust"]
+    ours, theirs = by_flight(form), by_flight(link)
+    rows = []
+    for flight in sorted(ours.keys() & theirs.keys()):
+        seeds = sorted(ours[flight].keys() & theirs[flight].keys())
+        if not seeds:
+            continue
+        mean = {name: sum(runs[flight][s][key] for s in seeds) / len(seeds) for name, runs in (("form", ours), ("link", theirs))}
+        worse = {name: [s for s in seeds if runs[flight][s][key] > runs[flight][s]["rmse_3d_without"]]
+                 for name, runs in (("form", ours), ("link", theirs))}
+        rows.append({"flight": flight, "change_m": mean["form"] - mean["link"], "worse_seeds": worse})
+    return sorted(rows, key=lambda r: -abs(r["change_m"]))
+
+
 def no_flight_worse_within_0426(form: list[dict]) -> bool:
     return max(w for _, w in per_seed(form, "within-0426", ESTIMATORS["trust"]).values()) == 0
 
@@ -108,6 +137,15 @@ def verdict_77(link: list[dict], form: list[dict]) -> dict:
 
 
 VERDICTS = {71: verdict_71, 77: verdict_77}
+MOST_CHANGED = 4
+
+
+def describe_flights(changes: list[dict]) -> str:
+    """The flights that moved most, and every flight either side makes worse."""
+    moved = ", ".join(f"{c['flight']} {c['change_m']:+.3f} m" for c in changes[:MOST_CHANGED])
+    worse = "; ".join(f"{c['flight']} worse on seeds {c['worse_seeds']['form']} (link {c['worse_seeds']['link']})"
+                      for c in changes if c["worse_seeds"]["form"] or c["worse_seeds"]["link"])
+    return f"moved most: {moved}" + (f"; {worse}" if worse else "")
 
 
 def rows_of(path: Path, form: str) -> list[dict]:
@@ -145,6 +183,7 @@ def main() -> None:
         if split in result["figures"]["link"] and split in result["figures"]["form"]:
             (lm, lw), (fm, fw) = result["figures"]["link"][split], result["figures"]["form"][split]
             print(f"{split:12s} link {lm:.4f} m, {lw:.2f} worse | {args.form} {fm:.4f} m, {fw:.2f} worse")
+            print("             " + describe_flights(flight_changes(of_seeds(link, SEEDS), of_seeds(form, SEEDS), split)))
     print(json.dumps({"form": args.form, "rule": args.rule, **{k: v for k, v in result.items() if k != "figures"}}))
 
 

@@ -122,6 +122,28 @@ def test_the_rule_of_session_77_on_made_up_rows(at: dict, worse_on: tuple, fresh
     assert verdict["4"] is (None if fresh is None else fresh < 0.195)
 
 
+def test_the_form_rule_says_which_flights_moved_and_which_each_side_made_worse() -> None:
+    import form_rule
+
+    def rows(form: str, figures: dict[str, tuple[float, ...]]) -> list[dict]:
+        return [{"split": "within-0425", "form": form, "seed": seed,
+                 "flights": [{"flight": name, "rmse_3d": values[seed], "rmse_3d_without": 0.20}
+                             for name, values in figures.items()]}
+                for seed in (0, 1, 2)]
+
+    link = rows("link", {"a": (0.19, 0.19, 0.19), "b": (0.15, 0.15, 0.15), "c": (0.21, 0.19, 0.19)})
+    form = rows("x", {"a": (0.18, 0.21, 0.19), "b": (0.12, 0.12, 0.12), "c": (0.19, 0.19, 0.19)})
+    changes = form_rule.flight_changes(link, form, "within-0425")
+    assert [c["flight"] for c in changes] == ["b", "c", "a"]                  # largest change first
+    assert changes[0]["change_m"] == pytest.approx(-0.03)
+    assert changes[2]["worse_seeds"] == {"form": [1], "link": []}
+    assert changes[1]["worse_seeds"] == {"form": [], "link": [0]}
+    line = form_rule.describe_flights(changes)
+    assert line.startswith("moved most: b -0.030 m") and "a worse on seeds [1] (link [])" in line
+    assert "b worse" not in line
+    assert form_rule.flight_changes(link, form, "day-0426") == []
+
+
 def test_the_form_rule_compares_a_replications_link_rows_from_its_own_json(tmp_path: Path) -> None:
     import subprocess
 
