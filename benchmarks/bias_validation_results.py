@@ -517,6 +517,9 @@ def write_figure(rows: list[dict], path: Path = FIGURE, form: str | None = None)
     recipe = form or shipped_recipe(rows)
     shipped = [r for r in rows if r["form"] == recipe and "flights" in r]
     splits = [s for s in FIGURE_SPLITS if any(r["split"] == s for r in shipped)]
+    if not splits:      # a run of splits the recipe is not chosen on, or of other splits only
+        print(f"no figure: the rows hold no flight split of the form {recipe!r}")
+        return
     columns = 4
     fig, axes = plt.subplots(-(-len(splits) // columns), columns, figsize=(10, 5.6), squeeze=False)
     values = [f[k] for r in shipped for f in r["flights"] for k in ("rmse_3d", "rmse_3d_without")]

@@ -230,3 +230,6 @@ def test_the_figure_draws_every_flight_split_of_the_shipped_recipe(tmp_path: Pat
     made_up = [{**row, "test": ["f"]} for row in _flight_rows("link", 0.2)]
     results.write_figure(made_up, figure, form="link")
     assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and figure.stat().st_size > 10_000
+    nothing = tmp_path / "none.png"
+    results.write_figure(made_up, nothing, form="pair")       # no rows of that form: no figure, no error
+    assert not nothing.exists()
