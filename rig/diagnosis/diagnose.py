@@ -203,9 +203,7 @@ def diagnose(rec: Recording, progress=None, link_bias: bool = True) -> Diagnosis
             findings.append(floor)
             model.append(fx.make_effect("multipath_floor", floor.params))
     findings.sort(key=lambda f: -f.evidence)
-    cross_talk = lever_arm_cross_talk(pool)
-    findings = with_lever_arm_shares(findings, cross_talk)
-    return Diagnosis(problem, findings, model, before, after, identifiability(pool), cross_talk,
+    return Diagnosis(problem, findings, model, before, after, identifiability(pool), lever_arm_cross_talk(pool),
                      unnamed, in_place, tdoa_left, locate(problem, before),
                      measure_lean(rec, problem.predictor.trajectory))
 
@@ -243,22 +241,6 @@ def lever_arm_cross_talk(pool: list[Candidate]) -> dict[int, list[float]]:
     slope = -np.linalg.solve(x.T @ x + ridge, x.T @ lever.columns)
     slope -= slope.mean(axis=0)
     return {c.fixed["anchor"]: slope[i].tolist() for i, c in enumerate(delays)}
-
-
-def with_lever_arm_shares(findings: list[Finding], cross_talk: dict[int, list[float]]) -> list[Finding]:
-    """The findings, each delay with the part of it the lever arm carries
-    (`lever_arm_share_m`: its cross-talk times the lever arm) where the lever arm is
-    fitted beyond its bound. The delays are estimated jointly with the lever arm (both
-    rank 0), so a lever arm that stands for something else (on real flights the tag's
-    and the airframe's pose-dependent bias) moves every delay with it: a reader can
-    then tell an anchor's own delay from that. Reporting only; no estimate changes."""
-    lever = next((f for f in findings if f.effect == "lever_arm" and f.beyond_bound and not f.alternative_to), None)
-    if lever is None:
-        return findings
-    offset = np.asarray(lever.params["offset_m"], float)
-    return [replace(f, lever_arm_share_m=float(np.dot(cross_talk[f.anchors[0]], offset)))
-            if f.effect == "anchor_delay" and f.anchors and f.anchors[0] in cross_talk else f
-            for f in findings]
 
 
 def nlos_identifiability(problem: Problem, pool: list[Candidate], anchor: int,
@@ -307,14 +289,9 @@ def _finding(problem: Problem, channel: Channel, term: Term, effect: fx.Effect, 
                    robust_rms(z_without[rows] * scale, scale), robust_rms(z_with[rows] * scale, scale),
                    _where(problem, channel, term, effect, rows, z_with, theta, peers),
                    [{"candidate": key, "evidence": gain} for key, gain in term.look_alikes],
-                   (not simulated and not for_sign) or _beyond(term.candidate, term.param_map() @ term.estimate),
+                   (not simulated and not for_sign) or term.beyond_bound(term.estimate),
                    std_err, not_identified, not_named_axes=[AXES[j] for j in sorted(term.dropped)],
                    not_simulated=for_sign, std_err_independent=independent)
-
-
-def _beyond(c: Candidate, values: np.ndarray) -> bool:
-    """Whether `values` lie outside the effect's physical range."""
-    return bool(np.abs(values).max() > c.bound or (c.nonnegative and values.min() < 0))
 
 
 def _alternative_finding(problem: Problem, channel: Channel, alt: Alternative, named: list[Term]) -> Finding:

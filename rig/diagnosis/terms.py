@@ -74,6 +74,12 @@ class Term:
         its whole-flight column, then its change inside the window."""
         return self.columns.shape[1] > self.candidate.size
 
+    def beyond_bound(self, theta: np.ndarray) -> bool:
+        """Whether the parameters of the fit `theta` lie outside the effect's physical range."""
+        values = self.param_map() @ theta
+        c = self.candidate
+        return bool(np.abs(values).max() > c.bound or (c.nonnegative and values.min() < 0))
+
     def param_map(self) -> np.ndarray:
         """The candidate's parameter as a linear map of the fit of the columns: a delay
         confined on top of its whole-flight value reports its value in the window,
@@ -253,21 +259,35 @@ def estimate_terms(z: np.ndarray, terms: list[Term], z_simplest: np.ndarray | No
         nested = reported + list(nuisance)
         if rank:
             nested += [t for t in simplest_unnamed if all(t.key != n.key for n in nested)]
-        x, prior = stacked(nested)
         z_rank = z if rank or z_simplest is None else z_simplest
-        theta = irls(z_rank, x, prior)
-        family = {id(t) for t in delay_family(nested)}
-        gauge = np.concatenate([(np.arange(t.columns.shape[1]) == 0) & (id(t) in family) for t in nested])
-        normal = posterior_normal(z_rank, x, prior, theta, gauge)
-        white = np.linalg.inv(normal)
-        slow = white if times is None else with_slow_error(normal, z_rank, x, theta, times)
-        white, slow = (_about_centre(cov, theta, gauge) for cov in (white, slow))
-        for t, part in zip(reported, _slices(nested)):        # the nuisance terms come last
-            if rank_of(t) == rank:
-                m = t.param_map()
-                t.estimate = theta[part]
-                t.std_err, t.std_err_white = (np.sqrt(np.diag(m @ cov[part, part] @ m.T)) for cov in (slow, white))
+        _estimate_in(z_rank, nested, [t for t in reported if rank_of(t) == rank], times)
+        if rank == 0:
+            # a simplest effect fitted beyond its bound stands for something else: the
+            # others are estimated without it (it keeps its own estimate)
+            _centre_gauge(reported, "estimate")
+            beyond = [t for t in reported if t.beyond_bound(t.estimate)]
+            if beyond and len(beyond) < len(reported):
+                _estimate_in(z_rank, [t for t in nested if t not in beyond],
+                             [t for t in reported if t not in beyond], times)
     _centre_gauge(terms, "estimate")
+
+
+def _estimate_in(z: np.ndarray, nested: list[Term], reported: list[Term], times: np.ndarray | None) -> None:
+    """The `reported` terms' estimates and standard errors in the joint fit of `nested`."""
+    x, prior = stacked(nested)
+    theta = irls(z, x, prior)
+    family = {id(t) for t in delay_family(nested)}
+    gauge = np.concatenate([(np.arange(t.columns.shape[1]) == 0) & (id(t) in family) for t in nested])
+    normal = posterior_normal(z, x, prior, theta, gauge)
+    white = np.linalg.inv(normal)
+    slow = white if times is None else with_slow_error(normal, z, x, theta, times)
+    white, slow = (_about_centre(cov, theta, gauge) for cov in (white, slow))
+    wanted = {id(t) for t in reported}
+    for t, part in zip(nested, _slices(nested)):
+        if id(t) in wanted:
+            m = t.param_map()
+            t.estimate = theta[part]
+            t.std_err, t.std_err_white = (np.sqrt(np.diag(m @ cov[part, part] @ m.T)) for cov in (slow, white))
 
 
 def free_offset_terms(named: list[Term], pool: list[Term]) -> list[Term]:

@@ -9,7 +9,6 @@ from __future__ import annotations
 import numpy as np
 
 from rig.diagnosis.candidates import Candidate
-from rig.diagnosis.diagnose import _beyond
 from rig.diagnosis.findings import Finding
 from rig.diagnosis.report import describe
 from rig.diagnosis.terms import Term, model_terms
@@ -63,12 +62,13 @@ def test_a_negative_value_within_a_symmetric_bound_stays() -> None:
 
 
 def test_the_physical_range_of_a_gain_is_bounded_below_by_zero() -> None:
-    gain = Candidate("link_bias", "tdoa", "gain", 1, bound=3.0, nonnegative=True)
-    offset = Candidate("lever_arm", "tdoa", "offset_m", 1, bound=3.0)
-    assert not _beyond(gain, np.array([1.5]))
-    assert _beyond(gain, np.array([-0.01]))
-    assert _beyond(gain, np.array([3.5]))
-    assert not _beyond(offset, np.array([-1.5]))
+    column = np.ones(SAMPLES)
+    gain = _term(Candidate("link_bias", "tdoa", "gain", 1, bound=3.0, nonnegative=True), column)
+    offset = _term(Candidate("lever_arm", "tdoa", "offset_m", 1, bound=3.0), column)
+    assert not gain.beyond_bound(np.array([1.5]))
+    assert gain.beyond_bound(np.array([-0.01]))
+    assert gain.beyond_bound(np.array([3.5]))
+    assert not offset.beyond_bound(np.array([-1.5]))
 
 
 def test_a_finding_left_out_for_its_sign_is_reported_as_a_finding_marked_not_simulated() -> None:
@@ -77,3 +77,26 @@ def test_a_finding_left_out_for_its_sign_is_reported_as_a_finding_marked_not_sim
     assert out["not_simulated"] is True and "beyond_physical_bound" not in out
     assert "not_simulated" not in Finding("link_bias", "tdoa", [], {"gain": 1.2}, 50.0, 0.3, 0.2, {}).to_json()
     assert "not re-simulated" in describe(finding) and "beyond what" not in describe(finding)
+
+
+def test_the_simplest_effects_are_estimated_without_one_fitted_beyond_its_bound() -> None:
+    """A delay and a lever arm (both rank 0) fitted together: with the lever arm beyond
+    its bound the delay's estimate is its fit without it (what the lever arm took of its
+    signal included), and the lever arm keeps its own; within its bound, the joint fit."""
+    from rig.diagnosis.terms import estimate_terms
+
+    rng = np.random.default_rng(8)
+    own, shared = rng.normal(size=SAMPLES), rng.normal(size=SAMPLES)
+    noise = 0.1 * rng.normal(size=SAMPLES)
+
+    def estimates(lever_size: float) -> tuple[float, float]:
+        delay = _term(Candidate("anchor_delay", "tdoa", "meters", 1, {"anchor": 3}, prior=1.0, bound=1.5), shared)
+        lever = _term(Candidate("lever_arm", "tdoa", "offset_m", 1, prior=1.0, bound=0.15), own + 0.5 * shared)
+        estimate_terms(0.3 * shared + lever_size * lever.columns[:, 0] + noise, [delay, lever])
+        return float(delay.estimate[0]), float(lever.estimate[0])
+
+    delay, lever = estimates(1.0)
+    assert abs(lever - 1.0) < 0.02                          # beyond 0.15: reported as fitted (not explained)
+    assert abs(delay - 0.8) < 0.05                          # 0.3 of its own and 0.5 the lever arm's column held
+    delay, lever = estimates(0.1)
+    assert abs(lever - 0.1) < 0.02 and abs(delay - 0.3) < 0.02

@@ -5,8 +5,6 @@ among the fits not explained."""
 
 from __future__ import annotations
 
-import pytest
-
 from rig.diagnosis.findings import Finding
 from rig.diagnosis.wording import describe, not_explained_line, where_not_explained
 
@@ -64,28 +62,3 @@ def test_the_fits_not_explained_are_listed_short_by_where_they_lie() -> None:
     assert where_not_explained([lever, moved, pattern, moved]) == \
         "anchor 2 (anchor_position, antenna_pattern); the tdoa channel (lever_arm)"
 
-
-def test_a_delay_says_how_much_of_it_follows_a_lever_arm_fitted_beyond_its_bound() -> None:
-    """Fitted jointly, a lever arm beyond its bound moves every delay by its cross-talk
-    (m of delay per m of lever arm) times the lever arm; each delay finding then carries
-    that share, in report.json and in words. A lever arm within its bound leaves them be."""
-    from dataclasses import replace
-
-    from rig.diagnosis.diagnose import with_lever_arm_shares
-
-    lever = _finding("lever_arm", {"offset_m": [-0.1, -0.3, -0.8]}, {"offset_m": [0.02, 0.03, 0.07]})
-    lever.beyond_bound = True
-    delays = [_finding("anchor_delay", {"anchor": k, "meters": m}, {"meters": 0.05}, anchors=[k])
-              for k, m in ((6, -0.68), (1, -0.46))]
-    time = _finding("time_offset", {"seconds": -0.03}, {"seconds": 0.007})
-    cross_talk = {6: [0.67, 0.69, 0.28], 1: [-0.65, 0.70, 0.25]}
-    shared = with_lever_arm_shares([lever, *delays, time], cross_talk)
-    six = shared[1]
-    assert six.lever_arm_share_m == pytest.approx(-0.067 - 0.207 - 0.224)
-    assert six.to_json()["lever_arm_share_m"] == pytest.approx(-0.498)
-    assert "-0.498 m of it follows the lever arm" in describe(six) and "-0.182 m without it" in describe(six)
-    assert shared[3].lever_arm_share_m is None and "lever_arm_share_m" not in shared[3].to_json()
-    assert shared[0] is lever
-    within = with_lever_arm_shares([replace(lever, beyond_bound=False), *delays], cross_talk)
-    assert all(f.lever_arm_share_m is None for f in within)
-    assert "follows the lever arm" not in describe(within[1])
