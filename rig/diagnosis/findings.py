@@ -39,9 +39,6 @@ class Finding:
     not_named_axes: list = field(default_factory=list)   # a gyroscope scale's axes that did not pay: neutral there
     not_simulated: bool = False     # within bound, but left out of the model for its sign (terms.model_terms)
     std_err_independent: dict | None = None   # std_err with the samples counted as independent
-    # a delay's: the part of it the lever arm carries where that is fitted beyond its bound
-    # (rig.diagnosis.diagnose.with_lever_arm_shares)
-    lever_arm_share_m: float | None = None
 
     def to_json(self) -> dict:
         out = {"effect": self.effect, "channel": self.channel, "params": self.params, "evidence": self.evidence,
@@ -62,8 +59,6 @@ class Finding:
             out["not_named_axes"] = self.not_named_axes
         if self.not_simulated:
             out["not_simulated"] = True
-        if self.lever_arm_share_m is not None:
-            out["lever_arm_share_m"] = round(self.lever_arm_share_m, 6)
         return out
 
 
@@ -175,9 +170,6 @@ class Unnamed:
     params: dict
     std_err: dict
     std_err_independent: dict | None = None   # std_err with the samples counted as independent
-    # a delay's: the part of it the lever arm carries where that is fitted beyond its bound
-    # (rig.diagnosis.diagnose.with_lever_arm_shares)
-    lever_arm_share_m: float | None = None
     in_place_of: dict | None = None
 
     def to_json(self) -> dict:

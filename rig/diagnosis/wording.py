@@ -154,10 +154,6 @@ def describe(finding: Finding) -> str:
         elsewhere = finding.params.get("outside_m")
         text += (f", from {start:.1f} s to {end:.1f} s only" if elsewhere is None
                  else f" from {start:.1f} s to {end:.1f} s and {elsewhere:.3f} m elsewhere")
-    if finding.lever_arm_share_m is not None:
-        share = finding.lever_arm_share_m
-        text += (f"; {share:+.3f} m of it follows the lever arm, which is fitted beyond its bound (Not explained): "
-                 f"{finding.params['meters'] - share:+.3f} m without it")
     if finding.beyond_bound:
         text += (" — beyond what this effect can physically be" + _beyond_by(finding) + ": it stands for "
                  "something the catalog does not model, and the re-simulation leaves it out")
