@@ -1,0 +1,70 @@
+"""How large the diagnosis's richer TDOA terms come out on the shared flights, where
+the anchors stand where they were surveyed: the size of each named displacement
+(findings and not explained), and how many displacement, pattern and link-bias
+estimates lie beyond their physical bounds. Reads the reports `benchmarks/diagnosis.py`
+wrote; seconds.
+
+    .venv/bin/python benchmarks/diagnosis.py --reuse        # the 35 reports (5 min when not there yet)
+    .venv/bin/python benchmarks/richer_sizes.py [--reports out/diagnosis] [--json out/richer_sizes.json]
+
+Session 80 judged with it whether the richer terms should be estimated without a
+lever arm fitted beyond its bound (docs/notebook/diagnosis-experiments.md)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+RICHER = ("anchor_position", "antenna_pattern", "link_bias")
+
+
+def flight_figures(report: dict) -> dict:
+    """One report's displacement sizes (m) and its richer estimates beyond bound, by effect."""
+    named = [f for f in report["findings"] + report["not_explained"] if f["effect"] in RICHER]
+    sizes = [float(np.linalg.norm(f["params"]["offset_m"])) for f in named if f["effect"] == "anchor_position"]
+    beyond = {e: sum(1 for f in named if f["effect"] == e and f.get("beyond_physical_bound")) for e in RICHER}
+    named_by_effect = {e: sum(1 for f in named if f["effect"] == e) for e in RICHER}
+    return {"displacement_sizes_m": sizes, "named": named_by_effect, "beyond_bound": beyond}
+
+
+def summary(flights: dict[str, dict]) -> dict:
+    sizes = np.array([s for f in flights.values() for s in f["displacement_sizes_m"]])
+    out = {"flights": len(flights), "displacements": int(len(sizes)),
+           "named": {e: sum(f["named"][e] for f in flights.values()) for e in RICHER},
+           "beyond_bound": {e: sum(f["beyond_bound"][e] for f in flights.values()) for e in RICHER}}
+    out["beyond_bound_total"] = sum(out["beyond_bound"].values())
+    if len(sizes):
+        out["displacement_median_m"] = float(np.median(sizes))
+        out["displacement_p10_p90_m"] = [float(v) for v in np.percentile(sizes, [10, 90])]
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--reports", type=Path, default=ROOT / "out" / "diagnosis")
+    parser.add_argument("--json", type=Path, default=ROOT / "out" / "richer_sizes.json")
+    args = parser.parse_args()
+    flights = {p.parent.name: flight_figures(json.loads(p.read_text()))
+               for p in sorted(args.reports.glob("*/report.json"))}
+    if not flights:
+        parser.error(f"no report under {args.reports}: run benchmarks/diagnosis.py first")
+    total = summary(flights)
+    print(f"{total['flights']} flights, {total['displacements']} displacements named", end="")
+    if total["displacements"]:
+        low, high = total["displacement_p10_p90_m"]
+        print(f": median size {total['displacement_median_m']:.2f} m (10-90 %: {low:.2f}-{high:.2f} m)", end="")
+    print()
+    for effect in RICHER:
+        print(f"  {effect:16s} {total['beyond_bound'][effect]:4d} of {total['named'][effect]:4d} beyond bound")
+    print(f"  {'all':16s} {total['beyond_bound_total']:4d} of {sum(total['named'].values()):4d} beyond bound")
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps({"summary": total, "flights": flights}, indent=1) + "\n")
+    print(f"wrote {args.json}")
+
+
+if __name__ == "__main__":
+    main()
