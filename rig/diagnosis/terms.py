@@ -253,48 +253,23 @@ def estimate_terms(z: np.ndarray, terms: list[Term], z_simplest: np.ndarray | No
     the `simplest_unnamed` ones (rank 0) for the richer terms, whose estimates then do
     not depend on which of the simplest effects a recording names (naming a time
     offset and a clock drift on one recording only would move a displacement's
-    estimate between it and its control). A simplest effect fitted beyond its bound
-    stands for something the catalog does not model: the others are estimated
-    without it (it keeps its own estimate), and so are the richer ones, so that a
-    lever arm of a metre does not move every displacement with it."""
-    z_rank0 = z if z_simplest is None else z_simplest
-    simplest = [t for t in terms if rank_of(t) == 0]
-    beyond = _estimate_simplest(z_rank0, simplest, list(nuisance), times)
-    unnamed = [t for t in simplest_unnamed if all(t.key != n.key for n in terms + list(nuisance))]
-    richer = sorted({rank_of(t) for t in terms} - {0})
-    if richer:
-        kept = [t for t in simplest + list(nuisance) if all(t is not b for b in beyond)]
-        beyond += _unnamed_beyond(z_rank0, kept, unnamed)
-    for rank in richer:
+    estimate between it and its control)."""
+    for rank in sorted({rank_of(t) for t in terms}):
         reported = [t for t in terms if rank_of(t) <= rank]
-        nested = [t for t in reported + list(nuisance) + unnamed if all(t is not b for b in beyond)]
-        _estimate_in(z, nested, [t for t in reported if rank_of(t) == rank], times)
+        nested = reported + list(nuisance)
+        if rank:
+            nested += [t for t in simplest_unnamed if all(t.key != n.key for n in nested)]
+        z_rank = z if rank or z_simplest is None else z_simplest
+        _estimate_in(z_rank, nested, [t for t in reported if rank_of(t) == rank], times)
+        if rank == 0:
+            # a simplest effect fitted beyond its bound stands for something else: the
+            # others are estimated without it (it keeps its own estimate)
+            _centre_gauge(reported, "estimate")
+            beyond = [t for t in reported if t.beyond_bound(t.estimate)]
+            if beyond and len(beyond) < len(reported):
+                _estimate_in(z_rank, [t for t in nested if t not in beyond],
+                             [t for t in reported if t not in beyond], times)
     _centre_gauge(terms, "estimate")
-
-
-def _estimate_simplest(z: np.ndarray, simplest: list[Term], nuisance: list[Term],
-                       times: np.ndarray | None) -> list[Term]:
-    """The rank-0 terms' estimates, each in the joint fit of the others less those
-    whose own estimate lies beyond their bound (those keep it); returns them."""
-    if not simplest:
-        return []
-    _estimate_in(z, simplest + nuisance, simplest, times)
-    _centre_gauge(simplest, "estimate")
-    beyond = [t for t in simplest if t.beyond_bound(t.estimate)]
-    if beyond and len(beyond) < len(simplest):
-        kept = [t for t in simplest if all(t is not b for b in beyond)]
-        _estimate_in(z, kept + nuisance, kept, times)
-    return beyond
-
-
-def _unnamed_beyond(z: np.ndarray, kept: list[Term], unnamed: list[Term]) -> list[Term]:
-    """The `unnamed` rank-0 terms whose joint fit with the `kept` ones lies beyond
-    their bound (fitted on copies: the terms' own fits stay)."""
-    if not unnamed:
-        return []
-    trial = [Term(t.candidate, t.columns, t.extra) for t in kept + unnamed]
-    refit(z, trial)
-    return [t for t, fit in zip(unnamed, trial[len(kept):]) if fit.beyond_bound(fit.theta)]
 
 
 def _estimate_in(z: np.ndarray, nested: list[Term], reported: list[Term], times: np.ndarray | None) -> None:

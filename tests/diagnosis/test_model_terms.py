@@ -100,29 +100,3 @@ def test_the_simplest_effects_are_estimated_without_one_fitted_beyond_its_bound(
     assert abs(delay - 0.8) < 0.05                          # 0.3 of its own and 0.5 the lever arm's column held
     delay, lever = estimates(0.1)
     assert abs(lever - 0.1) < 0.02 and abs(delay - 0.3) < 0.02
-
-
-def test_the_richer_effects_are_estimated_without_a_simplest_one_fitted_beyond_its_bound() -> None:
-    """A displacement (rank 1) beside a lever arm (rank 0), named or fitted along
-    unnamed: with the lever arm beyond its bound the displacement is estimated without
-    it (it takes what the lever arm's column held of its own), within its bound the two
-    are fitted jointly."""
-    from rig.diagnosis.terms import estimate_terms
-
-    rng = np.random.default_rng(9)
-    own, shared = rng.normal(size=SAMPLES), rng.normal(size=SAMPLES)
-    noise = 0.1 * rng.normal(size=SAMPLES)
-
-    def displacement_estimate(displacement: float, lever_size: float, named: bool) -> float:
-        displaced = _displacement(shared)
-        lever = _term(Candidate("lever_arm", "tdoa", "offset_m", 1, prior=1.0, bound=0.15), own + 0.5 * shared)
-        z = displacement * shared + lever_size * lever.columns[:, 0] + noise
-        if named:
-            estimate_terms(z, [lever, displaced])
-        else:
-            estimate_terms(z, [displaced], simplest_unnamed=[lever])
-        return float(displaced.estimate[0])
-
-    for named in (True, False):
-        assert abs(displacement_estimate(0.3, 1.0, named) - 0.8) < 0.05     # 0.3 and half the lever arm's 1.0
-        assert abs(displacement_estimate(0.1, 0.05, named) - 0.1) < 0.01    # fitted jointly (without: 0.125)
