@@ -1,24 +1,30 @@
 """How large the diagnosis's richer TDOA terms come out on the shared flights, where
 the anchors stand where they were surveyed: the size of each named displacement
-(findings and not explained), and how many displacement, pattern and link-bias
-estimates lie beyond their physical bounds. Reads the reports `benchmarks/diagnosis.py`
-wrote; seconds.
+(findings and not explained), how many displacement, pattern and link-bias estimates
+lie beyond their physical bounds, and how many entries under *Not explained* have an
+estimate within their bounds (left out of the re-simulating model for its joint fit's
+sake), with the TDOA mismatch the model leaves (median over the flights of the
+channel's `fit_after`). Reads the reports `benchmarks/diagnosis.py` wrote; seconds.
 
     .venv/bin/python benchmarks/diagnosis.py --reuse        # the 35 reports (5 min when not there yet)
     .venv/bin/python benchmarks/richer_sizes.py [--reports out/diagnosis] [--json out/richer_sizes.json]
 
-Session 80 judged with it whether the richer terms should be estimated without a
-lever arm fitted beyond its bound (docs/notebook/diagnosis-experiments.md)."""
+Session 80 judged two changes with it (docs/notebook/diagnosis-experiments.md)."""
 
 from __future__ import annotations
 
 import argparse
 import json
+import sys
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from rig.sim import effects as fx  # noqa: E402
 RICHER = ("anchor_position", "antenna_pattern", "link_bias")
 
 
@@ -28,7 +34,10 @@ def flight_figures(report: dict) -> dict:
     sizes = [float(np.linalg.norm(f["params"]["offset_m"])) for f in named if f["effect"] == "anchor_position"]
     beyond = {e: sum(1 for f in named if f["effect"] == e and f.get("beyond_physical_bound")) for e in RICHER}
     named_by_effect = {e: sum(1 for f in named if f["effect"] == e) for e in RICHER}
-    return {"displacement_sizes_m": sizes, "named": named_by_effect, "beyond_bound": beyond}
+    within = Counter(f["effect"] for f in report["not_explained"]
+                     if not fx.make_effect(f["effect"], f["params"]).beyond_bound())
+    return {"displacement_sizes_m": sizes, "named": named_by_effect, "beyond_bound": beyond,
+            "not_explained_within_bound": dict(within), "tdoa_fit_after_m": report["channels"]["tdoa"]["fit_after"]}
 
 
 def summary(flights: dict[str, dict]) -> dict:
@@ -37,6 +46,9 @@ def summary(flights: dict[str, dict]) -> dict:
            "named": {e: sum(f["named"][e] for f in flights.values()) for e in RICHER},
            "beyond_bound": {e: sum(f["beyond_bound"][e] for f in flights.values()) for e in RICHER}}
     out["beyond_bound_total"] = sum(out["beyond_bound"].values())
+    out["not_explained_within_bound"] = dict(sum((Counter(f["not_explained_within_bound"])
+                                                  for f in flights.values()), Counter()))
+    out["tdoa_fit_after_median_m"] = float(np.median([f["tdoa_fit_after_m"] for f in flights.values()]))
     if len(sizes):
         out["displacement_median_m"] = float(np.median(sizes))
         out["displacement_p10_p90_m"] = [float(v) for v in np.percentile(sizes, [10, 90])]
@@ -61,6 +73,10 @@ def main() -> None:
     for effect in RICHER:
         print(f"  {effect:16s} {total['beyond_bound'][effect]:4d} of {total['named'][effect]:4d} beyond bound")
     print(f"  {'all':16s} {total['beyond_bound_total']:4d} of {sum(total['named'].values()):4d} beyond bound")
+    within = total["not_explained_within_bound"]
+    print(f"under Not explained with an estimate within bound: {sum(within.values())} "
+          f"({', '.join(f'{e} {n}' for e, n in sorted(within.items())) or 'none'})")
+    print(f"TDOA mismatch the model leaves: median {total['tdoa_fit_after_median_m']:.4f} m")
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps({"summary": total, "flights": flights}, indent=1) + "\n")
     print(f"wrote {args.json}")
