@@ -77,11 +77,8 @@ class Term:
     def beyond_bound(self, theta: np.ndarray) -> bool:
         """Whether the parameters of the fit `theta` lie outside the effect's physical range."""
         values = self.param_map() @ theta
-        return self.beyond_size(theta) or bool(self.candidate.nonnegative and values.min() < 0)
-
-    def beyond_size(self, theta: np.ndarray) -> bool:
-        """Whether the fit `theta` is larger than the effect can physically be (its sign aside)."""
-        return bool(np.abs(self.param_map() @ theta).max() > self.candidate.bound)
+        c = self.candidate
+        return bool(np.abs(values).max() > c.bound or (c.nonnegative and values.min() < 0))
 
     def param_map(self) -> np.ndarray:
         """The candidate's parameter as a linear map of the fit of the columns: a delay
@@ -114,13 +111,8 @@ def model_terms(z: np.ndarray, named: list[Term], floor: Term | None = None) -> 
     within its bounds does a nonnegative one refitted below zero leave (the most
     negative first): its shape is then shared with the others, and a negative gain
     would re-simulate the bias inside out. Judged earlier, it would leave before the
-    misfits that made it negative (docs/notebook/diagnosis-experiments.md, session 56).
-    A term whose estimate given the simpler explanations is already beyond its bound
-    in size leaves first: left in, it would push a plausible term beside it out of
-    bounds in the joint fit (a pattern's near-constant part against its anchor's
-    delay), and that one would leave in its place."""
-    kept = [t for t in named if t.estimate is None or not t.beyond_size(t.estimate)]
-    wrong_sign: list[Term] = []
+    misfits that made it negative (docs/notebook/diagnosis-experiments.md, session 56)."""
+    kept, wrong_sign = list(named), []
     while True:
         refit(z, kept + ([floor] if floor else []))
         if not kept:
