@@ -14,13 +14,9 @@ measure, at 5dce922, where the reports gave each delay's `lever_arm_share_m`), a
 
 from __future__ import annotations
 
-import argparse
-import json
-from pathlib import Path
-
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
+import diagnosis_reports
 
 
 def delay_rows(report: dict) -> tuple[np.ndarray, np.ndarray] | None:
@@ -49,15 +45,8 @@ def flight_figures(report: dict) -> dict | None:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--reports", type=Path, default=ROOT / "out" / "diagnosis")
-    parser.add_argument("--json", type=Path, default=ROOT / "out" / "delay_share.json")
-    args = parser.parse_args()
-    flights = {p.parent.name: flight_figures(json.loads(p.read_text()))
-               for p in sorted(args.reports.glob("*/report.json"))}
-    flights = {k: v for k, v in flights.items() if v is not None}
-    if not flights:
-        parser.error(f"no report with anchor delays under {args.reports}: run benchmarks/diagnosis.py first")
+    args = diagnosis_reports.command_line(__doc__, "delay_share.json")
+    flights = diagnosis_reports.per_flight(args, flight_figures, "report with anchor delays")
     for name, f in flights.items():
         print(f"{name:12s} largest delay {f['largest_m']:.2f} m; RMS against the direct measure "
               f"{f['rms_vs_direct_m']:.3f} m over {f['anchors']} anchors")
@@ -65,9 +54,7 @@ def main() -> None:
     summary["flights"] = len(flights)
     print(f"median over the {len(flights)} flights: largest delay {summary['largest_m']:.3f} m, "
           f"RMS against the direct measure {summary['rms_vs_direct_m']:.3f} m")
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps({"summary": summary, "flights": flights}, indent=1) + "\n")
-    print(f"wrote {args.json}")
+    diagnosis_reports.write(args, summary, flights)
 
 
 if __name__ == "__main__":

@@ -13,16 +13,14 @@ Session 80 judged two changes with it (docs/notebook/diagnosis-experiments.md)."
 
 from __future__ import annotations
 
-import argparse
-import json
 import sys
 from collections import Counter
-from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
+import diagnosis_reports
+
+sys.path.insert(0, str(diagnosis_reports.ROOT))
 
 from rig.sim import effects as fx  # noqa: E402
 RICHER = ("anchor_position", "antenna_pattern", "link_bias")
@@ -56,14 +54,8 @@ def summary(flights: dict[str, dict]) -> dict:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--reports", type=Path, default=ROOT / "out" / "diagnosis")
-    parser.add_argument("--json", type=Path, default=ROOT / "out" / "richer_sizes.json")
-    args = parser.parse_args()
-    flights = {p.parent.name: flight_figures(json.loads(p.read_text()))
-               for p in sorted(args.reports.glob("*/report.json"))}
-    if not flights:
-        parser.error(f"no report under {args.reports}: run benchmarks/diagnosis.py first")
+    args = diagnosis_reports.command_line(__doc__, "richer_sizes.json")
+    flights = diagnosis_reports.per_flight(args, flight_figures)
     total = summary(flights)
     print(f"{total['flights']} flights, {total['displacements']} displacements named", end="")
     if total["displacements"]:
@@ -77,9 +69,7 @@ def main() -> None:
     print(f"under Not explained with an estimate within bound: {sum(within.values())} "
           f"({', '.join(f'{e} {n}' for e, n in sorted(within.items())) or 'none'})")
     print(f"TDOA mismatch the model leaves: median {total['tdoa_fit_after_median_m']:.4f} m")
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps({"summary": total, "flights": flights}, indent=1) + "\n")
-    print(f"wrote {args.json}")
+    diagnosis_reports.write(args, total, flights)
 
 
 if __name__ == "__main__":
