@@ -62,7 +62,9 @@ def print_diagnosis(result, report: dict) -> None:
     for f in result.explained:
         print(f"  {f.effect:16s} evidence {f.evidence:9.1f}  {describe(f)}")
     if result.not_explained:
-        print(f"  not explained ({len(result.not_explained)} fits beyond their effect's physical bound, in report.md):")
+        jointly = sum(f.beyond_only_jointly for f in result.not_explained)
+        print(f"  not explained ({len(result.not_explained)} fits beyond their effect's physical bound"
+              + (f", {jointly} of them only jointly" if jointly else "") + ", in report.md):")
     for f in result.not_explained:
         print(f"    evidence {f.evidence:9.1f}  {not_explained_line(f)}")
     lean = lean_line(result)

@@ -40,6 +40,14 @@ class Finding:
     not_simulated: bool = False     # within bound, but left out of the model for its sign (terms.model_terms)
     std_err_independent: dict | None = None   # std_err with the samples counted as independent
 
+    @property
+    def beyond_only_jointly(self) -> bool:
+        """Left out as beyond its bound although its own estimate is within it: fitted
+        jointly with the other named effects, beside one beyond its bound that shares
+        its shape (a delay beside its anchor's pattern), it went beyond its bound there
+        (rig.diagnosis.terms.model_terms)."""
+        return self.beyond_bound and not fx.make_effect(self.effect, self.params).beyond_bound()
+
     def to_json(self) -> dict:
         out = {"effect": self.effect, "channel": self.channel, "params": self.params, "evidence": self.evidence,
                "fit_before": self.fit_before, "fit_after": self.fit_after, "where": self.where}
@@ -53,6 +61,8 @@ class Finding:
             out["look_alikes"] = self.look_alikes
         if self.beyond_bound:
             out["beyond_physical_bound"] = True
+            if self.beyond_only_jointly:
+                out["beyond_only_jointly"] = True
         if self.alternative_to:
             out["alternative_to"] = self.alternative_to
         if self.not_named_axes:

@@ -123,15 +123,18 @@ def _not_explained_lines(diagnosis: Diagnosis) -> list[str]:
     a short section, one row per fit, the largest evidence first."""
     if not diagnosis.not_explained:
         return []
+    jointly = sum(f.beyond_only_jointly for f in diagnosis.not_explained)
     lines = ["## Not explained", "",
              f"{len(diagnosis.not_explained)} fits remove real mismatch but are larger than their effect can "
-             "physically be: none is a finding, and the re-simulation leaves them out (report.json's "
+             "physically be" + (f" ({jointly} of them only when fitted jointly with the other named effects, beside "
+                                "one that is)" if jointly else "")
+             + ": none is a finding, and the re-simulation leaves them out (report.json's "
              "`not_explained`). They say where the residual lies: "
              f"{where_not_explained(diagnosis.not_explained)}. On real flights it is mostly the part of the UWB's "
              "pose-dependent bias that the link bias every link shares does not carry: each anchor's own, and "
              "each place's. A change to the flight of one of these kinds (an anchor moved, an effect injected) "
              "shows only as a change of its fit: compare with a recording of the flight before it (`--control`).",
-             "", "| fitted as | where | fit | beyond its bound: the largest component | evidence |",
+             "", "| fitted as | where | fit | beyond its bound: the largest component, or only jointly | evidence |",
              "|---|---|---|---|---|"]
     for f in diagnosis.not_explained:
         lines.append(f"| {f.effect} | {place(f)} | {_params_text(f.params)} | {how_far_beyond(f)} | {f.evidence:.1f} |")

@@ -91,14 +91,17 @@ def place(finding: Finding) -> str:
 
 
 def not_explained_line(finding: Finding) -> str:
-    """A fit beyond its bound in one line: what it was fitted as, where, and how far beyond
-    ('anchor_position on anchor 2: 2.18 against 1, 2.6 standard errors beyond')."""
+    """A fit left out as beyond its bound in one line: what it was fitted as, where, and
+    how far beyond ('anchor_position on anchor 2: 2.18 against 1, 2.6 standard errors
+    beyond'), or that it was beyond only in the joint fit."""
     return f"{finding.effect} on {place(finding)}: {how_far_beyond(finding)}"
 
 
 def how_far_beyond(finding: Finding) -> str:
     """'2.2 against 1, 3.0 standard errors beyond', or without a standard error of the
     bounded parameter (an NLOS's mean excess) 'mean_excess_m 1.75 (bound 1)'."""
+    if finding.beyond_only_jointly:
+        return "within its bound as estimated; beyond it only in the joint fit, beside a fit beyond its bound"
     beyond = beyond_bound_by(finding.effect, finding.params, finding.std_err)
     if beyond is not None:
         return _beyond_text(beyond)
@@ -154,7 +157,11 @@ def describe(finding: Finding) -> str:
         elsewhere = finding.params.get("outside_m")
         text += (f", from {start:.1f} s to {end:.1f} s only" if elsewhere is None
                  else f" from {start:.1f} s to {end:.1f} s and {elsewhere:.3f} m elsewhere")
-    if finding.beyond_bound:
+    if finding.beyond_only_jointly:
+        text += (" — within what this effect can physically be, but fitted jointly with the other named effects "
+                 "it goes beyond it, beside a fit beyond its bound that shares its shape on this flight: the "
+                 "re-simulation leaves it out")
+    elif finding.beyond_bound:
         text += (" — beyond what this effect can physically be" + _beyond_by(finding) + ": it stands for "
                  "something the catalog does not model, and the re-simulation leaves it out")
     if finding.not_simulated:

@@ -1,7 +1,8 @@
 """How report.md and `rig diagnose` word a finding: its standard errors follow its
 parameters, as report.json gives them (a noise-level finding has none), and a fit
 beyond its physical bound says by how many of them, in one line where it is listed
-among the fits not explained."""
+among the fits not explained; one left out although its own estimate is within its
+bound says that it was beyond only in the joint fit."""
 
 from __future__ import annotations
 
@@ -62,3 +63,22 @@ def test_the_fits_not_explained_are_listed_short_by_where_they_lie() -> None:
     assert where_not_explained([lever, moved, pattern, moved]) == \
         "anchor 2 (anchor_position, antenna_pattern); the tdoa channel (lever_arm)"
 
+
+
+def test_a_fit_left_out_only_for_the_joint_fit_says_so_and_not_how_far_beyond() -> None:
+    """A delay of −0.067 m (bound 1.5 m) that the model left out beside its anchor's
+    pattern: not explained, but neither its line nor report.json calls its estimate
+    physically impossible; a fit beyond its bound keeps the usual wording."""
+    delay = _finding("anchor_delay", {"anchor": 5, "meters": -0.067}, {"meters": 0.03}, anchors=[5])
+    delay.beyond_bound = True
+    assert delay.beyond_only_jointly and delay.to_json()["beyond_only_jointly"] is True
+    assert not_explained_line(delay) == ("anchor_delay on anchor 5: within its bound as estimated; beyond it only "
+                                         "in the joint fit, beside a fit beyond its bound")
+    assert "within what this effect can physically be" in describe(delay) and "beyond what" not in describe(delay)
+    moved = _finding("anchor_position", {"anchor": 2, "offset_m": [-2.2, -1.3, 1.2]}, {"offset_m": [0.4, 0.4, 0.9]},
+                     anchors=[2])
+    moved.beyond_bound = True
+    assert not moved.beyond_only_jointly and "beyond_only_jointly" not in moved.to_json()
+    assert "beyond what this effect can physically be" in describe(moved)
+    delay.beyond_bound = False                                     # a finding: neither
+    assert not delay.beyond_only_jointly and "beyond_physical_bound" not in delay.to_json()
