@@ -29,7 +29,6 @@ are smaller, but a shape that takes nothing from the displacements here will not
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -154,12 +153,7 @@ def main() -> None:
             + (f" disp median {np.median(row['displacement_m']):.2f} m" if "displacement_m" in row else "")
             + (f" gains {row['anchor_gain']}" if "anchor_gain" in row else "")
             for model, row in results[flight].items()), flush=True)
-    overall = summary(results)
-    for model, entry in overall.items():
-        print(f"{model:22s} " + ", ".join(f"{k} {v}" for k, v in entry.items()))
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps({"summary": overall, "flights": results}, indent=1) + "\n")
-    print(f"wrote {args.json}")
+    lever_arm_loads.write_results(results, summary(results), args.json)
 
 
 if __name__ == "__main__":

@@ -168,6 +168,15 @@ def summary(results: dict[str, dict]) -> dict:
     return out
 
 
+def write_results(results: dict, overall: dict, path: Path) -> None:
+    """Print the summary a line per model and write it with every flight's fits as JSON."""
+    for model, entry in overall.items():
+        print(f"{model:22s} " + ", ".join(f"{k} {v}" for k, v in entry.items()))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps({"summary": overall, "flights": results}, indent=1) + "\n")
+    print(f"wrote {path}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--flights", nargs="+", default=FLIGHTS)
@@ -183,12 +192,7 @@ def main() -> None:
         base = results[flight]["base"]
         print(f"{flight:12s} " + " | ".join(cells) + f" || delays explain {base['delays_explain']}, without delays "
               f"{base['without_delays']}, se white {base['se_white_m']}, se blocks {base['se_blocks_m']}", flush=True)
-    overall = summary(results)
-    for model, entry in overall.items():
-        print(f"{model:10s} " + ", ".join(f"{k} {v}" for k, v in entry.items()))
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps({"summary": overall, "flights": results}, indent=1) + "\n")
-    print(f"wrote {args.json}")
+    write_results(results, summary(results), args.json)
 
 
 if __name__ == "__main__":
