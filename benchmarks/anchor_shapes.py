@@ -98,6 +98,7 @@ def flight_shapes(links: lever_arm_loads.FlightLinks, coeffs: np.ndarray) -> dic
         if "displaced" in fitted:
             sizes = np.linalg.norm(fitted["displaced"].reshape(-1, 3), axis=1)
             row["displacement_m"] = np.round(sizes, 3).tolist()
+            row["displacement_vectors_m"] = np.round(fitted["displaced"].reshape(-1, 3), 3).tolist()
             row["displacements_beyond"] = int(np.sum(sizes > DISPLACEMENT_BOUND_M))
         if "anchor_gain" in fitted:
             gains = fitted["anchor_gain"]
@@ -118,9 +119,27 @@ def gain_agreement(gains: np.ndarray) -> dict:
             "anchor_gain_sign_agreement": np.round(np.mean(np.sign(gains) == np.sign(median), axis=0), 2).tolist()}
 
 
+def displacement_stability(results: dict[str, dict]) -> dict:
+    """Per day, how much of a flight's displacements the day's other flights foretell:
+    the squared norm of a flight's displacement vectors less the mean of the others',
+    over its own (median over the day's flights; 0: the same on every flight, 1: no
+    better than none). A per-installation field of the anchors would have to be this
+    stable to be calibrated away."""
+    out = {}
+    for day in sorted({f[:4] for f in results}):
+        vectors = np.array([results[f]["displaced"]["displacement_vectors_m"] for f in results if f.startswith(day)])
+        if len(vectors) < 2:
+            continue
+        left = [np.sum((v - np.delete(vectors, i, axis=0).mean(axis=0)) ** 2) / np.sum(v ** 2)
+                for i, v in enumerate(vectors)]
+        out[day] = round(float(np.median(left)), 2)
+    return out
+
+
 def summary(results: dict[str, dict]) -> dict:
     """Per model, over the flights: the median residual, the median displacement and the
-    share of displacements and anchor gains beyond their bounds."""
+    share of displacements and anchor gains beyond their bounds; how stable the
+    displacements are within a day."""
     out = {}
     for model in MODELS:
         rows = [r[model] for r in results.values()]
@@ -129,6 +148,8 @@ def summary(results: dict[str, dict]) -> dict:
             sizes = np.concatenate([r["displacement_m"] for r in rows])
             entry["displacement_median_m"] = round(float(np.median(sizes)), 3)
             entry["displacements_beyond"] = f"{sum(r['displacements_beyond'] for r in rows)} of {len(sizes)}"
+            if model == "displaced":
+                entry["left_by_the_days_other_flights"] = displacement_stability(results)
         if "anchor_gain" in rows[0]:
             count = sum(len(r["anchor_gain"]) for r in rows)
             entry["anchor_gains_beyond"] = f"{sum(r['anchor_gains_beyond'] for r in rows)} of {count}"

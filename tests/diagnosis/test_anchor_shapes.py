@@ -87,3 +87,13 @@ def test_the_lever_arm_summary_counts_components_beyond_the_airframe_per_model()
     assert overall["link"]["link_gain_range"] == [0.7, 1.5]
     assert overall["link+kind"]["z_beyond"] == 0
     assert overall["link+kind"]["kind_median_by_day"] == {"0425": [-0.1, 0.1], "0426": [0.5, -0.5]}
+
+
+def test_displacements_the_same_on_every_flight_of_a_day_are_foretold_by_the_others() -> None:
+    same = {"displacement_vectors_m": [[1.0, 0.0, 0.0], [0.0, 2.0, 0.0]]}
+    results = {"0425-a": {"displaced": same}, "0425-b": {"displaced": same},
+               "0426-a": {"displaced": {"displacement_vectors_m": [[1.0, 0.0, 0.0]]}},
+               "0426-b": {"displaced": {"displacement_vectors_m": [[-1.0, 0.0, 0.0]]}},
+               "0422-a": {"displaced": same}}
+    # 0426: each flight against the other's opposite: 4 times its own norm left
+    assert anchor_shapes.displacement_stability(results) == {"0425": 0.0, "0426": 4.0}
