@@ -50,6 +50,9 @@ MODELS = {"base": ["link"], "displaced": ["link", "displaced"], "anchor_gain": [
           "displaced+tag_azimuth": ["link", "displaced", "tag_azimuth"]}
 HARMONICS = (2, 3, 4)
 DISPLACEMENT_BOUND_M = AnchorPosition.bounds["offset_m"]
+# the blocks the standard errors sum scores over: the width of the kernel that counts
+# the slow TDOA error in the diagnosis's standard errors (docs/notebook/diagnosis.md)
+SE_BLOCK_S = 2.0
 INSIDE_OUT_M = 0.01      # a gain below zero by less than a centimetre of bias is zero
 
 
@@ -79,12 +82,18 @@ def columns(links: lever_arm_loads.FlightLinks, coeffs: np.ndarray) -> dict[str,
             "tag_azimuth": b["harmonics"] - a["harmonics"]}
 
 
-def fit(error: np.ndarray, cols: dict[str, np.ndarray], names: list[str]) -> tuple[dict[str, np.ndarray], float]:
-    """Least-squares coefficients of `names`' columns, by name, and the residual's std."""
+def fit(links: lever_arm_loads.FlightLinks, cols: dict[str, np.ndarray],
+        names: list[str]) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], float]:
+    """Least-squares coefficients of `names`' columns and their standard errors that
+    count the slow error (scores summed over SE_BLOCK_S), by name; the residual's std."""
     design = np.column_stack([cols[n] for n in names])
-    coef, *_ = np.linalg.lstsq(design, error, rcond=None)
+    coef, *_ = np.linalg.lstsq(design, links.error, rcond=None)
+    residual = links.error - design @ coef
+    _, se = lever_arm_loads.standard_errors(design, residual, links.t, SE_BLOCK_S)
     widths = np.cumsum([0] + [cols[n].shape[1] for n in names])
-    return {n: coef[widths[i]:widths[i + 1]] for i, n in enumerate(names)}, float(np.std(error - design @ coef))
+    by_name = [slice(widths[i], widths[i + 1]) for i in range(len(names))]
+    return ({n: coef[k] for n, k in zip(names, by_name)}, {n: se[k] for n, k in zip(names, by_name)},
+            float(np.std(residual)))
 
 
 def flight_shapes(links: lever_arm_loads.FlightLinks, coeffs: np.ndarray) -> dict:
@@ -93,12 +102,13 @@ def flight_shapes(links: lever_arm_loads.FlightLinks, coeffs: np.ndarray) -> dic
     largest = float(np.max(np.abs(coeffs)))
     out = {}
     for model, extra in MODELS.items():
-        fitted, residual = fit(links.error, cols, ["delay", "lever", *extra])
+        fitted, se, residual = fit(links, cols, ["delay", "lever", *extra])
         row = {"residual_std_m": round(residual, 4), "lever_m": np.round(fitted["lever"], 3).tolist()}
         if "displaced" in fitted:
             sizes = np.linalg.norm(fitted["displaced"].reshape(-1, 3), axis=1)
             row["displacement_m"] = np.round(sizes, 3).tolist()
             row["displacement_vectors_m"] = np.round(fitted["displaced"].reshape(-1, 3), 3).tolist()
+            row["displacement_se_m"] = np.round(np.linalg.norm(se["displaced"].reshape(-1, 3), axis=1), 3).tolist()
             row["displacements_beyond"] = int(np.sum(sizes > DISPLACEMENT_BOUND_M))
         if "anchor_gain" in fitted:
             gains = fitted["anchor_gain"]
@@ -122,17 +132,23 @@ def gain_agreement(gains: np.ndarray) -> dict:
 def displacement_stability(results: dict[str, dict]) -> dict:
     """Per day, how much of a flight's displacements the day's other flights foretell:
     the squared norm of a flight's displacement vectors less the mean of the others',
-    over its own (median over the day's flights; 0: the same on every flight, 1: no
-    better than none). A per-installation field of the anchors would have to be this
-    stable to be calibrated away."""
+    over its own (`left`, median over the day's flights; 0: the same on every flight,
+    1: no better than none). A per-installation field of the anchors would have to be
+    this stable to be calibrated away. `left_by_their_noise`: what would be left if
+    every flight fitted one field and differed only by its fits' standard errors
+    (its own and the mean's), the same ratio."""
     out = {}
     for day in sorted({f[:4] for f in results}):
-        vectors = np.array([results[f]["displaced"]["displacement_vectors_m"] for f in results if f.startswith(day)])
-        if len(vectors) < 2:
+        rows = [results[f]["displaced"] for f in results if f.startswith(day)]
+        if len(rows) < 2:
             continue
+        vectors = np.array([r["displacement_vectors_m"] for r in rows])
+        variance = np.array([np.sum(np.square(r["displacement_se_m"])) for r in rows])
+        n = len(rows)
         left = [np.sum((v - np.delete(vectors, i, axis=0).mean(axis=0)) ** 2) / np.sum(v ** 2)
                 for i, v in enumerate(vectors)]
-        out[day] = round(float(np.median(left)), 2)
+        noise = [(variance[i] + np.delete(variance, i).mean() / (n - 1)) / np.sum(v ** 2) for i, v in enumerate(vectors)]
+        out[day] = {"left": round(float(np.median(left)), 2), "left_by_their_noise": round(float(np.median(noise)), 2)}
     return out
 
 

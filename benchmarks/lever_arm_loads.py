@@ -128,19 +128,24 @@ def fit(error: np.ndarray, delays: np.ndarray, columns: dict[str, np.ndarray], e
     return out
 
 
+def standard_errors(design: np.ndarray, residual: np.ndarray, t: np.ndarray,
+                    block_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """Each least-squares coefficient's standard error with independent samples, and
+    with the fit's scores summed over `block_s` blocks first (a sandwich), which counts
+    an error that varies slowly."""
+    bread = np.linalg.pinv(design.T @ design)
+    block = np.floor((t - t[0]) / block_s).astype(int)
+    summed = np.zeros((block.max() + 1, design.shape[1]))
+    np.add.at(summed, block, design * residual[:, None])
+    return np.sqrt(np.diag(bread) * np.var(residual)), np.sqrt(np.diag(bread @ (summed.T @ summed) @ bread))
+
+
 def lever_arm_conditioning(error: np.ndarray, delays: np.ndarray, lever: np.ndarray, t: np.ndarray) -> dict:
     """How far the delays leave the lever arm its own signal, and its standard error with
     independent samples and with the scores summed over BLOCK_S blocks (a sandwich)."""
     design = np.column_stack([delays, lever])
     coef, *_ = np.linalg.lstsq(design, error, rcond=None)
-    residual = error - design @ coef
-    bread = np.linalg.pinv(design.T @ design)
-    scores = design * residual[:, None]
-    block = np.floor((t - t[0]) / BLOCK_S).astype(int)
-    summed = np.zeros((block.max() + 1, design.shape[1]))
-    np.add.at(summed, block, scores)
-    white = np.sqrt(np.diag(bread) * np.var(residual))[-3:]
-    blocks = np.sqrt(np.diag(bread @ (summed.T @ summed) @ bread))[-3:]
+    white, blocks = (se[-3:] for se in standard_errors(design, error - design @ coef, t, BLOCK_S))
     explained = lever - delays @ np.linalg.lstsq(delays, lever, rcond=None)[0]
     alone, *_ = np.linalg.lstsq(lever, error - error.mean(), rcond=None)
     return {"delays_explain": np.round(1 - explained.var(axis=0) / lever.var(axis=0), 3).tolist(),

@@ -90,10 +90,12 @@ def test_the_lever_arm_summary_counts_components_beyond_the_airframe_per_model()
 
 
 def test_displacements_the_same_on_every_flight_of_a_day_are_foretold_by_the_others() -> None:
-    same = {"displacement_vectors_m": [[1.0, 0.0, 0.0], [0.0, 2.0, 0.0]]}
+    same = {"displacement_vectors_m": [[1.0, 0.0, 0.0], [0.0, 2.0, 0.0]], "displacement_se_m": [0.0, 0.0]}
     results = {"0425-a": {"displaced": same}, "0425-b": {"displaced": same},
-               "0426-a": {"displaced": {"displacement_vectors_m": [[1.0, 0.0, 0.0]]}},
-               "0426-b": {"displaced": {"displacement_vectors_m": [[-1.0, 0.0, 0.0]]}},
+               "0426-a": {"displaced": {"displacement_vectors_m": [[1.0, 0.0, 0.0]], "displacement_se_m": [0.5]}},
+               "0426-b": {"displaced": {"displacement_vectors_m": [[-1.0, 0.0, 0.0]], "displacement_se_m": [0.5]}},
                "0422-a": {"displaced": same}}
-    # 0426: each flight against the other's opposite: 4 times its own norm left
-    assert anchor_shapes.displacement_stability(results) == {"0425": 0.0, "0426": 4.0}
+    # 0426: each flight against the other's opposite leaves 4 times its own square; its
+    # noise, 0.25 of its own and 0.25 of the other's, would have left 0.5
+    assert anchor_shapes.displacement_stability(results) == {"0425": {"left": 0.0, "left_by_their_noise": 0.0},
+                                                             "0426": {"left": 4.0, "left_by_their_noise": 0.5}}
