@@ -54,10 +54,12 @@ def estimates_0426(rows: list[dict]) -> dict | None:
     def gain(runs: list[dict]) -> float:
         return 1 - np.mean([f["rmse_3d"] for f in runs]) / np.mean([f["rmse_3d_without"] for f in runs])
 
-    per_mode = sum(n * without * (1 - gain([f for f in flights if (f["flight"] in TDOA3) == (mode == "TDOA3")]))
-                   for mode, (n, without) in HELD_OUT_0426_BY_MODE.items())
-    return {"pooled_m": float(HELD_OUT_0426_WITHOUT_M * (1 - gain(flights))),
-            "per_mode_m": float(per_mode / sum(n for n, _ in HELD_OUT_0426_BY_MODE.values()))}
+    by_mode = {mode: [f for f in flights if (f["flight"] in TDOA3) == (mode == "TDOA3")] for mode in HELD_OUT_0426_BY_MODE}
+    per_mode = None
+    if all(by_mode.values()):            # a mode without a flight has no gain to apply
+        per_mode = float(sum(n * without * (1 - gain(by_mode[mode])) for mode, (n, without) in HELD_OUT_0426_BY_MODE.items())
+                         / sum(n for n, _ in HELD_OUT_0426_BY_MODE.values()))
+    return {"pooled_m": float(HELD_OUT_0426_WITHOUT_M * (1 - gain(flights))), "per_mode_m": per_mode}
 
 
 def by_cpu(rows: list[dict], form: str) -> dict[str, list[dict]]:
@@ -97,8 +99,9 @@ def table(result: dict) -> list[str]:
         lines.append(f"| {split} | " + " | ".join(cells) + f" | {diff} |")
     for cpu, est in result["estimates_0426"].items():
         if est:
+            per_mode = "no flight of one mode" if est["per_mode_m"] is None else f"{est['per_mode_m']:.3f} m"
             lines.append(f"\n0426 check from {cpu}'s within-0426 rows: {est['pooled_m']:.3f} m pooled, "
-                         f"{est['per_mode_m']:.3f} m per mode")
+                         f"{per_mode} per mode")
     return lines
 
 

@@ -208,6 +208,8 @@ def test_the_cpu_comparison_on_made_up_rows() -> None:
     assert list(result["splits"]) == [results.EARLIER_CPU, "AuthenticAMD 25 17"]
     assert result["splits"]["AuthenticAMD 25 17"]["day-0422"]["worse"] == 1.0
     assert result["estimates_0426"][results.EARLIER_CPU]["pooled_m"] == pytest.approx(0.276 * 0.210 / 0.25)
+    assert result["estimates_0426"][results.EARLIER_CPU]["per_mode_m"] is None       # no TDOA3 flight among them
+    assert "m pooled, no flight of one mode per mode" in "\n".join(cpu_repeat.table(result))
     assert "| within-0426 | 0.2100 m (0.2100–0.2100), 0.0 | 0.2140 m (0.2140–0.2140), 0.0 | +0.0040 m |" \
         in cpu_repeat.table(result)
 
