@@ -12,7 +12,9 @@ from rig.sim import effects as fx
 PLAIN = {
     "time_offset": "the UWB timestamps are late by {seconds:.3f} s against the IMU and ground-truth clock",
     "clock_drift": "the UWB clock runs fast by {ppm:.0f} ppm against the IMU clock",
-    "anchor_position": "anchor {anchor} is really {offset_m} m from where the survey puts it",
+    # as if: on real flights an anchor's own bias that changes with the tag's direction
+    # from it reads as a displacement too (docs/notebook/diagnosis-experiments.md, session 81)
+    "anchor_position": "anchor {anchor}'s ranges read as if it stood {offset_m} m from where the survey puts it",
     "anchor_delay": "every range from anchor {anchor} reads {meters:+.3f} m long (antenna delay; relative to the "
                     "anchors' common delay, which TDOA cannot see)",
     "antenna_pattern": "anchor {anchor}'s ranges are biased with the viewing angle (antenna pattern {coeffs_m} m)",

@@ -1,4 +1,5 @@
-"""How report.md and `rig diagnose` word a finding: its standard errors follow its
+"""How report.md and `rig diagnose` word a finding: a displacement as how the anchor's
+ranges read, not as a moved anchor; its standard errors follow its
 parameters, as report.json gives them (a noise-level finding has none), and a fit
 beyond its physical bound says by how many of them, in one line where it is listed
 among the fits not explained; one left out although its own estimate is within its
@@ -22,6 +23,12 @@ def test_a_fitted_finding_gives_its_standard_errors() -> None:
     assert "(standard error 0.067)" in describe(delay)
     drift = _finding("clock_drift", {"ppm": -287.0}, {"ppm": 543.2})
     assert "(standard error 543)" in describe(drift)
+
+
+def test_a_displacement_says_how_the_ranges_read_not_that_the_anchor_moved() -> None:
+    moved = _finding("anchor_position", {"anchor": 4, "offset_m": [-0.81, -0.46, 0.52]}, {"offset_m": [0.25, 0.34, 0.49]})
+    assert describe(moved).startswith("anchor 4's ranges read as if it stood [-0.81, -0.46, 0.52] m from where the "
+                                      "survey puts it")
 
 
 def test_an_nlos_gives_its_mean_shifts_and_a_noise_level_finding_none() -> None:
