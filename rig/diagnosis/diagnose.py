@@ -426,7 +426,7 @@ def _where(problem: Problem, channel: Channel, term: Term, effect: fx.Effect, ro
                                                         "max": np.round(positions.max(axis=0), 3).tolist()}
         if "anchor" in term.candidate.fixed:
             where["anchors"] = [term.candidate.fixed["anchor"]]
-        if isinstance(effect, fx.LinkBias):      # the anchor and viewing angles where it is largest
+        if hasattr(effect, "largest"):      # how much it changes the ranges, the anchor and viewing angles where most
             where.update(effect.largest(problem.predictor.tdoa([]), problem.predictor.world([]),
                                         problem.tdoa_rows[rows]))
         return where

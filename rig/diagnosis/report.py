@@ -24,7 +24,15 @@ from rig.diagnosis.imu_spectrum import vibration_spread  # noqa: E402
 from rig.diagnosis.floor_error import ON_GROUND_M  # noqa: E402
 from rig.diagnosis.identifiability import figures  # noqa: E402
 from rig.diagnosis.mismatch import CELL_M  # noqa: E402
-from rig.diagnosis.wording import describe, how_far_beyond, lean_line, per_anchor, place, where_not_explained  # noqa: E402
+from rig.diagnosis.wording import (  # noqa: E402
+    describe,
+    how_far_beyond,
+    lean_line,
+    per_anchor,
+    place,
+    ranges_spread,
+    where_not_explained,
+)
 from rig.sim import effects as fx  # noqa: E402
 
 REPORT_JSON, REPORT_MD, MODEL_JSON = "report.json", "report.md", "model.json"
@@ -134,10 +142,13 @@ def _not_explained_lines(diagnosis: Diagnosis) -> list[str]:
              "pose-dependent bias that the link bias every link shares does not carry: each anchor's own, and "
              "each place's. A change to the flight of one of these kinds (an anchor moved, an effect injected) "
              "shows only as a change of its fit: compare with a recording of the flight before it (`--control`).",
-             "", "| fitted as | where | fit | beyond its bound: the largest component, or only jointly | evidence |",
-             "|---|---|---|---|---|"]
+             "", "| fitted as | where | fit | beyond its bound: the largest component, or only jointly | "
+             "its anchor's ranges vary by | evidence |",
+             "|---|---|---|---|---|---|"]
     for f in diagnosis.not_explained:
-        lines.append(f"| {f.effect} | {place(f)} | {_params_text(f.params)} | {how_far_beyond(f)} | {f.evidence:.1f} |")
+        spread = ranges_spread(f)
+        lines.append(f"| {f.effect} | {place(f)} | {_params_text(f.params)} | {how_far_beyond(f)} | "
+                     f"{'—' if spread is None else f'{spread:.3f} m'} | {f.evidence:.1f} |")
     lean = lean_line(diagnosis)
     return lines + ([] if lean is None else ["", lean[0].upper() + lean[1:] + "."]) + [""]
 

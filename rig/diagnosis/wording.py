@@ -95,8 +95,11 @@ def place(finding: Finding) -> str:
 def not_explained_line(finding: Finding) -> str:
     """A fit left out as beyond its bound in one line: what it was fitted as, where, and
     how far beyond ('anchor_position on anchor 2: 2.18 against 1, 2.6 standard errors
-    beyond'), or that it was beyond only in the joint fit."""
-    return f"{finding.effect} on {place(finding)}: {how_far_beyond(finding)}"
+    beyond'), or that it was beyond only in the joint fit; for a per-anchor fit, by how
+    much it changes its anchor's ranges (ranges_spread)."""
+    spread = ranges_spread(finding)
+    return f"{finding.effect} on {place(finding)}: {how_far_beyond(finding)}" + \
+        ("" if spread is None else f"; its anchor's ranges vary by {spread:.3f} m over the flight")
 
 
 def how_far_beyond(finding: Finding) -> str:
@@ -133,6 +136,33 @@ def where_not_explained(findings: list[Finding]) -> str:
     return "; ".join(f"{where} ({', '.join(dict.fromkeys(effects))})" for where, effects in sorted(by_place.items()))
 
 
+def ranges_spread(finding: Finding) -> float | None:
+    """How much a per-anchor fit changes its anchor's ranges over the flight (m, standard
+    deviation over its links; the mean is a delay): the size to check against physics
+    whatever the fit's parameters say (a displacement of metres over the narrow cone of
+    directions a flight shows changes them by tenths). None where not measured."""
+    largest = finding.where.get("largest")
+    if not largest or finding.effect == "link_bias":
+        return None
+    return finding.where["spread_m"][str(largest["anchor"])]
+
+
+def _largest_text(finding: Finding) -> str:
+    """'; it changes anchor 2's ranges by 0.120 m over the flight …, reading longest with
+    the tag at …' (where it changes them most), or '' where not measured."""
+    largest = finding.where.get("largest")
+    if not largest:
+        return ""
+    k = largest["anchor"]
+    spread = finding.where["spread_m"][str(k)]
+    size = (f"it varies most on anchor {k}'s links ({spread:.3f} m)" if finding.effect == "link_bias" else
+            f"it changes anchor {k}'s ranges by {spread:.3f} m over the flight (standard deviation; their mean is "
+            f"a delay)")
+    return (f"; {size}, reading {largest['sign']}est with the tag at azimuth {_angles(largest['tag_azimuth_deg'])} "
+            f"and elevation {_angles(largest['tag_elevation_deg'])} in the anchor's frame (the anchor at elevation "
+            f"{_angles(largest['anchor_elevation_in_body_deg'])} from the tag)")
+
+
 def describe(finding: Finding) -> str:
     params = {k: (np.round(v, 3).tolist() if isinstance(v, list) else v) for k, v in finding.params.items()}
     if isinstance(params.get("meters"), dict):
@@ -147,13 +177,7 @@ def describe(finding: Finding) -> str:
         params["region"] = ", ".join(f"{axis} {low:.2f}…{high:.2f}" for axis, low, high
                                      in zip("xyz", box["min"], box["max"])) + " m"
     text = PLAIN.get(finding.effect, finding.effect + " {}").format(**params) + _std_err_text(finding)
-    largest = finding.where.get("largest") if finding.effect == "link_bias" else None
-    if largest:
-        k = largest["anchor"]
-        text += (f"; it varies most on anchor {k}'s links ({finding.where['spread_m'][str(k)]:.3f} m), reading "
-                 f"{largest['sign']}est with the tag at azimuth {_angles(largest['tag_azimuth_deg'])} and elevation "
-                 f"{_angles(largest['tag_elevation_deg'])} in the anchor's frame (the anchor at elevation "
-                 f"{_angles(largest['anchor_elevation_in_body_deg'])} from the tag)")
+    text += _largest_text(finding)
     if "during" in finding.params:
         start, end = finding.params["during"]
         elsewhere = finding.params.get("outside_m")

@@ -72,6 +72,24 @@ def test_the_fits_not_explained_are_listed_short_by_where_they_lie() -> None:
 
 
 
+def test_a_per_anchor_fit_says_how_much_it_changes_its_anchors_ranges() -> None:
+    """A displacement of 2.2 m over the directions one flight shows changes the ranges
+    by 0.12 m: the line and the finding say both."""
+    moved = _finding("anchor_position", {"anchor": 2, "offset_m": [-2.2, -1.3, 1.2]}, {"offset_m": [0.4, 0.4, 0.9]},
+                     anchors=[2])
+    moved.where = {"anchors": [2], "spread_m": {"2": 0.1204},
+                   "largest": {"anchor": 2, "tag_azimuth_deg": [10.0, 40.0], "tag_elevation_deg": [-30.0, -20.0],
+                               "anchor_elevation_in_body_deg": [20.0, 30.0], "sign": "long"}}
+    assert not_explained_line(moved) == ("anchor_position on anchor 2: 2.2 against 1, 3.0 standard errors beyond; "
+                                         "its anchor's ranges vary by 0.120 m over the flight")
+    assert "; it changes anchor 2's ranges by 0.120 m over the flight (standard deviation; their mean is a delay), " \
+           "reading longest with the tag at azimuth 10…40° and elevation -30…-20° in the anchor's frame" in describe(moved)
+    link = _finding("link_bias", {"coeffs_m": [0.1] * 6, "gain": 1.0}, {"gain": 0.1})
+    link.where = {**moved.where}
+    assert "vary by" not in not_explained_line(link)          # its spread is every anchor's, not one anchor's
+    assert "it varies most on anchor 2's links (0.120 m)" in describe(link)
+
+
 def test_a_fit_left_out_only_for_the_joint_fit_says_so_and_not_how_far_beyond() -> None:
     """A delay of −0.067 m (bound 1.5 m) that the model left out beside its anchor's
     pattern: not explained, but neither its line nor report.json calls its estimate

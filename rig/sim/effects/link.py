@@ -83,6 +83,36 @@ def tdoa_basis(tdoa: TdoaBatch, world: World, rows: np.ndarray) -> np.ndarray:
     return link_basis(position, rotation, b_pos, b_rot) - link_basis(position, rotation, a_pos, a_rot)
 
 
+def largest_on_links(link_values, tdoa: TdoaBatch, world: World, rows: np.ndarray, anchors: list[int]) -> dict:
+    """Where a range bias of the links varies most over a flight's TDOA `rows`:
+    `link_values`(tag positions, tag rotations, anchor positions, anchor rotation
+    matrices) gives it for n links. Each of `anchors`' spread (standard deviation of
+    the bias over its links; the mean is a delay, which TDOA reads as one), and for the
+    anchor of the largest, the viewing angles at its most extreme tenth: the tag seen
+    from the anchor (azimuth, elevation in the anchor's frame) and the anchor seen from
+    the tag (elevation, body frame), and whether its ranges read long or short there."""
+    spread, extreme = {}, {}
+    for k in anchors:
+        on = rows[(tdoa.id_a[rows] == k) | (tdoa.id_b[rows] == k)]
+        if len(on) < 10 or k not in world.anchor_positions:
+            continue
+        position, rotation = world.anchor_poses(np.full(len(on), k))
+        beta = link_values(tdoa.tag_position[on], tdoa.tag_rotation[on], position, rotation)
+        spread[k] = float(np.std(beta))
+        far = np.abs(beta - beta.mean()) >= np.quantile(np.abs(beta - beta.mean()), 0.9)
+        to_anchor = position[far] - tdoa.tag_position[on][far]
+        az, el = direction_angles(np.einsum("nji,nj->ni", rotation[far], -to_anchor))
+        _, tag_el = direction_angles(tdoa.tag_rotation[on][far].inv().apply(to_anchor))
+        extreme[k] = {"tag_azimuth_deg": _degrees(az), "tag_elevation_deg": _degrees(el),
+                      "anchor_elevation_in_body_deg": _degrees(tag_el),
+                      "sign": "long" if np.mean(beta[far] - beta.mean()) > 0 else "short"}
+    if not spread:
+        return {}
+    top = max(spread, key=spread.get)
+    return {"anchors": [top], "spread_m": {str(k): round(v, 4) for k, v in spread.items()},
+            "largest": {"anchor": top, **extreme[top]}}
+
+
 class LinkBias(Effect):
     """Every link's range bias from its geometry, shared by all links: `gain` × `coeffs_m`
     weigh the `LINK_TERMS` functions (see the module); a TDOA's bias is link B's minus
@@ -114,31 +144,9 @@ class LinkBias(Effect):
         return link_basis(tag_position, tag_rotation, anchor_position, anchor_rotation) @ (self.gain * self.coeffs)
 
     def largest(self, tdoa: TdoaBatch, world: World, rows: np.ndarray) -> dict:
-        """Where this bias varies most over a flight's TDOA `rows`: each anchor's spread
-        (standard deviation of β over its links; the mean is a delay, which TDOA reads
-        as one), and for the anchor of the largest, the viewing angles at its most
-        extreme tenth: the tag seen from the anchor (azimuth, elevation in the
-        anchor's frame) and the anchor seen from the tag (elevation, body frame)."""
-        spread, extreme = {}, {}
-        for k in sorted(world.anchor_positions):
-            on = rows[(tdoa.id_a[rows] == k) | (tdoa.id_b[rows] == k)]
-            if len(on) < 10:
-                continue
-            position, rotation = world.anchor_poses(np.full(len(on), k))
-            beta = self.link_values(tdoa.tag_position[on], tdoa.tag_rotation[on], position, rotation)
-            spread[k] = float(np.std(beta))
-            far = np.abs(beta - beta.mean()) >= np.quantile(np.abs(beta - beta.mean()), 0.9)
-            to_anchor = position[far] - tdoa.tag_position[on][far]
-            az, el = direction_angles(np.einsum("nji,nj->ni", rotation[far], -to_anchor))
-            _, tag_el = direction_angles(tdoa.tag_rotation[on][far].inv().apply(to_anchor))
-            extreme[k] = {"tag_azimuth_deg": _degrees(az), "tag_elevation_deg": _degrees(el),
-                          "anchor_elevation_in_body_deg": _degrees(tag_el),
-                          "sign": "long" if np.mean(beta[far] - beta.mean()) > 0 else "short"}
-        if not spread:
-            return {}
-        top = max(spread, key=spread.get)
-        return {"anchors": [top], "spread_m": {str(k): round(v, 4) for k, v in spread.items()},
-                "largest": {"anchor": top, **extreme[top]}}
+        """Where this bias varies most over a flight's TDOA `rows` (largest_on_links,
+        over every anchor)."""
+        return largest_on_links(self.link_values, tdoa, world, rows, sorted(world.anchor_positions))
 
     def apply_tdoa(self, tdoa: TdoaBatch, world: World, rng: np.random.Generator | None) -> None:
         known = np.flatnonzero(world.known_pairs(tdoa.id_a, tdoa.id_b))

@@ -30,7 +30,7 @@ from rig.sim.effects.base import (
     _vec3,
     _Windowed,
 )
-from rig.sim.effects.link import direction_angles, pattern_basis
+from rig.sim.effects.link import direction_angles, largest_on_links, pattern_basis
 
 
 class TdoaNoise(Effect):
@@ -122,6 +122,15 @@ class AntennaPattern(_Windowed, Effect):
             return
         bias = pattern_basis(*viewing_angles(tdoa, world, self.anchor)) @ self.coeffs
         tdoa.value += bias * _anchor_sign(tdoa, self.anchor) * self.active(tdoa.t)
+
+    def largest(self, tdoa: TdoaBatch, world: World, rows: np.ndarray) -> dict:
+        """How much the pattern changes this anchor's ranges over a flight's TDOA `rows`
+        and where most (largest_on_links)."""
+        def bias(tag_position, tag_rotation, position, rotation):
+            return pattern_basis(*direction_angles(np.einsum("nji,nj->ni", rotation, tag_position - position))) \
+                @ self.coeffs
+
+        return largest_on_links(bias, tdoa, world, rows, [self.anchor])
 
 
 class TagAntennaPattern(Effect):

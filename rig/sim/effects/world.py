@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
-from rig.sim.effects.base import WORLD, Effect, World, _anchor_id, _vec3
+import numpy as np
+
+from rig.sim.effects.base import WORLD, Effect, TdoaBatch, World, _anchor_id, _vec3
+from rig.sim.effects.link import largest_on_links
 
 
 class AnchorPosition(Effect):
@@ -19,6 +22,17 @@ class AnchorPosition(Effect):
     def apply_world(self, world: World) -> None:
         if self.anchor in world.anchor_positions:
             world.anchor_positions[self.anchor] = world.anchor_positions[self.anchor] + self.offset
+
+    def largest(self, tdoa: TdoaBatch, world: World, rows: np.ndarray) -> dict:
+        """How much the displacement changes this anchor's ranges over a flight's TDOA
+        `rows` and where most (largest_on_links), to first order, as a fit has it: what
+        a displacement fitted on a real flight stands for is that change, whatever its
+        cause."""
+        def change(tag_position, tag_rotation, position, rotation):
+            to_anchor = position - tag_position
+            return to_anchor @ self.offset / np.linalg.norm(to_anchor, axis=1)
+
+        return largest_on_links(change, tdoa, world, rows, [self.anchor])
 
 
 # The farthest a Crazyflie-class tag's antenna can sit from the body origin (m): the
