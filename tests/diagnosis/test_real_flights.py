@@ -149,7 +149,8 @@ def test_a_fit_beyond_its_physical_bound_is_not_explained_never_a_finding(tmp_pa
     """The real flight's pose-dependent bias loads catalog terms beyond any size they can
     physically have (anchors "displaced" by metres): report.json names none of them as a
     finding, lists them under `not_explained` with where they lie, and report.md has a
-    section for them."""
+    section for them, with how much each displacement or pattern changes its anchor's
+    ranges (tenths of a metre where its parameters say metres)."""
     report = write_report(real_diagnosis, tmp_path, "0426-traj1")
     assert report["not_explained"], "the real flight's bias loads some term beyond its bound"
     assert not any(f.get("beyond_physical_bound") for f in report["findings"])
@@ -158,11 +159,16 @@ def test_a_fit_beyond_its_physical_bound_is_not_explained_never_a_finding(tmp_pa
         assert not make_effect(listed["effect"], listed["params"]).beyond_bound(), listed
     markdown = (tmp_path / "report.md").read_text()
     assert "## Not explained" in markdown and "(`--control`)" in markdown      # how a change to them shows
-    rows = re.findall(r"\n\| (\w+) \| (anchor \d|the \w+ channel) \| [^|]+ \| ([^|]+) \| [0-9.]+ \|", markdown)
+    rows = re.findall(r"\n\| (\w+) \| (anchor \d|the \w+ channel) \| [^|]+ \| ([^|]+) \| (—|[0-9.]+ m) \| [0-9.]+ \|",
+                      markdown)
     assert len(rows) == len(report["not_explained"])          # one row each, saying how far beyond its bound
     assert all(re.fullmatch(r"[0-9.]+ against [0-9.]+, -?[0-9.]+ standard errors beyond|\w+ .* \(bound [0-9.]+\)"
                             r"|within its bound as estimated; beyond it only in the joint fit, .*", r[2])
                for r in rows), rows
+    # and a displacement or a pattern how much it changes its anchor's ranges: tenths of a metre, not metres
+    per_anchor = [r for r in rows if r[0] in ("anchor_position", "antenna_pattern")]
+    assert per_anchor and all(0.0 < float(r[3].removesuffix(" m")) < 0.5 for r in per_anchor), per_anchor
+    assert all(r[3] == "—" for r in rows if r not in per_anchor)
 
 
 def test_an_accelerometer_scale_beyond_bound_is_reported_with_the_lean_both_sensors_measure(
