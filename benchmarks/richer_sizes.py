@@ -1,6 +1,6 @@
 """How large the diagnosis's richer TDOA terms come out on the shared flights, where
-the anchors stand where they were surveyed: the size of each named displacement and
-how much it changes its anchor's ranges over the flight
+the anchors stand where they were surveyed: the size of each named displacement, how
+much each displacement and pattern changes its anchor's ranges over the flight
 (findings and not explained), how many displacement, pattern and link-bias estimates
 lie beyond their physical bounds, and how many entries under *Not explained* have an
 estimate within their bounds (left out of the re-simulating model for its joint fit's
@@ -25,22 +25,22 @@ sys.path.insert(0, str(diagnosis_reports.ROOT))
 
 from rig.sim import effects as fx  # noqa: E402
 RICHER = ("anchor_position", "antenna_pattern", "link_bias")
+PER_ANCHOR = ("anchor_position", "antenna_pattern")          # those whose reports say how they change the ranges
 
 
 def flight_figures(report: dict) -> dict:
-    """One report's displacement sizes (m), how much each changes its anchor's ranges (m,
-    `where.spread_m`, in reports that give it), and its richer estimates beyond bound,
-    by effect."""
+    """One report's displacement sizes (m), how much each displacement and pattern
+    changes its anchor's ranges (m, `where.spread_m`, in reports that give it), and its
+    richer estimates beyond bound, by effect."""
     named = [f for f in report["findings"] + report["not_explained"] if f["effect"] in RICHER]
-    displaced = [f for f in named if f["effect"] == "anchor_position"]
-    sizes = [float(np.linalg.norm(f["params"]["offset_m"])) for f in displaced]
-    spreads = [float(f["where"]["spread_m"][str(f["params"]["anchor"])]) for f in displaced
-               if "spread_m" in f.get("where", {})]
+    sizes = [float(np.linalg.norm(f["params"]["offset_m"])) for f in named if f["effect"] == "anchor_position"]
+    spreads = {e: [float(f["where"]["spread_m"][str(f["params"]["anchor"])]) for f in named
+                   if f["effect"] == e and "spread_m" in f.get("where", {})] for e in PER_ANCHOR}
     beyond = {e: sum(1 for f in named if f["effect"] == e and f.get("beyond_physical_bound")) for e in RICHER}
     named_by_effect = {e: sum(1 for f in named if f["effect"] == e) for e in RICHER}
     within = Counter(f["effect"] for f in report["not_explained"]
                      if not fx.make_effect(f["effect"], f["params"]).beyond_bound())
-    return {"displacement_sizes_m": sizes, "displacement_range_spreads_m": spreads, "named": named_by_effect, "beyond_bound": beyond,
+    return {"displacement_sizes_m": sizes, "range_spreads_m": spreads, "named": named_by_effect, "beyond_bound": beyond,
             "not_explained_within_bound": dict(within), "tdoa_fit_after_m": report["channels"]["tdoa"]["fit_after"]}
 
 
@@ -56,10 +56,11 @@ def summary(flights: dict[str, dict]) -> dict:
     if len(sizes):
         out["displacement_median_m"] = float(np.median(sizes))
         out["displacement_p10_p90_m"] = [float(v) for v in np.percentile(sizes, [10, 90])]
-    spreads = [s for f in flights.values() for s in f.get("displacement_range_spreads_m", [])]
-    if spreads:
-        out["displacement_range_spread_median_m"] = float(np.median(spreads))
-        out["displacement_range_spread_p10_p90_m"] = [float(v) for v in np.percentile(spreads, [10, 90])]
+    for effect in PER_ANCHOR:
+        spreads = [s for f in flights.values() for s in f.get("range_spreads_m", {}).get(effect, [])]
+        if spreads:
+            out.setdefault("range_spread_median_m", {})[effect] = float(np.median(spreads))
+            out.setdefault("range_spread_p10_p90_m", {})[effect] = [float(v) for v in np.percentile(spreads, [10, 90])]
     return out
 
 
@@ -72,9 +73,9 @@ def main() -> None:
         low, high = total["displacement_p10_p90_m"]
         print(f": median size {total['displacement_median_m']:.2f} m (10-90 %: {low:.2f}-{high:.2f} m)", end="")
     print()
-    if "displacement_range_spread_median_m" in total:
-        low, high = total["displacement_range_spread_p10_p90_m"]
-        print(f"  they change their anchors' ranges by: median {total['displacement_range_spread_median_m']:.3f} m "
+    for effect, median in total.get("range_spread_median_m", {}).items():
+        low, high = total["range_spread_p10_p90_m"][effect]
+        print(f"  the {effect} fits change their anchors' ranges by: median {median:.3f} m "
               f"(standard deviation over the flight; 10-90 %: {low:.3f}-{high:.3f} m)")
     for effect in RICHER:
         print(f"  {effect:16s} {total['beyond_bound'][effect]:4d} of {total['named'][effect]:4d} beyond bound")

@@ -30,7 +30,7 @@ def _report() -> dict:
 def test_sizes_and_counts_cover_findings_and_not_explained_of_the_richer_terms_only() -> None:
     figures = richer_sizes.flight_figures(_report())
     assert figures["displacement_sizes_m"] == pytest.approx([0.5, 2.0])
-    assert figures["displacement_range_spreads_m"] == [0.15]          # the one whose report gives it
+    assert figures["range_spreads_m"] == {"anchor_position": [0.15], "antenna_pattern": []}   # where reports give it
     assert figures["beyond_bound"] == {"anchor_position": 1, "antenna_pattern": 1, "link_bias": 0}
     assert figures["not_explained_within_bound"] == {"anchor_delay": 1}       # the lever arm's 0.5 m is not
     total = richer_sizes.summary({"a": figures, "b": figures})
@@ -38,7 +38,7 @@ def test_sizes_and_counts_cover_findings_and_not_explained_of_the_richer_terms_o
     assert total["beyond_bound_total"] == 4 and total["named"]["anchor_position"] == 4
     assert total["not_explained_within_bound"] == {"anchor_delay": 2}
     assert total["tdoa_fit_after_median_m"] == pytest.approx(0.25)
-    assert total["displacement_range_spread_median_m"] == pytest.approx(0.15)
+    assert total["range_spread_median_m"] == {"anchor_position": pytest.approx(0.15)}
 
 
 def test_the_benchmark_writes_its_figures_and_refuses_an_empty_directory(tmp_path: Path) -> None:
