@@ -43,6 +43,17 @@ def test_every_row_is_of_the_protocol_on_the_pinned_branch(rows: list[dict]) -> 
     assert len({results.row_key(r) for r in rows}) == len(rows)
 
 
+def test_each_setup_fold_holds_out_both_flights_of_one_0426_setup_which_within_0426_splits() -> None:
+    names = [f"0426-traj{k}" for k in range(1, 9)] + ["0425-traj1"]
+    held = {fold: bv.test_flights(f"setup-0426-{fold}", names) for fold in results.SETUP_0426_FOLDS}
+    assert sorted(f for fold in held.values() for f in fold) == sorted(names[:8])     # every 0426 flight once
+    for fold, flights in held.items():
+        first, second = sorted(int(f.removeprefix("0426-traj")) for f in flights)
+        assert (first % 2, second) == (1, first + 1), fold       # a setup is flown as traj 2k-1 and 2k
+        assert all(len(set(flights) & set(within)) == 1 for within in results.WITHIN_0426_FOLDS.values()), fold
+    assert all(f in results.TDOA3 for f in held["shelf-tdoa3"])
+
+
 def test_the_estimates_table_needs_its_markers(tmp_path: Path, rows: list[dict]) -> None:
     page = tmp_path / "bias.md"
     page.write_text("# no table here\n")
