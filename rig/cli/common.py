@@ -106,11 +106,16 @@ def add_estimator_options(p: argparse.ArgumentParser) -> None:
                    help="MCAP recording or shared flight log (default: the shipped default recording)")
     survey_option(p)
     strict_option(p)
-    p.add_argument("--no-nn", action="store_true", help="no learned bias correction (the shipped network is the estimator's only one)")
+    no_nn_option(p)
     p.add_argument("--no-robust", action="store_true", help="plain EKF update instead of M-estimation")
     p.add_argument("--model", type=Path, help="bias network JSON (default: the shipped model)")
     p.add_argument("--full-trust", action="store_true",
                    help="apply the whole bias correction, not only the share the flight's measurements support")
+
+
+def no_nn_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--no-nn", action="store_true",
+                   help="no learned bias correction (the shipped network is the estimator's only one)")
 
 
 def strict_option(p: argparse.ArgumentParser) -> None:

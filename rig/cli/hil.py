@@ -14,6 +14,7 @@ from rig.cli.common import (
     CliError,
     add_estimator_options,
     add_start_pose_options,
+    no_nn_option,
     print_accuracy,
     print_imu_gaps,
     positive,
@@ -397,7 +398,7 @@ def register(sub) -> None:
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--duration", type=float, help="seconds of each recording to replay")
     p.add_argument("--listen", default="tcp/127.0.0.1:7447", help="the router's endpoint (default %(default)s)")
-    p.add_argument("--no-nn", action="store_true", help="no learned bias correction (the shipped network is the estimator's only one)")
+    no_nn_option(p)
     p.add_argument("--junit-xml", type=Path, metavar="FILE",
                    help="write a JUnit XML report: one testcase per board (its replay ran to its end), a "
                         "failure carrying its error")
