@@ -106,12 +106,13 @@ class Change:
     @property
     def std_errs(self) -> float | None:
         """The change in the recording's standard errors, its largest component's (None
-        where either is missing). Against a control of the same flight, which shares
-        its slow error, in the standard errors of independent samples
-        (`std_err_independent`) where the recording has them. Conservative for a
-        recording that shares its noise with the control (effects injected into it),
-        whose difference is less noisy."""
-        recording = self.recording or {}
+        where either is missing): of its finding, or, named on the control only, of its
+        estimate below the bar (`recording_unnamed`), which the change goes to. Against a
+        control of the same flight, which shares its slow error, in the standard errors
+        of independent samples (`std_err_independent`) where the recording has them.
+        Conservative for a recording that shares its noise with the control (effects
+        injected into it), whose difference is less noisy."""
+        recording = self.recording or self.recording_unnamed or {}
         errors = (self.shares_slow_error and recording.get("std_err_independent")) or recording.get("std_err") or {}
         ratios = [np.abs(np.asarray(self.change[field], float) - neutral(self.effect))
                   / np.maximum(np.asarray(error, float), 1e-12)

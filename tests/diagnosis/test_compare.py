@@ -132,6 +132,13 @@ def test_an_effect_named_on_the_control_only_changes_to_the_recordings_estimate_
     got = change("time_offset", [], None, own, recording_unnamed=_finding("time_offset", {"seconds": 0.01}))
     assert got.named_in == "control" and got.change == {"seconds": pytest.approx(0.06)}
     assert got.to_json()["recording_unnamed"] == {"seconds": 0.01}
+    assert got.std_errs is None                      # the recording's estimate carries no standard error
+    measured = change("time_offset", [], None, own, recording_unnamed=_finding(
+        "time_offset", {"seconds": 0.01}, std_err={"seconds": 0.03}, std_err_independent={"seconds": 0.01}))
+    assert measured.std_errs == pytest.approx(2.0)   # in the standard errors of the estimate it goes to
+    measured.shares_slow_error = True
+    assert measured.std_errs == pytest.approx(6.0)
+    assert measured.to_json()["change_std_errs"] == pytest.approx(6.0)
     assert change("time_offset", [], None, own).change == {"seconds": pytest.approx(0.05)}
     delay = _finding("anchor_delay", {"anchor": 3, "meters": 0.2})
     assert change("anchor_delay", [3], None, delay).change is None
