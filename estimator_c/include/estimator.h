@@ -26,6 +26,8 @@ _Static_assert(EST_MAX_ANCHORS == BN_ANCHORS, "the bias model has one offset per
 #define EST_TRUST_PRIOR_N 2000.0f  /* correction trust's prior, in pseudo-measurements (session 69) */
 #define EST_ANCHOR_BIAS_WINDOW_S 1.0f  /* s over which an anchor's tracked range bias forgets */
 #define EST_ANCHOR_BIAS_PRIOR_N 10.0f  /* measurements of zero bias each anchor's estimate starts from */
+#define EST_ANCHOR_BIAS_MIN_PARTNERS 4 /* anchors paired with one before its bias weights it (TDOA3, not the TDOA2 ring) */
+_Static_assert(EST_MAX_ANCHORS <= 16, "partner sets are 16-bit masks");
 
 /* Error-state indices. */
 #define EST_X 0
@@ -112,6 +114,10 @@ typedef struct {
 typedef struct {
     float bias[EST_MAX_ANCHORS];   /* m, summing to zero over the anchors heard */
     float n[EST_MAX_ANCHORS];      /* weighted measurements behind it, forgetting; 0: not heard */
+    float excess[EST_MAX_ANCHORS]; /* m: what of bias no position error explains */
+    uint16_t partners[EST_MAX_ANCHORS];        /* anchors paired with it in this window (a bit each) */
+    uint16_t partners_before[EST_MAX_ANCHORS]; /* and in the window before */
+    float window_s;                /* s into this partner window */
 } est_anchor_bias_t;
 
 typedef struct {

@@ -38,7 +38,7 @@ void tdoa_update(estimator_t *est, const est_tdoa_t *m);
 float tdoa_trust_weight(const estimator_t *est);
 
 /* anchor_bias.c */
-void anchor_bias_forget(estimator_t *est, float dt);
+void anchor_bias_step(estimator_t *est, float dt);
 float anchor_bias_weight(const estimator_t *est, uint8_t a, uint8_t b);
 void anchor_bias_observe(estimator_t *est, uint8_t a, uint8_t b, float innovation);
 

@@ -232,7 +232,7 @@ static void step(estimator_t *est, uint32_t t_us)
         ekf_predict(est, acc, est->gyro_last, dt);
     }
     est->cost.predict = ticks(est) - t_predict;
-    anchor_bias_forget(est, dt);
+    anchor_bias_step(est, dt);
     apply_queued_tdoa(est);
     est->counters.steps++;
     if (ekf_is_diverged(est)) reset_after_divergence(est);
