@@ -21,8 +21,13 @@
 #define EST_MAX_ANCHORS 16         /* anchor ids 0..EST_MAX_ANCHORS-1 */
 _Static_assert(EST_MAX_ANCHORS == BN_ANCHORS, "the bias model has one offset per anchor id");
 #define EST_TDOA_QUEUE 32          /* TDOA measurements buffered within one window */
-#define EST_API_VERSION 3          /* 2: est_params_t grew trust_prior_n (PARAM 12); 3: est_reset clears the counters */
+#define EST_API_VERSION 4          /* 2: est_params_t grew trust_prior_n (PARAM 12); 3: est_reset clears the counters;
+                                      4: est_params_t grew anchor_bias_c (PARAM 13) */
 #define EST_TRUST_PRIOR_N 2000.0f  /* correction trust's prior, in pseudo-measurements (session 69) */
+#define EST_ANCHOR_BIAS_WINDOW_S 1.0f  /* s over which an anchor's tracked range bias forgets */
+#define EST_ANCHOR_BIAS_PRIOR_N 10.0f  /* measurements of zero bias each anchor's estimate starts from */
+#define EST_ANCHOR_BIAS_MIN_PARTNERS 4 /* anchors paired with one before its bias weights it (TDOA3, not the TDOA2 ring) */
+_Static_assert(EST_MAX_ANCHORS <= 16, "partner sets are 16-bit masks");
 
 /* Error-state indices. */
 #define EST_X 0
@@ -92,6 +97,7 @@ typedef struct {
     uint8_t use_bias_net;      /* subtract the network's bias prediction */
     uint8_t thrust_only;       /* use only the z specific force (x/y read drag + vibration in flight) */
     float trust_prior_n;       /* correction trust: pseudo-measurements at full trust; < 0: always full */
+    float anchor_bias_c;       /* m: scale of the tracked anchor bias that down-weights its measurements; 0: off */
 } est_params_t;
 
 /* How far this flight's measurements follow the bias correction: the robust regression
@@ -102,6 +108,17 @@ typedef struct {
     float s_cv;                /* sum of weight * c * innovation without correction */
     float n;                   /* sum of weights */
 } est_trust_t;
+
+/* Each anchor's range bias tracked from the innovations (anchor_bias.c): cleared when
+ * the filter (re)starts. */
+typedef struct {
+    float bias[EST_MAX_ANCHORS];   /* m, summing to zero over the anchors heard */
+    float n[EST_MAX_ANCHORS];      /* weighted measurements behind it, forgetting; 0: not heard */
+    float excess[EST_MAX_ANCHORS]; /* m: what of bias no position error explains */
+    uint16_t partners[EST_MAX_ANCHORS];        /* anchors paired with it in this window (a bit each) */
+    uint16_t partners_before[EST_MAX_ANCHORS]; /* and in the window before */
+    float window_s;                /* s into this partner window */
+} est_anchor_bias_t;
 
 typedef struct {
     float pos[3];
@@ -158,6 +175,7 @@ typedef struct {
     est_anchor_t anchors[EST_MAX_ANCHORS];
     const bias_net_t *net;
     est_trust_t trust;
+    est_anchor_bias_t anchor_bias;
     est_counters_t counters;
     est_clock_t clock;
     est_step_cost_t cost;

@@ -37,6 +37,11 @@ float tdoa_predict(const float pos[3], const float a[3], const float b[3], float
 void tdoa_update(estimator_t *est, const est_tdoa_t *m);
 float tdoa_trust_weight(const estimator_t *est);
 
+/* anchor_bias.c */
+void anchor_bias_step(estimator_t *est, float dt);
+float anchor_bias_weight(const estimator_t *est, uint8_t a, uint8_t b);
+void anchor_bias_observe(estimator_t *est, uint8_t a, uint8_t b, float innovation);
+
 /* mm_tdoa_robust.c: the M-estimation counterpart of ekf_scalar_update */
 float ekf_robust_scalar_update(estimator_t *est, const float h[3], float innovation, float std);
 

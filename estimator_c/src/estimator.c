@@ -21,6 +21,7 @@ void est_default_params(est_params_t *p)
     p->use_bias_net = 1;
     p->thrust_only = 1;
     p->trust_prior_n = EST_TRUST_PRIOR_N;  /* share of the correction a flight supports */
+    p->anchor_bias_c = 0.0f;   /* blocked-anchor weighting off */
 }
 
 void est_init(estimator_t *est, const est_params_t *params)
@@ -99,6 +100,7 @@ static void restart_filter(estimator_t *est, uint32_t t_us, const float pos[3], 
     est->acc_last[2] = EST_GRAVITY;
     memset(est->gyro_last, 0, sizeof est->gyro_last);
     est->queue_n = 0;
+    memset(&est->anchor_bias, 0, sizeof est->anchor_bias);
     est->t_step_us = t_us;
     est->started = 1;
 }
@@ -230,6 +232,7 @@ static void step(estimator_t *est, uint32_t t_us)
         ekf_predict(est, acc, est->gyro_last, dt);
     }
     est->cost.predict = ticks(est) - t_predict;
+    anchor_bias_step(est, dt);
     apply_queued_tdoa(est);
     est->counters.steps++;
     if (ekf_is_diverged(est)) reset_after_divergence(est);

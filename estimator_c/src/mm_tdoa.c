@@ -80,18 +80,20 @@ void tdoa_update(estimator_t *est, const est_tdoa_t *m)
     }
     const float innovation_raw = m->value - predicted;
     const float innovation = (m->value - tdoa_trust_weight(est) * correction) - predicted;
-    const float std = est->params.tdoa_std;
 
     /* Hard gate: an innovation both large in metres and many sigmas out is not this
      * flight's geometry (multipath far beyond what the robust cost should even see). */
     if (fabsf(innovation) > est->params.gate_m
         && innovation * innovation > EST_GATE_SIGMAS * EST_GATE_SIGMAS
-                                       * ekf_innovation_variance(est, grad, std)) {
+                                       * ekf_innovation_variance(est, grad, est->params.tdoa_std)) {
         est->counters.rejected[EST_REJ_GATE]++;
         est->counters.tdoa_rejected++;
         return;
     }
     if (correction != 0.0f) observe_trust(est, correction, innovation_raw, innovation);
+    /* weighted by the anchors' biases before this measurement adds to them */
+    const float std = est->params.tdoa_std / sqrtf(anchor_bias_weight(est, m->id_a, m->id_b));
+    anchor_bias_observe(est, m->id_a, m->id_b, innovation);
     if (est->params.robust) {
         count_weight(est, ekf_robust_scalar_update(est, grad, innovation, std));
     } else {

@@ -62,6 +62,7 @@ class EstimatorParams(ctypes.Structure):
         ("use_bias_net", ctypes.c_uint8),
         ("thrust_only", ctypes.c_uint8),
         ("trust_prior_n", ctypes.c_float),
+        ("anchor_bias_c", ctypes.c_float),
     ]
 
     def as_dict(self) -> dict:

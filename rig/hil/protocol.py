@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 VERSION = 4
-ESTIMATOR_API = 3      # EST_API_VERSION: est_params_t's fields (which PARAM indexes), and what COUNTERS count
+ESTIMATOR_API = 4      # EST_API_VERSION: est_params_t's fields (which PARAM indexes), and what COUNTERS count
 MAX_PAYLOAD = 30
 ACCEL_LSB = np.float32(0.005)
 GYRO_LSB = np.float32(0.001)

@@ -231,7 +231,7 @@ static int8_t on_param(service_t *s, const uint8_t *m)
     float *floats[] = {&p->tdoa_std, &p->accel_noise, &p->gyro_noise, &p->position_noise, &p->velocity_noise,
                        &p->gate_m, &p->gm_state_c2, &p->gm_meas_c2};
     uint8_t *flags[] = {&p->robust, &p->irls_iterations, &p->use_bias_net, &p->thrust_only};
-    float *late_floats[] = {&p->trust_prior_n};   /* after the flags, in the struct's order */
+    float *late_floats[] = {&p->trust_prior_n, &p->anchor_bias_c};   /* after the flags, in the struct's order */
     const uint8_t index = m[1];
     const float value = proto_get_f32(&m[2]);
     const uint8_t n_floats = sizeof floats / sizeof floats[0], n_flags = sizeof flags / sizeof flags[0];
