@@ -110,6 +110,10 @@ The protocol is fixed here, before any result is looked at:
   (GenuineIntel 6 207), where the link rows repeated to the last digit in sessions 70
   and 76; an AMD EPYC trains other networks from the same seeds. Rows are compared
   only with rows of the same CPU (benchmarks/form_rule.py);
+- the estimator as shipped. Since session 83 it weights the measurements of an anchor
+  whose tracked bias is large (`anchor_bias_c`, which each row made since says); the
+  rows without it replay the estimator without that weighting (`anchor_bias_c` 0). The
+  training recipe replays the estimator without it either way (RECIPE_ESTIMATOR);
 - metrics: on the test flights, the robust estimator's 3D RMSE with and without the
   correction (mean, and how many flights the correction makes worse), and the TDOA
   error's standard deviation on the test samples before and after the correction
@@ -157,6 +161,7 @@ from rig.bias.train import MKL_BRANCH, Split, cpu_identity, fit, involves, load_
 from rig.data import paths  # noqa: E402
 from rig.estimator.bias_net import link_features  # noqa: E402
 from rig.estimator.trained_region import outside_share  # noqa: E402
+from rig.estimator.native import default_params  # noqa: E402
 
 from bias_validation_results import (  # noqa: E402
     ENTRY_PAGE,
@@ -430,7 +435,8 @@ def main() -> None:
     with Pool(args.workers) as pool:
         pending = [pool.apply_async(fn, (job,)) for fn, job in jobs]
         for p in pending:
-            row = {**p.get(), "mkl_cbwr": os.environ["MKL_CBWR"], "cpu": cpu_identity()}
+            row = {**p.get(), "mkl_cbwr": os.environ["MKL_CBWR"], "cpu": cpu_identity(),
+                   "anchor_bias_c": default_params().anchor_bias_c}
             rows = [r for r in rows if row_key(r) != row_key(row)] + [row]
             brief = {k: row[k] for k in ("split", "form", "seed", "mean_rmse_3d", "mean_rmse_3d_without",
                                          "worse_flights", "anchor", "sector", "fold") if k in row}

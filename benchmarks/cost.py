@@ -7,7 +7,8 @@ recording) through the estimator built with -O2 (`make -C estimator_c bench`)
 under callgrind, once per configuration, and prints the mean number of
 instructions per call of: the prediction (ekf_predict), a whole TDOA update
 (tdoa_update: delay compensation, features, network, gate, update), the plain
-and the robust update alone, the feature computation and the network inference.
+and the robust update alone, the feature computation, the network inference, and the
+blocked-anchor weighting (its STEP part once per 10 ms, its per-measurement parts).
 Instruction counts are deterministic, unlike wall-clock time; the target is
 "robust update including network inference <= 17k instructions per call"."""
 
@@ -34,7 +35,7 @@ from rig.estimator.bias_net import FORMS, BiasNet, shape  # noqa: E402
 from rig.estimator.evaluate import build_events, load_model, start_time, truth_pose_at  # noqa: E402
 
 FUNCTIONS = ("ekf_predict", "tdoa_update", "ekf_scalar_update", "ekf_robust_scalar_update", "bn_features",
-             "bn_predict", "bn_link_bias")
+             "bn_predict", "bn_link_bias", "anchor_bias_step", "anchor_bias_observe", "anchor_bias_weight")
 CONFIGURATIONS = {"plain": {"robust": 0, "use_bias_net": 0},
                   "robust": {"robust": 1, "use_bias_net": 0},
                   "robust+nn": {"robust": 1, "use_bias_net": 1}}

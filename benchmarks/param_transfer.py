@@ -15,6 +15,8 @@ Seconds to minutes, once the networks are saved:
     .venv/bin/python benchmarks/param_transfer.py --param gm_state_c2 --values 1 4        # session 72
     .venv/bin/python benchmarks/param_transfer.py --param irls_iterations --values 1 3    # session 72
     .venv/bin/python benchmarks/param_transfer.py --param gate_m --values 1.0 2.5         # session 72
+    .venv/bin/python benchmarks/param_transfer.py --param anchor_bias_c --values 0 0.25 \
+        --models out/models/link-amd --held-out-at 0                                    # session 83, 20 s
 
 The rule, fixed before the first run (session 71, for `tdoa_std`, and the same for every
 parameter since). Each flight's figure is the shipped estimator's (the share of the
@@ -46,6 +48,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import numpy as np  # noqa: E402
+from bias_validation_results import HELD_OUT_0426_BY_MODE, TDOA3  # noqa: E402
 from trust_rule import ACCURACY_SPLITS, KEPT  # noqa: E402
 
 from rig.data import paths  # noqa: E402
@@ -127,12 +130,34 @@ def verdict(rows: list[dict], values: tuple[float, ...], shipped: float) -> dict
             "value": float(min(kept, key=accuracy.get)) if kept else shipped}
 
 
+def held_out_0426(rows: list[dict], split: str, level: float, measured_at: float) -> dict:
+    """The issue's 0426 check estimated per UWB mode from `split`'s 0426 flights: each
+    mode's gain at `level` over the estimator without correction at `measured_at` (the
+    value the held-out figures were measured with), applied to the held-out flights of
+    that mode; mean over seeds, and their min and max."""
+    estimates = []
+    for seed in sorted({r["seed"] for r in rows if r["split"] == split}):
+        flights = [f for r in rows if r["split"] == split and r["seed"] == seed for f in r["flights"]
+                   if f["flight"].startswith("0426")]
+        held = 0.0
+        for mode, (n, without) in HELD_OUT_0426_BY_MODE.items():
+            runs = [f for f in flights if (f["flight"] in TDOA3) == (mode == "TDOA3")]
+            gain = 1 - np.mean([f["by_level"][str(level)] for f in runs]) / \
+                np.mean([f["without_by_level"][str(measured_at)] for f in runs])
+            held += n * without * (1 - gain)
+        estimates.append(held / sum(n for n, _ in HELD_OUT_0426_BY_MODE.values()))
+    return {"mean": float(np.mean(estimates)), "min": float(min(estimates)), "max": float(max(estimates))}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--param", required=True, help="an estimator parameter (est_params_t), e.g. tdoa_std")
     parser.add_argument("--values", nargs="+", type=float, required=True, help="the values tried beside the shipped one")
     parser.add_argument("--models", type=Path, default=ROOT / "out" / "models" / "link")
     parser.add_argument("--json", type=Path, help="default: out/transfer-PARAM.json")
+    parser.add_argument("--held-out-at", type=float, metavar="VALUE",
+                        help="the value the issue's held-out 0426 figures were measured with, for the per-mode "
+                             "estimate of that check (default: the shipped one)")
     args = parser.parse_args()
     defaults = default_params().as_dict()
     if args.param not in defaults:
@@ -154,6 +179,14 @@ def main() -> None:
         print(f"{split:12s} {cells}")
     print(json.dumps({"param": args.param, "shipped": shipped, **{k: v for k, v in result.items() if k != "figures"}}))
     print(f"largest difference from the kept rows at the shipped {shipped:g}: {drift:.2e} m")
+    measured_at = shipped if args.held_out_at is None else round(args.held_out_at, 6)
+    if measured_at not in values:
+        parser.error(f"--held-out-at {measured_at:g} is not among the values run ({values})")
+    result["held_out_0426"] = {split: {str(v): held_out_0426(rows, split, v, measured_at) for v in values}
+                               for split in ("within-0426", "day-0426")}
+    for split, by_value in result["held_out_0426"].items():
+        cells = " | ".join(f"{v}: {e['mean']:.4f} m ({e['min']:.4f}–{e['max']:.4f})" for v, e in by_value.items())
+        print(f"the 0426 check per mode from {split} (without correction at {measured_at:g}): {cells}")
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps({"param": args.param, "shipped": shipped, "rows": rows, **result,
                                      "kept_rows_drift_m": drift}, indent=1))

@@ -24,6 +24,7 @@ _Static_assert(EST_MAX_ANCHORS == BN_ANCHORS, "the bias model has one offset per
 #define EST_API_VERSION 4          /* 2: est_params_t grew trust_prior_n (PARAM 12); 3: est_reset clears the counters;
                                       4: est_params_t grew anchor_bias_c (PARAM 13) */
 #define EST_TRUST_PRIOR_N 2000.0f  /* correction trust's prior, in pseudo-measurements (session 69) */
+#define EST_ANCHOR_BIAS_C 0.15f    /* m, chosen by transfer (session 83) */
 #define EST_ANCHOR_BIAS_WINDOW_S 1.0f  /* s over which an anchor's tracked range bias forgets */
 #define EST_ANCHOR_BIAS_PRIOR_N 10.0f  /* measurements of zero bias each anchor's estimate starts from */
 #define EST_ANCHOR_BIAS_MIN_PARTNERS 4 /* anchors paired with one before its bias weights it (TDOA3, not the TDOA2 ring) */

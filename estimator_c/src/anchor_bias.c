@@ -100,13 +100,20 @@ static void update_excess(estimator_t *est)
     }
 }
 
+/* exp(-x) for x >= 0 to 1e-5 over a STEP (x <= 0.01), and falling to 0 over longer
+ * gaps: a series keeps libm's expf, and its kilobyte and a half of flash, off the board. */
+static float forgetting(float x)
+{
+    return 1.0f / (1.0f + x * (1.0f + x * (0.5f + x * (1.0f / 6.0f))));
+}
+
 /* At each STEP: forget with the time since the last one, keep the biases summing to
  * zero, roll the partner windows and find what no position error explains. */
 void anchor_bias_step(estimator_t *est, float dt)
 {
     if (!tracking(est)) return;
     est_anchor_bias_t *ab = &est->anchor_bias;
-    const float keep = expf(-dt / EST_ANCHOR_BIAS_WINDOW_S);
+    const float keep = forgetting(dt / EST_ANCHOR_BIAS_WINDOW_S);
     float sum = 0.0f;
     int count = 0;
     for (int k = 0; k < EST_MAX_ANCHORS; k++) {

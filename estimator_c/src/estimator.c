@@ -21,7 +21,7 @@ void est_default_params(est_params_t *p)
     p->use_bias_net = 1;
     p->thrust_only = 1;
     p->trust_prior_n = EST_TRUST_PRIOR_N;  /* share of the correction a flight supports */
-    p->anchor_bias_c = 0.0f;   /* blocked-anchor weighting off */
+    p->anchor_bias_c = EST_ANCHOR_BIAS_C;  /* blocked-anchor weighting */
 }
 
 void est_init(estimator_t *est, const est_params_t *params)

@@ -8,6 +8,10 @@ from dataclasses import dataclass
 from rig.estimator.bias_net import FORMS, shape
 
 FEATURES_FROM = ("estimate", "truth")   # the tag pose the features are computed from
+# The estimator the recipe replays, for the features' estimated pose and for choosing a
+# restart: without the blocked-anchor weighting (session 83), as the networks that chose
+# the weighting by transfer were trained. Changing it changes the recipe.
+RECIPE_ESTIMATOR = {"anchor_bias_c": 0.0}
 
 RESTART_STRIDE = 1000
 # How the kept restart is chosen: the estimator's mean 3D RMSE on the validation flights

@@ -27,7 +27,7 @@ from typing import BinaryIO
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-from rig.bias.config import FEATURES_FROM
+from rig.bias.config import FEATURES_FROM, RECIPE_ESTIMATOR
 from rig.data.recording import PoseSeries, Recording
 from rig.estimator import metrics, native
 from rig.sim.effects import World
@@ -121,10 +121,11 @@ def tag_rotations(truth: PoseSeries, t: np.ndarray) -> np.ndarray:
 
 def estimated_poses(rec: Recording, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The robust estimator's position and rotation matrix at times `t`, from a replay of
-    `rec` without bias correction (what the network's input is computed from in flight)."""
+    `rec` without bias correction (what the network's input is computed from in flight), as
+    the recipe replays it (RECIPE_ESTIMATOR)."""
     from rig.estimator.evaluate import estimator_config, replay
 
-    run = replay(rec, *estimator_config(robust=True, use_nn=False))
+    run = replay(rec, *estimator_config(robust=True, use_nn=False, **RECIPE_ESTIMATOR))
     estimate = PoseSeries(run.t, run.position, run.outputs["quat"].astype(float))
     return metrics.interpolate_positions(estimate, t), tag_rotations(estimate, t)
 

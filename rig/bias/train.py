@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rig.bias.config import ANCHOR_OFFSET_BOUND_M, TrainConfig
+from rig.bias.config import ANCHOR_OFFSET_BOUND_M, RECIPE_ESTIMATOR, TrainConfig
 from rig.bias.dataset import Samples
 from rig.bias.tag_offset import untranslated
 from rig.data import paths
@@ -238,10 +238,11 @@ def train(train_set: Samples, validation_set: Samples, config: TrainConfig = Tra
 def closed_loop_rmse(recordings: list, net: BiasNet) -> float:
     """The robust estimator's mean 3D RMSE over `recordings` with the whole of `net`'s
     correction applied (inf if any replay diverges). The whole: a restart is chosen for
-    its network, and the share a flight supports would hide how the restarts differ."""
+    its network, and the share a flight supports would hide how the restarts differ. The
+    estimator is the recipe's (RECIPE_ESTIMATOR)."""
     from rig.estimator.evaluate import evaluate
 
-    results = [evaluate(rec, model=net, full_trust=True) for rec in recordings]
+    results = [evaluate(rec, model=net, full_trust=True, **RECIPE_ESTIMATOR) for rec in recordings]
     if any(r["diverged"] for r in results):
         return float("inf")
     return float(np.mean([r["rmse_3d"] for r in results]))

@@ -107,6 +107,7 @@ def add_estimator_options(p: argparse.ArgumentParser) -> None:
     survey_option(p)
     strict_option(p)
     no_nn_option(p)
+    no_anchor_weighting_option(p)
     p.add_argument("--no-robust", action="store_true", help="plain EKF update instead of M-estimation")
     p.add_argument("--model", type=Path, help="bias network JSON (default: the shipped model)")
     p.add_argument("--full-trust", action="store_true",
@@ -116,6 +117,17 @@ def add_estimator_options(p: argparse.ArgumentParser) -> None:
 def no_nn_option(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-nn", action="store_true",
                    help="no learned bias correction (the shipped network is the estimator's only one)")
+
+
+def no_anchor_weighting_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--no-anchor-weighting", action="store_true",
+                   help="do not down-weight the measurements of an anchor whose tracked range bias is large "
+                        "(a blocked anchor; anchor_bias_c 0)")
+
+
+def anchor_weighting_params(args: argparse.Namespace) -> dict:
+    """The estimator parameters `--no-anchor-weighting` sets (none without it)."""
+    return {"anchor_bias_c": 0.0} if getattr(args, "no_anchor_weighting", False) else {}
 
 
 def strict_option(p: argparse.ArgumentParser) -> None:

@@ -7,7 +7,8 @@ import argparse
 from pathlib import Path
 
 from rig.cli.common import (EXIT_FAILED, EXIT_OK, add_estimator_options, add_segment_options,
-                             add_start_pose_options, print_accuracy, print_imu_gaps, start_pose, write_json)
+                             add_start_pose_options, anchor_weighting_params, print_accuracy, print_imu_gaps,
+                             start_pose, write_json)
 
 
 def cmd_metrics(args: argparse.Namespace) -> int:
@@ -32,9 +33,10 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     given = start_pose(args)
     rec = load_any(args.recording, args.survey, strict=args.strict)
     result = evaluate(rec, robust=not args.no_robust, use_nn=not args.no_nn, model_path=args.model,
-                      full_trust=args.full_trust, start_pose=given)
+                      full_trust=args.full_trust, start_pose=given, **anchor_weighting_params(args))
     result["recording"] = str(args.recording)
-    config = ("robust" if not args.no_robust else "plain") + (" + bias network" if result["config"]["bias_net"] else "")
+    config = ("robust" if not args.no_robust else "plain") + (" + bias network" if result["config"]["bias_net"] else "") \
+        + (" + blocked-anchor weighting" if result["config"]["params"]["anchor_bias_c"] > 0 else "")
     print(f"{args.recording}: C estimator ({config}), {result['flight_seconds']:.1f} s replayed in "
           f"{result['estimator_seconds'] * 1e3:.1f} ms of estimator time")
     print_accuracy(result)

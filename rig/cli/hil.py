@@ -14,6 +14,7 @@ from rig.cli.common import (
     CliError,
     add_estimator_options,
     add_start_pose_options,
+    no_anchor_weighting_option,
     no_nn_option,
     print_accuracy,
     print_imu_gaps,
@@ -102,7 +103,8 @@ def estimator_choice(args: argparse.Namespace):
     from rig.hil.job import EstimatorChoice
 
     return EstimatorChoice(use_nn=not args.no_nn, robust=not getattr(args, "no_robust", False),
-                           model_path=getattr(args, "model", None), full_trust=getattr(args, "full_trust", False))
+                           model_path=getattr(args, "model", None), full_trust=getattr(args, "full_trust", False),
+                           anchor_weighting=not getattr(args, "no_anchor_weighting", False))
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
@@ -399,6 +401,7 @@ def register(sub) -> None:
     p.add_argument("--duration", type=float, help="seconds of each recording to replay")
     p.add_argument("--listen", default="tcp/127.0.0.1:7447", help="the router's endpoint (default %(default)s)")
     no_nn_option(p)
+    no_anchor_weighting_option(p)
     p.add_argument("--junit-xml", type=Path, metavar="FILE",
                    help="write a JUnit XML report: one testcase per board (its replay ran to its end), a "
                         "failure carrying its error")

@@ -37,12 +37,18 @@ TARGET = re.compile(r"native|native-udp|qemu|qemu-usart|(serial|crazyflie|zenoh)
 @dataclass
 class EstimatorChoice:
     """Which estimator the board runs: the robust update or the plain one, with the bias
-    network (the shipped one unless `model_path`) or without."""
+    network (the shipped one unless `model_path`) or without, weighting blocked anchors
+    or not."""
 
     use_nn: bool = True
     robust: bool = True
     model_path: Path | None = None
     full_trust: bool = False       # the whole correction, not the share the flight supports
+    anchor_weighting: bool = True  # down-weight an anchor whose tracked range bias is large
+
+    def params(self) -> dict:
+        """The estimator parameters it sets beyond the choice of update and network."""
+        return {} if self.anchor_weighting else {"anchor_bias_c": 0.0}
 
 
 class JobFailed(LinkError):
@@ -145,13 +151,14 @@ def replay_job(recording: Path, target: str, out: Path, estimator: EstimatorChoi
         raise InputError(f"--start {first:g} s is past the end of {recording} ({last:g} s on its clock)")
     initial_pose(rec, first, start_pose)      # a pose to start from, before a board starts or a file is written
     params, model = estimator_config(estimator.robust, estimator.use_nn, estimator.model_path,
-                                     full_trust=estimator.full_trust)
+                                     full_trust=estimator.full_trust, **estimator.params())
     writable_directory(out)
     recorder = RunRecorder(out / RUN_FILE)
     info = {"recording": str(recording), "target": target, "bias_net": model is not None,
             "start_pose": None if start_pose is None else start_pose.as_dict(),
             "robust": estimator.robust, "lookahead": lookahead, "mode": "lockstep" if speed is None else "realtime",
-            "full_answer_every": full_answer_every, "full_trust": estimator.full_trust}
+            "full_answer_every": full_answer_every, "full_trust": estimator.full_trust,
+            "anchor_weighting": estimator.anchor_weighting}
     began, run, error, own, link, ended, stop = time.monotonic(), None, None, session is None, None, ENDED[0], None
     try:
         session = session or open_session()

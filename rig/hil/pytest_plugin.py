@@ -11,8 +11,8 @@ the-loop tests written as pytest-embedded users write theirs with `dut`.
 native, native-udp, qemu, qemu-usart, serial:URL, crazyflie:URI, zenoh:NAME. The `board` fixture
 is parametrized over them; `board.replay(recording, **options)` replays as `rig
 replay` does (options: `start`, `duration`, `mode` "lockstep" or "realtime", `speed`,
-`lookahead`, `no_nn`, `no_robust`, `model`, `full_trust`, `survey`, `report`, and for a recording
-without ground truth `start_position` (x, y, z) and `start_yaw` in degrees) into a directory of
+`lookahead`, `no_nn`, `no_robust`, `model`, `full_trust`, `no_anchor_weighting`, `survey`,
+`report`, and for a recording without ground truth `start_position` (x, y, z) and `start_yaw` in degrees) into a directory of
 the test's own and returns what metrics.json holds. A board or link that fails raises
 `rig.hil.job.JobFailed` with what was kept.
 """
@@ -26,7 +26,7 @@ import pytest
 
 DEFAULT_TARGET = "native"
 REPLAY_OPTIONS = {"start", "duration", "mode", "speed", "lookahead", "full_answer_every", "no_nn", "no_robust", "model",
-                  "full_trust", "survey", "report", "strict", "start_position", "start_yaw"}
+                  "full_trust", "no_anchor_weighting", "survey", "report", "strict", "start_position", "start_yaw"}
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
@@ -65,7 +65,8 @@ class Board:
             raise ValueError(f"mode must be 'lockstep' or 'realtime', not {mode!r}")
         speed = float(options.pop("speed", 1.0))
         estimator = EstimatorChoice(use_nn=not options.pop("no_nn", False), robust=not options.pop("no_robust", False),
-                                    model_path=options.pop("model", None), full_trust=options.pop("full_trust", False))
+                                    model_path=options.pop("model", None), full_trust=options.pop("full_trust", False),
+                                    anchor_weighting=not options.pop("no_anchor_weighting", False))
         position, yaw = options.pop("start_position", None), options.pop("start_yaw", 0.0)
         start_pose = None if position is None else StartPose(tuple(position), float(yaw))
         self.replays += 1

@@ -48,6 +48,11 @@ def test_the_recording_still_bears_out_the_bias_correction(board):
     trusted, whole = board.replay(duration=20.0), board.replay(duration=20.0, full_trust=True)
     assert 0.8 < trusted["correction_trust"] < 1.0 and not trusted["full_trust"]
     assert whole["correction_trust"] == 1.0 and whole["full_trust"]
+
+
+def test_the_blocked_anchor_weighting_is_the_users_choice(board):
+    assert board.replay(duration=2.0)["anchor_weighting"]
+    assert not board.replay(duration=2.0, no_anchor_weighting=True)["anchor_weighting"]
 '''
 
 
@@ -57,7 +62,7 @@ def test_a_users_test_file_with_the_board_fixture_passes_on_the_native_target(tm
                            "--junitxml", str(tmp_path / "junit.xml"), str(tmp_path / "test_hil.py")],
                           cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stdout + proc.stderr
-    assert "5 passed" in proc.stdout
+    assert "6 passed" in proc.stdout
     assert 'test_default_recording_on_every_board[native]' in (tmp_path / "junit.xml").read_text()
 
 

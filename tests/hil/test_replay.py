@@ -90,6 +90,23 @@ def test_the_board_applies_the_correction_trust_the_rig_sends_and_reports_it(def
     assert board.counters.trust == round(est.correction_trust() * protocol.TRUST_FULL) < protocol.TRUST_FULL
 
 
+def test_the_board_weights_blocked_anchors_as_the_rig_sends_it(data_dir: Path) -> None:
+    """anchor_bias_c travels as PARAM 13 (since estimator API 4). On a real TDOA3 flight with
+    a shelf in the room, the board told to weight nothing gives the library's estimates
+    without the weighting, and the firmware in QEMU weights as the library does."""
+    rec = load_any(data_dir / "flights" / "0426-traj6")
+    native.make("program")
+    program, model = native.ESTIMATOR_DIR / "build" / "estimator_native", load_model()
+    unweighted_params = native.params_with(anchor_bias_c=0.0)
+    unweighted_board = run_target(targets.open_native(program), rec, unweighted_params, model, duration=12.0)
+    unweighted = library_estimates(rec, unweighted_params, model, 12.0)
+    weighted = library_estimates(rec, native.params_with(), model, 12.0)
+    np.testing.assert_array_equal(positions(unweighted_board), unweighted["pos"])
+    assert np.abs(weighted["pos"] - unweighted["pos"]).max() > 0.01
+    qemu = run_target(targets.open_qemu(), rec, native.params_with(), model, duration=12.0)
+    np.testing.assert_allclose(positions(qemu), weighted["pos"], atol=2e-3)
+
+
 def test_a_second_flight_on_the_same_board_starts_from_its_own_evidence(default_rec) -> None:
     """A bench board replays flight after flight without a restart: the RESET of each
     flight's start clears the correction trust and the counters, so the second replay
