@@ -1,15 +1,15 @@
 """How well each anchor's range bias can be tracked from the innovations, away from the
-filter it would weight (session 83, experiment/anchor-weighting): the estimator's
-tracking (estimator_c/src/anchor_bias.c) redone in Python on a replay without
-correction, against the truth's one-second split of benchmarks/nlos_oracle.py.
+filter it would weight (session 83): the estimator's tracking
+(estimator_c/src/anchor_bias.c) redone in Python on a replay without correction or
+weighting, against the truth's one-second split of benchmarks/nlos_oracle.py.
 
-    git checkout experiment/anchor-weighting
     .venv/bin/python benchmarks/anchor_bias_open_loop.py 0425-traj13 ... # ~1 min
 
 For each flight: the correlation of the tracked bias of each measurement's anchor B with
-the truth's (and of what a position error cannot explain of it, `without geometry`), their spreads, and the 3D RMSE (without correction) when the measurements
-of anchors whose tracked bias exceeds τ are removed (the oracle's `drop`, but causal),
-and when they are removed by what a position error cannot explain of it.
+the truth's (and of what a position error cannot explain of it, `without geometry`),
+their spreads, and the 3D RMSE (without correction) when the measurements of anchors
+whose tracked bias exceeds τ are removed (the oracle's `drop`, but causal), and when
+they are removed by what a position error cannot explain of it.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import numpy as np  # noqa: E402
-from nlos_oracle import TAUS_M, block_biases  # noqa: E402
+from nlos_oracle import TAUS_M, UNWEIGHTED, block_biases  # noqa: E402
 
 from rig.data import paths  # noqa: E402
 
@@ -86,7 +86,7 @@ def flight_figures(flight: str) -> dict:
     _, tag_pos, a_pos, b_pos = measurement_features(rec, sel, truth_latency(rec), "truth")
     id_a, id_b, t, z = rec.tdoa.id_a[rows], rec.tdoa.id_b[rows], rec.tdoa.t[rows], rec.tdoa.distance_diff[rows]
     _, truth_b = block_biases(t, z - true_tdoa(tag_pos, a_pos, b_pos), id_a, id_b)
-    run = replay(rec, *estimator_config(use_nn=False))
+    run = replay(rec, *estimator_config(use_nn=False, **UNWEIGHTED))
     estimate = metrics.interpolate(t, run.t, run.position)
     anchors = {a.id: np.asarray(a.position, float) for a in rec.anchors}
     track_a, track_b, residual_b, residual_a = tracked_biases(t, id_a, id_b, z - true_tdoa(estimate, a_pos, b_pos), estimate,
@@ -94,15 +94,16 @@ def flight_figures(flight: str) -> dict:
     figures = {"correlation": float(np.corrcoef(track_b, truth_b)[0, 1]),
                "without geometry": float(np.corrcoef(residual_b, truth_b)[0, 1]),
                "spread truth m": float(truth_b.std()), "spread tracked m": float(track_b.std()),
-               "as is": evaluate(rec, use_nn=False)["rmse_3d"]}
+               "as is": evaluate(rec, use_nn=False, **UNWEIGHTED)["rmse_3d"]}
     for tau in TAUS_M:
         keep = np.ones(len(rec.tdoa), bool)
         keep[rows[(np.abs(track_a) > tau) | (np.abs(track_b) > tau)]] = False
-        figures[f"drop {tau:.2f}"] = evaluate(replace(rec, tdoa=rec.tdoa.select(keep)), use_nn=False)["rmse_3d"]
+        figures[f"drop {tau:.2f}"] = evaluate(replace(rec, tdoa=rec.tdoa.select(keep)), use_nn=False,
+                                              **UNWEIGHTED)["rmse_3d"]
         keep = np.ones(len(rec.tdoa), bool)
         keep[rows[(np.abs(residual_a) > tau) | (np.abs(residual_b) > tau)]] = False
         figures[f"geometry-free drop {tau:.2f}"] = evaluate(replace(rec, tdoa=rec.tdoa.select(keep)),
-                                                            use_nn=False)["rmse_3d"]
+                                                            use_nn=False, **UNWEIGHTED)["rmse_3d"]
     return figures
 
 

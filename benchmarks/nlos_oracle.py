@@ -19,7 +19,8 @@ the fit, as the training labels leave them). Then, in the recording the estimato
   removed (τ = 0.15 m decides; 0.10 and 0.25 m are shown for their sensitivity only);
 - `subtract`: every measurement is corrected by its two anchors' biases (B − A), the
   ceiling of any per-anchor correction.
-The estimator runs as shipped (the share of the correction each flight supports), with the
+The estimator runs as shipped then (the share of the correction each flight supports, and
+no blocked-anchor weighting, which this oracle led to: `UNWEIGHTED`), with the
 network that held the flight out (`within-0426-a|b.link.seed{0,1,2}`, saved by
 `bias_validation.py --save-models`), and without correction.
 
@@ -55,6 +56,8 @@ TAUS_M = (0.10, 0.15, 0.25)
 SEEDS = (0, 1, 2)
 OUTLIER_M = 1.0
 TARGET_FLIGHT, TARGET_GAIN_M, MEAN_GAIN_M = "0426-traj6", 0.02, 0.01
+# the estimator as shipped when the oracle ran: without the blocked-anchor weighting it led to
+UNWEIGHTED = {"anchor_bias_c": 0.0}
 
 
 def anchor_biases(residual: np.ndarray, id_a: np.ndarray, id_b: np.ndarray) -> dict[int, float]:
@@ -121,7 +124,7 @@ def flight_figures(job: tuple[str, str | None]) -> dict:
     if net is not None:
         residual = residual - net.predict(feats, id_a, id_b)
     bias_a, bias_b = block_biases(rec.tdoa.t[rows], residual, id_a, id_b)
-    figures = {name: evaluate(r, use_nn=net is not None, model=net)["rmse_3d"]
+    figures = {name: evaluate(r, use_nn=net is not None, model=net, **UNWEIGHTED)["rmse_3d"]
                for name, r in variants(rec, rows, bias_a, bias_b).items()}
     figures["share dropped"] = {f"{tau:.2f}": float(np.mean((np.abs(bias_a) > tau) | (np.abs(bias_b) > tau)))
                                 for tau in TAUS_M}
