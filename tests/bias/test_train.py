@@ -212,6 +212,7 @@ def test_split_is_by_flight_and_seeded() -> None:
 
 def test_restarts_are_chosen_by_the_estimator_replaying_the_validation_flights(tmp_path: Path,
                                                                               data_dir: Path) -> None:
+    from rig.bias.config import RECIPE_ESTIMATOR
     from rig.bias.dataset import build_dataset
     from rig.data.importer import load_any
     from rig.estimator.evaluate import evaluate
@@ -223,9 +224,9 @@ def test_restarts_are_chosen_by_the_estimator_replaying_the_validation_flights(t
     kept = report["training"]
     assert kept["selected_by"] == "validation_rmse_3d"
     net.save(tmp_path / "kept.json")
-    # scored with the whole correction applied: a restart is chosen for its network
+    # scored with the whole correction applied, by the recipe's estimator: a restart is chosen for its network
     replayed = evaluate(load_any(data_dir / "flights" / names[1]), model_path=tmp_path / "kept.json",
-                        full_trust=True)
+                        full_trust=True, **RECIPE_ESTIMATOR)
     assert kept["validation_rmse_3d"] == pytest.approx(replayed["rmse_3d"], rel=1e-9)
     assert kept["validation_rmse_3d"] == min(r["validation_rmse_3d"] for r in kept["restarts"])
     assert net.anchors == sorted(net.region.cells) == list(range(8))
