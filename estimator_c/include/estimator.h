@@ -82,6 +82,7 @@ typedef struct {
     uint32_t tdoa_rejected;    /* weight < EST_WEIGHT_REJECTED, or any reject reason below */
     uint32_t rejected[EST_REJ_COUNT];
     uint32_t resets;           /* divergence resets */
+    uint32_t tdoa_anchor_weighted; /* blocked-anchor weight < EST_WEIGHT_ACCEPTED (anchor_bias.c) */
 } est_counters_t;
 
 typedef struct {

@@ -14,7 +14,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#define PROTO_VERSION 4
+#define PROTO_VERSION 5
 #define PROTO_TRUST_FULL 65535   /* COUNTERS' correction trust: 65535 = the whole correction */
 #define PROTO_MAX_PAYLOAD 30
 #define PROTO_MAX_FRAME (PROTO_MAX_PAYLOAD + 2 + 2)   /* + CRC + COBS overhead byte + slack */
@@ -64,7 +64,8 @@ typedef enum {
     MSG_ATTITUDE = 0x84,     /* i16 quat[4] (x, y, z, w; PROTO_QUAT_LSB), f16 cov_diag[9]; follows ESTIMATE */
     MSG_COUNTERS = 0x85,     /* u32 steps, u32 accepted, u32 downweighted, u32 rejected, u16 resets,
                                 u16 imu_gaps, u16 gated, u16 imu messages lost (delta without reference),
-                                u16 share of the bias correction applied (PROTO_TRUST_FULL = all of it) */
+                                u16 share of the bias correction applied (PROTO_TRUST_FULL = all of it),
+                                u16 TDOA of blocked anchors down-weighted (version 5; held at 65535) */
     MSG_TIMING = 0x86,       /* u32 t_us, u32 window, u32 predict, u32 tdoa_total, u32 tdoa_max, u8 n_tdoa
                                 (costs in the timer unit of the hello reply) of the most expensive window
                                 since the last TIMING (after brief STEPs, one of them); ends a STEP's answer */

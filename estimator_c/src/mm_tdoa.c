@@ -92,7 +92,9 @@ void tdoa_update(estimator_t *est, const est_tdoa_t *m)
     }
     if (correction != 0.0f) observe_trust(est, correction, innovation_raw, innovation);
     /* weighted by the anchors' biases before this measurement adds to them */
-    const float std = est->params.tdoa_std / sqrtf(anchor_bias_weight(est, m->id_a, m->id_b));
+    const float anchor_weight = anchor_bias_weight(est, m->id_a, m->id_b);
+    if (anchor_weight < EST_WEIGHT_ACCEPTED) est->counters.tdoa_anchor_weighted++;
+    const float std = est->params.tdoa_std / sqrtf(anchor_weight);
     anchor_bias_observe(est, m->id_a, m->id_b, innovation);
     if (est->params.robust) {
         count_weight(est, ekf_robust_scalar_update(est, grad, innovation, std));

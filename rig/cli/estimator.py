@@ -50,6 +50,9 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
           f"{result['tdoa_rejected']} rejected (gate {by_reason['gate']}, robust weight "
           f"{result['tdoa_rejected'] - by_reason['gate']}); refused before the update: {refused}; "
           f"resets {result['resets']}; diverged: {'yes' if result['diverged'] else 'no'}")
+    if result["config"]["params"]["anchor_bias_c"] > 0:
+        print(f"blocked anchors: {result['tdoa_anchor_weighted']} TDOA down-weighted by the tracked range bias of "
+              "their anchors (--no-anchor-weighting: none)")
     print_imu_gaps(result)
     write_json(args.json, result)
     return EXIT_FAILED if result["diverged"] else EXIT_OK

@@ -201,6 +201,7 @@ def counter_summary(counters: np.void) -> dict:
         "tdoa_accepted": int(counters["tdoa_accepted"]),
         "tdoa_downweighted": int(counters["tdoa_downweighted"]),
         "tdoa_rejected": int(counters["tdoa_rejected"]),
+        "tdoa_anchor_weighted": int(counters["tdoa_anchor_weighted"]),
         "rejected_by_reason": {name: int(n) for name, n in zip(native.REJECT_REASONS, counters["rejected"])},
         "imu_samples": int(counters["imu_samples"]),
         "imu_gaps": int(counters["imu_gaps"]),

@@ -40,7 +40,8 @@ EVENT_DTYPE = np.dtype([("t_us", "<u4"), ("kind", "u1"), ("id_a", "u1"), ("id_b"
                         ("v", "<f4", 3)])
 COUNTERS_DTYPE = np.dtype([("steps", "<u4"), ("imu_samples", "<u4"), ("imu_gaps", "<u4"),
                            ("tdoa_accepted", "<u4"), ("tdoa_downweighted", "<u4"), ("tdoa_rejected", "<u4"),
-                           ("rejected", "<u4", len(REJECT_REASONS)), ("resets", "<u4")])
+                           ("rejected", "<u4", len(REJECT_REASONS)), ("resets", "<u4"),
+                           ("tdoa_anchor_weighted", "<u4")])
 OUTPUT_DTYPE = np.dtype([("t_us", "<u4"), ("pos", "<f4", 3), ("vel", "<f4", 3), ("quat", "<f4", 4),
                          ("cov_diag", "<f4", STATE_DIM), ("counters", COUNTERS_DTYPE)])
 

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-VERSION = 4
+VERSION = 5
 ESTIMATOR_API = 4      # EST_API_VERSION: est_params_t's fields (which PARAM indexes), and what COUNTERS count
 MAX_PAYLOAD = 30
 ACCEL_LSB = np.float32(0.005)
@@ -453,6 +453,7 @@ class Counters:
     gated: int
     imu_lost: int
     trust: int = TRUST_FULL     # share of the bias correction applied, in 1/TRUST_FULL
+    anchor_weighted: int = 0    # TDOA of blocked anchors down-weighted (protocol 5; held at 65535)
 
     @property
     def correction_trust(self) -> float:
@@ -493,7 +494,7 @@ _DECODERS = {kind: (struct.Struct(fmt), build) for kind, (fmt, build) in {
     ACK: ("<Bb", lambda v: Ack(*v)),
     ESTIMATE: ("<I3f3f", lambda v: Estimate(v[0], v[1:4], v[4:7])),
     ATTITUDE: ("<4h9e", lambda v: Attitude(_quaternion(v[:4]), v[4:])),
-    COUNTERS: ("<IIIIHHHHH", lambda v: Counters(*v)),
+    COUNTERS: ("<IIIIHHHHHH", lambda v: Counters(*v)),
     TIMING: ("<IIIIIB", lambda v: Timing(*v)),
     STATUS: ("<BIII", lambda v: Status(*v)),
 }.items()}

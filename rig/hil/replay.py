@@ -547,8 +547,8 @@ def answers_summary(session: Session, model: BiasNet | None = None) -> dict:
     if session.counters is not None:
         c = session.counters
         result.update({"tdoa_accepted": c.accepted, "tdoa_downweighted": c.downweighted,
-                       "tdoa_rejected": c.rejected, "resets": c.resets, "imu_gaps": c.imu_gaps,
-                       "imu_lost": c.imu_lost})
+                       "tdoa_rejected": c.rejected, "tdoa_anchor_weighted": c.anchor_weighted,
+                       "resets": c.resets, "imu_gaps": c.imu_gaps, "imu_lost": c.imu_lost})
         if model is not None:
             result["correction_trust"] = c.correction_trust
     return result

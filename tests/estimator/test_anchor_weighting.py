@@ -42,6 +42,10 @@ def test_a_blocked_anchor_paired_with_all_others_is_down_weighted(blocked_tdoa3)
     weighted = evaluate(blocked_tdoa3, use_nn=False)
     unweighted = evaluate(blocked_tdoa3, use_nn=False, anchor_bias_c=0.0)
     assert weighted["rmse_3d"] < 0.6 * unweighted["rmse_3d"]
+    # counted: the blocked anchor's pairs, and its neighbours' (the fit gives them part of its
+    # excess, and a weight just under 0.5)
+    assert weighted["tdoa_anchor_weighted"] > 0.25 * weighted["tdoa_accepted"]
+    assert unweighted["tdoa_anchor_weighted"] == 0
 
 
 def test_tracking_alone_changes_no_estimate(blocked_tdoa3) -> None:
@@ -56,12 +60,14 @@ def test_an_anchor_of_the_tdoa2_ring_is_never_weighted(survey_0425: Path) -> Non
     quarter of the geometry, and their split between anchors is barely redundant."""
     ring = flight(survey_0425, "TDOA2", delayed=True)
     np.testing.assert_array_equal(positions(ring), positions(ring, anchor_bias_c=0.0))
+    assert evaluate(ring, use_nn=False)["tdoa_anchor_weighted"] == 0
 
 
 def test_a_clean_flight_loses_nothing(survey_0425: Path) -> None:
     clean = flight(survey_0425, "TDOA3", delayed=False)
     weighted, unweighted = evaluate(clean, use_nn=False), evaluate(clean, use_nn=False, anchor_bias_c=0.0)
     assert abs(weighted["rmse_3d"] - unweighted["rmse_3d"]) < 0.002
+    assert weighted["tdoa_anchor_weighted"] == 0
 
 
 def test_a_position_error_is_not_read_as_a_blocked_anchor(survey_0425: Path) -> None:

@@ -105,6 +105,9 @@ def test_the_board_weights_blocked_anchors_as_the_rig_sends_it(data_dir: Path) -
     assert np.abs(weighted["pos"] - unweighted["pos"]).max() > 0.01
     qemu = run_target(targets.open_qemu(), rec, native.params_with(), model, duration=12.0)
     np.testing.assert_allclose(positions(qemu), weighted["pos"], atol=2e-3)
+    # and counts what it weighted, as the library does (COUNTERS, protocol 5)
+    assert qemu.counters.anchor_weighted == weighted["counters"][-1]["tdoa_anchor_weighted"] > 0
+    assert unweighted_board.counters.anchor_weighted == 0
 
 
 def test_a_second_flight_on_the_same_board_starts_from_its_own_evidence(default_rec) -> None:

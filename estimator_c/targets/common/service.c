@@ -64,7 +64,7 @@ static void send_estimate(service_t *s, const est_output_t *out)
 
 static void send_counters(service_t *s, const est_output_t *out)
 {
-    uint8_t k[27] = {MSG_COUNTERS};
+    uint8_t k[29] = {MSG_COUNTERS};
     proto_put_u32(&k[1], out->counters.steps);
     proto_put_u32(&k[5], out->counters.tdoa_accepted);
     proto_put_u32(&k[9], out->counters.tdoa_downweighted);
@@ -74,7 +74,10 @@ static void send_counters(service_t *s, const est_output_t *out)
     proto_put_u16(&k[21], (uint16_t)out->counters.rejected[EST_REJ_GATE]);
     proto_put_u16(&k[23], s->imu.lost);
     proto_put_u16(&k[25], (uint16_t)(est_correction_trust(&s->est) * (float)PROTO_TRUST_FULL + 0.5f));
-    send(s, k, 27);
+    /* a u16 that holds, not wraps: a flight's count over 65535 is not read as a small one */
+    const uint32_t weighted = out->counters.tdoa_anchor_weighted;
+    proto_put_u16(&k[27], (uint16_t)(weighted < 0xffffu ? weighted : 0xffffu));
+    send(s, k, 29);
 }
 
 static void send_timing(service_t *s, const window_timing_t *w)
