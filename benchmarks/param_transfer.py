@@ -17,6 +17,8 @@ Seconds to minutes, once the networks are saved:
     .venv/bin/python benchmarks/param_transfer.py --param gate_m --values 1.0 2.5         # session 72
     .venv/bin/python benchmarks/param_transfer.py --param anchor_bias_c --values 0 0.25 \
         --models out/models/link-amd --held-out-at 0                                    # session 83, 20 s
+    # session 84: each of the eight above again (and trust_prior_n -1, the whole correction) with
+    # the weighting on, --models out/models/link-amd --json out/transfer84-PARAM.json: every one stays
 
 The rule, fixed before the first run (session 71, for `tdoa_std`, and the same for every
 parameter since). Each flight's figure is the shipped estimator's (the share of the
