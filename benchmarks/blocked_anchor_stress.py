@@ -1,0 +1,132 @@
+"""Does the blocked-anchor weighting hold when an obstacle blocks harder than the shared
+flights' wooden shelf? Obstacles injected into real TDOA3 flights of a clear room
+(session 84):
+
+    .venv/bin/python benchmarks/blocked_anchor_stress.py     # ~5 min; out/blocked_anchor_stress.json
+
+The question. The weighting (`anchor_bias_c`, session 83) was built and judged on the
+shared flights, whose only TDOA3 obstacle is a wooden shelf (0426-traj5, traj6). Six of
+the issue's eight held-out 0426 flights are TDOA3 with obstacles that include metal. Metal
+reflects rather than delays: a blocked link reads the path of a reflection, longer by
+decimetres to metres, and only some of the time. Whether the weighting still helps then,
+and whether the correction still makes no flight worse, the shared flights cannot say.
+
+The stress test, fixed before its first run. Into each of the eleven TDOA3 flights of
+0425 (a clear room), `rig inject` adds an `nlos` effect: while the tag is in the half of
+the arena nearer one anchor, that anchor's ranges read longer by an exponentially
+distributed excess of mean m, on a share f of them. Anchor 0 (floor, the half y < 0)
+and anchor 3 (ceiling, x > 0); m = 0.2, 0.4 and 0.8 m; f = 1 (a steady block) and
+f = 0.5 (intermittent, as reflections come and go); injection seed 0. Each injected
+flight is replayed with the network that held it out (`within-0425-{a,b,c}`, seeds 0–2,
+saved by `bias_validation.py --save-models out/models/link-amd`) and without correction
+(`--no-nn`), each with the weighting (0.15 m, shipped) and without it (0).
+
+Reported, for each (m, f): the mean 3D RMSE over flights and anchors, and over seeds
+for the network; the flights the network makes worse than `--no-nn` (mean over seeds),
+with and without the weighting. It decides nothing: the scale is not tuned on synthetic
+obstacles. A size at which the weighting raises the mean, with or without the network,
+or makes more flights worse, is reported as a limit of the design.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+import numpy as np  # noqa: E402
+from bias_validation_results import TDOA3, WITHIN_0425_FOLDS  # noqa: E402
+
+from rig.data import paths  # noqa: E402
+
+FLIGHTS = tuple(f for f in TDOA3 if f.startswith("0425"))
+# anchor -> the half of the arena, nearer it, where an obstacle blocks it
+BLOCKED = {0: {"min": [-10.0, -10.0, -1.0], "max": [10.0, 0.0, 5.0]},
+           3: {"min": [0.0, -10.0, -1.0], "max": [10.0, 10.0, 5.0]}}
+MEAN_EXCESS_M = (0.2, 0.4, 0.8)
+SHARES = (1.0, 0.5)
+SEEDS = (0, 1, 2)
+WEIGHTING = {"on": 0.15, "off": 0.0}
+
+
+def model_path(models: Path, flight: str, seed: int) -> Path:
+    fold = next(f for f, held in WITHIN_0425_FOLDS.items() if flight in held)
+    return models / f"within-0425-{fold}.link.seed{seed}.json"
+
+
+def case_figures(job: tuple[str, int | None, float, float, str]) -> dict:
+    """One flight with one obstacle (none when `anchor` is None): 3D RMSE without
+    correction and with each seed's network, with and without the weighting."""
+    from rig.data.importer import load_any
+    from rig.estimator.bias_net import BiasNet
+    from rig.estimator.evaluate import evaluate
+    from rig.sim.simulate import inject
+
+    flight, anchor, mean_excess, share, models = job
+    rec = load_any(paths.data_dir() / "flights" / flight)
+    if anchor is not None:
+        rec = inject(rec, [{"effect": "nlos", "params": {"anchor": anchor, "fraction": share,
+                                                          "mean_excess_m": mean_excess, "region": BLOCKED[anchor]}}])
+    out = {}
+    for name, scale in WEIGHTING.items():
+        out[name] = {"none": evaluate(rec, use_nn=False, anchor_bias_c=scale)["rmse_3d"]}
+        for seed in SEEDS:
+            net = BiasNet.load(model_path(Path(models), flight, seed))
+            out[name][f"seed{seed}"] = evaluate(rec, use_nn=True, model=net, anchor_bias_c=scale)["rmse_3d"]
+    return out
+
+
+def summary(runs: list[tuple[tuple, dict]]) -> dict:
+    """Per case (m, f): means over flights and anchors (and seeds), flights made worse."""
+    cases: dict[str, list[dict]] = {}
+    for (flight, anchor, m, f, _), figures in runs:
+        key = "no obstacle" if anchor is None else f"m {m:.1f} f {f:.1f}"
+        cases.setdefault(key, []).append(figures)
+    table = {}
+    for key, rows in cases.items():
+        table[key] = {}
+        for name in WEIGHTING:
+            net = [np.mean([r[name][f"seed{s}"] for r in rows]) for s in SEEDS]
+            worse = [sum(r[name][f"seed{s}"] > r[name]["none"] for r in rows) for s in SEEDS]
+            table[key][name] = {"without correction": float(np.mean([r[name]["none"] for r in rows])),
+                                "network": float(np.mean(net)), "network min-max": [float(min(net)), float(max(net))],
+                                "worse": float(np.mean(worse)), "cases": len(rows)}
+    return table
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--models", type=Path, default=ROOT / "out" / "models" / "link-amd")
+    ap.add_argument("--json", type=Path, default=ROOT / "out" / "blocked_anchor_stress.json")
+    ap.add_argument("--workers", type=int, default=2)
+    args = ap.parse_args()
+    missing = [p for f in FLIGHTS for s in SEEDS if not (p := model_path(args.models, f, s)).is_file()]
+    if missing:
+        ap.error(f"{len(missing)} networks are missing, e.g. {missing[0]}: bias_validation.py --forms link "
+                 f"--splits within-0425 --save-models {args.models}")
+    jobs = [(f, None, 0.0, 0.0, str(args.models)) for f in FLIGHTS]
+    jobs += [(f, a, m, s, str(args.models)) for f in FLIGHTS for a in BLOCKED for m in MEAN_EXCESS_M for s in SHARES]
+    with ProcessPoolExecutor(args.workers) as pool:
+        runs = list(zip(jobs, pool.map(case_figures, jobs)))
+    table = summary(runs)
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps({"runs": [{"flight": j[0], "anchor": j[1], "mean_excess_m": j[2], "share": j[3],
+                                               **r} for j, r in runs], "summary": table}, indent=1))
+    print(f"{'case':<14} {'weighting':<9} {'no-nn':>7} {'network (min-max)':>24} {'worse':>6}")
+    for key, row in table.items():
+        for name, c in row.items():
+            lo, hi = c["network min-max"]
+            print(f"{key:<14} {name:<9} {c['without correction']:7.3f} {c['network']:9.3f} ({lo:.3f}-{hi:.3f})"
+                  f" {c['worse']:6.2f} of {c['cases']}")
+
+
+if __name__ == "__main__":
+    main()
