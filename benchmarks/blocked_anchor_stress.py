@@ -4,6 +4,7 @@ flights' wooden shelf? Obstacles injected into real TDOA3 flights of a clear roo
 
     .venv/bin/python benchmarks/blocked_anchor_stress.py            # ~5 min; out/blocked_anchor_stress.json
     .venv/bin/python benchmarks/blocked_anchor_stress.py --steady   # ~5 min; out/blocked_anchor_stress-steady.json
+    .venv/bin/python benchmarks/blocked_anchor_stress.py --steady --whole   # out/blocked_anchor_stress-steady-whole.json
 
 The question. The weighting (`anchor_bias_c`, session 83) was built and judged on the
 shared flights, whose only TDOA3 obstacle is a wooden shelf (0426-traj5, traj6). Six of
@@ -36,6 +37,12 @@ range by about the same path, as the wooden shelf did (session 83). `--steady` a
 same excess m to every range of the anchor while the tag is in its half, with the same
 anchors, halves, sizes, flights and networks (f does not apply). Reported the same way;
 it decides nothing either.
+
+Whole flights (`--whole`, added after the steady run and a probe of three flights, before
+its own run): the anchor is blocked wherever the tag flies, as a block near the anchor
+would, with everything else as above. The probe found a ceiling anchor blocked so the
+weighting's worst case (0425-traj13, anchor 3 at +0.8 m: 0.414 m without the weighting,
+0.690 m with it).
 """
 
 from __future__ import annotations
@@ -72,31 +79,32 @@ def model_path(models: Path, flight: str, seed: int) -> Path:
     return models / f"within-0425-{fold}.link.seed{seed}.json"
 
 
-def steady_block(rec, anchor: int, excess_m: float):
-    """`rec` with every range of `anchor` longer by `excess_m` while the tag is in its half."""
+def steady_block(rec, anchor: int, excess_m: float, whole: bool = False):
+    """`rec` with every range of `anchor` longer by `excess_m` while the tag is in its half
+    (anywhere, `whole`)."""
     from dataclasses import replace
 
     from rig.sim.effects.tdoa import Region
 
     truth = np.stack([np.interp(rec.tdoa.t, rec.truth.t, rec.truth.position[:, i]) for i in range(3)], axis=1)
-    inside = Region.from_json(BLOCKED[anchor]).contains(truth)
+    inside = Region.from_json(None if whole else BLOCKED[anchor]).contains(truth)
     sign = (rec.tdoa.id_b == anchor).astype(float) - (rec.tdoa.id_a == anchor)
     return replace(rec, tdoa=replace(rec.tdoa, distance_diff=rec.tdoa.distance_diff + excess_m * sign * inside))
 
 
-def case_figures(job: tuple[str, int | None, float, float, str]) -> dict:
+def case_figures(job: tuple[str, int | None, float, float | None, str, bool]) -> dict:
     """One flight with one obstacle (none when `anchor` is None; steady when `share` is
-    None): 3D RMSE without correction and with each seed's network, with and without the
+    None, over the whole flight when `whole`): 3D RMSE without correction and with each seed's network, with and without the
     weighting."""
     from rig.data.importer import load_any
     from rig.estimator.bias_net import BiasNet
     from rig.estimator.evaluate import evaluate
     from rig.sim.simulate import inject
 
-    flight, anchor, mean_excess, share, models = job
+    flight, anchor, mean_excess, share, models, whole = job
     rec = load_any(paths.data_dir() / "flights" / flight)
     if anchor is not None and share is None:
-        rec = steady_block(rec, anchor, mean_excess)
+        rec = steady_block(rec, anchor, mean_excess, whole)
     elif anchor is not None:
         rec = inject(rec, [{"effect": "nlos", "params": {"anchor": anchor, "fraction": share,
                                                           "mean_excess_m": mean_excess, "region": BLOCKED[anchor]}}])
@@ -112,8 +120,9 @@ def case_figures(job: tuple[str, int | None, float, float, str]) -> dict:
 def summary(runs: list[tuple[tuple, dict]]) -> dict:
     """Per case (m, f): means over flights and anchors (and seeds), flights made worse."""
     cases: dict[str, list[dict]] = {}
-    for (flight, anchor, m, f, _), figures in runs:
-        key = "no obstacle" if anchor is None else f"m {m:.1f} " + ("steady" if f is None else f"f {f:.1f}")
+    for (flight, anchor, m, f, _, whole), figures in runs:
+        kind = ("steady" + (" whole" if whole else "")) if f is None else f"f {f:.1f}"
+        key = "no obstacle" if anchor is None else f"m {m:.1f} {kind}"
         cases.setdefault(key, []).append(figures)
     table = {}
     for key, rows in cases.items():
@@ -131,17 +140,21 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--models", type=Path, default=ROOT / "out" / "models" / "link-amd")
     ap.add_argument("--steady", action="store_true", help="every blocked range longer by m (no nlos draw)")
-    ap.add_argument("--json", type=Path, help="default: out/blocked_anchor_stress[-steady].json")
+    ap.add_argument("--whole", action="store_true", help="with --steady: blocked over the whole flight")
+    ap.add_argument("--json", type=Path, help="default: out/blocked_anchor_stress[-steady[-whole]].json")
     ap.add_argument("--workers", type=int, default=2)
     args = ap.parse_args()
-    args.json = args.json or ROOT / "out" / f"blocked_anchor_stress{'-steady' if args.steady else ''}.json"
+    if args.whole and not args.steady:
+        ap.error("--whole is a kind of steady block: give --steady too")
+    suffix = ("-steady" if args.steady else "") + ("-whole" if args.whole else "")
+    args.json = args.json or ROOT / "out" / f"blocked_anchor_stress{suffix}.json"
     shares = (None,) if args.steady else SHARES
     missing = [p for f in FLIGHTS for s in SEEDS if not (p := model_path(args.models, f, s)).is_file()]
     if missing:
         ap.error(f"{len(missing)} networks are missing, e.g. {missing[0]}: bias_validation.py --forms link "
                  f"--splits within-0425 --save-models {args.models}")
-    jobs = [(f, None, 0.0, 0.0, str(args.models)) for f in FLIGHTS]
-    jobs += [(f, a, m, s, str(args.models)) for f in FLIGHTS for a in BLOCKED for m in MEAN_EXCESS_M for s in shares]
+    jobs = [(f, None, 0.0, 0.0, str(args.models), False) for f in FLIGHTS]
+    jobs += [(f, a, m, s, str(args.models), args.whole) for f in FLIGHTS for a in BLOCKED for m in MEAN_EXCESS_M for s in shares]
     with ProcessPoolExecutor(args.workers) as pool:
         runs = list(zip(jobs, pool.map(case_figures, jobs)))
     table = summary(runs)
