@@ -99,3 +99,22 @@ def test_rig_evaluate_weights_blocked_anchors_unless_told_not_to(tmp_path: Path,
     assert "blocked-anchor weighting" in weighted.stdout and "blocked-anchor weighting" not in unweighted.stdout
     assert u["config"]["params"]["anchor_bias_c"] == 0.0 < w["config"]["params"]["anchor_bias_c"]
     assert w["rmse_3d"] < 0.6 * u["rmse_3d"]
+
+
+def test_the_stress_benchmarks_steady_block_lengthens_one_anchors_ranges(survey_0425: Path) -> None:
+    """benchmarks/blocked_anchor_stress.py's block: every range of the anchor longer by
+    the excess while the tag is in the anchor's half (anywhere, whole), nothing else."""
+    import sys
+
+    from rigtest import ROOT
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from blocked_anchor_stress import BLOCKED, steady_block
+
+    rec = flight(survey_0425, "TDOA3", delayed=False)
+    truth_y = np.interp(rec.tdoa.t, rec.truth.t, rec.truth.position[:, 1])
+    half = truth_y <= BLOCKED[0]["max"][1]
+    sign = (rec.tdoa.id_b == 0).astype(float) - (rec.tdoa.id_a == 0)
+    assert 0.2 < np.mean(half) < 0.8 and np.count_nonzero(sign)
+    for whole, where in ((False, half), (True, np.ones_like(half))):
+        change = steady_block(rec, 0, 0.4, whole).tdoa.distance_diff - rec.tdoa.distance_diff
+        np.testing.assert_allclose(change, 0.4 * sign * where, atol=1e-9)
