@@ -76,34 +76,27 @@ static int heard(const estimator_t *est, int k)
     return est->anchor_bias.n[k] > 1.0f && est->anchors[k].valid;
 }
 
-/* excess = bias less its fit c + u_k . dp over the anchors heard, an M-estimate: each
- * anchor weighted by the Geman-McClure weight of its excess at anchor_bias_c, from the
- * least-squares fit on (session 84's experiment B, not kept). */
+/* excess = bias less its least-squares fit c + u_k . dp over the anchors heard. */
 static void update_excess(estimator_t *est)
 {
     est_anchor_bias_t *ab = &est->anchor_bias;
-    float fit_weight[EST_MAX_ANCHORS];
-    for (int k = 0; k < EST_MAX_ANCHORS; k++) fit_weight[k] = 1.0f;
+    float A[FIT_DIM][FIT_DIM] = {{0}}, r[FIT_DIM] = {0}, x[FIT_DIM], row[FIT_DIM];
+    int count = 0;
     memset(ab->excess, 0, sizeof ab->excess);
-    for (int pass = 0; pass <= 3; pass++) {
-        float A[FIT_DIM][FIT_DIM] = {{0}}, r[FIT_DIM] = {0}, x[FIT_DIM], row[FIT_DIM];
-        int count = 0;
-        for (int k = 0; k < EST_MAX_ANCHORS; k++) {
-            if (!heard(est, k)) continue;
-            fit_row(est, k, row);
-            for (int i = 0; i < FIT_DIM; i++) {
-                r[i] += fit_weight[k] * row[i] * ab->bias[k];
-                for (int j = 0; j < FIT_DIM; j++) A[i][j] += fit_weight[k] * row[i] * row[j];
-            }
-            count++;
+    for (int k = 0; k < EST_MAX_ANCHORS; k++) {
+        if (!heard(est, k)) continue;
+        fit_row(est, k, row);
+        for (int i = 0; i < FIT_DIM; i++) {
+            r[i] += row[i] * ab->bias[k];
+            for (int j = 0; j < FIT_DIM; j++) A[i][j] += row[i] * row[j];
         }
-        if (count <= FIT_DIM || solve_fit(A, r, x) != 0) return;
-        for (int k = 0; k < EST_MAX_ANCHORS; k++) {
-            if (!heard(est, k)) continue;
-            fit_row(est, k, row);
-            ab->excess[k] = ab->bias[k] - (row[0] * x[0] + row[1] * x[1] + row[2] * x[2] + row[3] * x[3]);
-            fit_weight[k] = gm_weight(ab->excess[k] / est->params.anchor_bias_c, 1.0f);
-        }
+        count++;
+    }
+    if (count <= FIT_DIM || solve_fit(A, r, x) != 0) return;
+    for (int k = 0; k < EST_MAX_ANCHORS; k++) {
+        if (!heard(est, k)) continue;
+        fit_row(est, k, row);
+        ab->excess[k] = ab->bias[k] - (row[0] * x[0] + row[1] * x[1] + row[2] * x[2] + row[3] * x[3]);
     }
 }
 
