@@ -28,7 +28,6 @@ _Static_assert(EST_MAX_ANCHORS == BN_ANCHORS, "the bias model has one offset per
 #define EST_ANCHOR_BIAS_WINDOW_S 1.0f  /* s over which an anchor's tracked range bias forgets */
 #define EST_ANCHOR_BIAS_PRIOR_N 10.0f  /* measurements of zero bias each anchor's estimate starts from */
 #define EST_ANCHOR_BIAS_MIN_PARTNERS 4 /* anchors paired with one before its bias weights it (TDOA3, not the TDOA2 ring) */
-#define EST_ANCHOR_BIAS_FIT_ITERATIONS 3 /* reweightings of the Huber fit that excess is judged against */
 _Static_assert(EST_MAX_ANCHORS <= 16, "partner sets are 16-bit masks");
 
 /* Error-state indices. */
