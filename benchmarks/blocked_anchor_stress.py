@@ -5,6 +5,7 @@ flights' wooden shelf? Obstacles injected into real TDOA3 flights of a clear roo
     .venv/bin/python benchmarks/blocked_anchor_stress.py            # ~5 min; out/blocked_anchor_stress.json
     .venv/bin/python benchmarks/blocked_anchor_stress.py --steady   # ~5 min; out/blocked_anchor_stress-steady.json
     .venv/bin/python benchmarks/blocked_anchor_stress.py --steady --whole   # out/blocked_anchor_stress-steady-whole.json
+    .venv/bin/python benchmarks/blocked_anchor_stress.py --figure   # docs/img/blocked_anchor_stress.png from it, seconds
 
 The question. The weighting (`anchor_bias_c`, session 83) was built and judged on the
 shared flights, whose only TDOA3 obstacle is a wooden shelf (0426-traj5, traj6). Six of
@@ -71,6 +72,7 @@ BLOCKED = {0: {"min": [-10.0, -10.0, -1.0], "max": [10.0, 0.0, 5.0]},
 MEAN_EXCESS_M = (0.2, 0.4, 0.8)
 SHARES = (1.0, 0.5)
 SEEDS = (0, 1, 2)
+FIGURE = ROOT / "docs" / "img" / "blocked_anchor_stress.png"
 WEIGHTING = {"on": 0.15, "off": 0.0}
 
 
@@ -136,14 +138,57 @@ def summary(runs: list[tuple[tuple, dict]]) -> dict:
     return table
 
 
+def write_figure(runs: list[dict], path: Path = FIGURE) -> None:
+    """Each flight's 3D RMSE with the weighting against without, under a whole-flight
+    block of the floor anchor (one panel) and of the ceiling anchor (the other), with the
+    network (mean over seeds): above the diagonal, the weighting made it worse."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    def network(run: dict, weighting: str) -> float:
+        return float(np.mean([run[weighting][f"seed{s}"] for s in SEEDS]))
+
+    blocked = [r for r in runs if r["anchor"] is not None]
+    values = [network(r, w) for r in blocked for w in WEIGHTING]
+    low, top = 0.9 * min(values), 1.05 * max(values)
+    fig, axes = plt.subplots(1, len(BLOCKED), figsize=(8, 4.6))
+    for ax, (anchor, where) in zip(axes, ((0, "floor"), (3, "ceiling"))):
+        for excess in MEAN_EXCESS_M:
+            marks = [r for r in blocked if r["anchor"] == anchor and r["mean_excess_m"] == excess]
+            ax.scatter([network(r, "off") for r in marks], [network(r, "on") for r in marks], s=14,
+                       alpha=0.8, label=f"+{excess:.1f} m")
+        ax.plot([low, top], [low, top], color="grey", linewidth=0.8)
+        ax.set(xlim=(low, top), ylim=(low, top), aspect="equal", title=f"anchor {anchor} ({where}) blocked",
+               xlabel="without the weighting (m)")
+        ax.tick_params(labelsize=7)
+    axes[0].set_ylabel("with the weighting (m)")
+    axes[0].legend(fontsize=7, loc="upper left")
+    fig.suptitle("0425 TDOA3 flights with one anchor blocked throughout, with the network: 3D RMSE", fontsize=10)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    print(f"wrote {path}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--models", type=Path, default=ROOT / "out" / "models" / "link-amd")
     ap.add_argument("--steady", action="store_true", help="every blocked range longer by m (no nlos draw)")
     ap.add_argument("--whole", action="store_true", help="with --steady: blocked over the whole flight")
+    ap.add_argument("--figure", action="store_true",
+                    help=f"draw {FIGURE.relative_to(ROOT)} from the --steady --whole run's JSON, and nothing else")
     ap.add_argument("--json", type=Path, help="default: out/blocked_anchor_stress[-steady[-whole]].json")
     ap.add_argument("--workers", type=int, default=2)
     args = ap.parse_args()
+    if args.figure:
+        kept = ROOT / "out" / "blocked_anchor_stress-steady-whole.json"
+        if not kept.is_file():
+            ap.error(f"{kept.relative_to(ROOT)} is missing: run --steady --whole first")
+        write_figure(json.loads(kept.read_text())["runs"])
+        return
     if args.whole and not args.steady:
         ap.error("--whole is a kind of steady block: give --steady too")
     suffix = ("-steady" if args.steady else "") + ("-whole" if args.whole else "")
