@@ -6,6 +6,7 @@ flights' wooden shelf? Obstacles injected into real TDOA3 flights of a clear roo
     .venv/bin/python benchmarks/blocked_anchor_stress.py --steady   # ~5 min; out/blocked_anchor_stress-steady.json
     .venv/bin/python benchmarks/blocked_anchor_stress.py --steady --whole   # out/blocked_anchor_stress-steady-whole.json
     .venv/bin/python benchmarks/blocked_anchor_stress.py --figure   # docs/img/blocked_anchor_stress.png from it, seconds
+    .venv/bin/python benchmarks/blocked_anchor_stress.py --real-shape   # what the shared flights' long links look like, 1 min
 
 The question. The weighting (`anchor_bias_c`, session 83) was built and judged on the
 shared flights, whose only TDOA3 obstacle is a wooden shelf (0426-traj5, traj6). Six of
@@ -138,6 +139,39 @@ def summary(runs: list[tuple[tuple, dict]]) -> dict:
     return table
 
 
+SHAPE_FLIGHTS = ("0426-traj3", "0426-traj4", "0426-traj5", "0426-traj6", "0426-traj7", "0426-traj8",
+                 "0425-traj13", "0425-traj22")
+LONG_M = 0.25   # an anchor's one-second range bias above which its links count as long
+
+
+def real_shape(flight: str) -> dict:
+    """The range errors of an anchor's links over the seconds its bias exceeds LONG_M
+    (nlos_oracle.py's one-second split of the raw TDOA error against the ground truth,
+    the partner's bias removed): steady blocks read a median near the mean, exponential
+    ones (the `nlos` effect) a median 0.69 of it and many ranges near zero."""
+    from nlos_oracle import block_biases
+
+    from rig.bias.dataset import airborne_tdoa, measurement_features, true_tdoa, truth_latency
+    from rig.data.importer import load_any
+
+    rec = load_any(paths.data_dir() / "flights" / flight)
+    sel = airborne_tdoa(rec)
+    rows = np.flatnonzero(sel)
+    _, tag_pos, a_pos, b_pos = measurement_features(rec, sel, truth_latency(rec))
+    id_a, id_b = rec.tdoa.id_a[rows], rec.tdoa.id_b[rows]
+    residual = rec.tdoa.distance_diff[rows] - true_tdoa(tag_pos, a_pos, b_pos)
+    bias_a, bias_b = block_biases(rec.tdoa.t[rows], residual, id_a, id_b)
+    anchors = {}
+    for k in sorted({int(i) for i in np.concatenate([id_a, id_b])}):
+        as_b, as_a = (id_b == k) & (bias_b > LONG_M), (id_a == k) & (bias_a > LONG_M)
+        error = np.concatenate([residual[as_b] + bias_a[as_b], bias_b[as_a] - residual[as_a]])
+        if len(error) > 50:
+            anchors[k] = {"ranges": len(error), "median_m": float(np.median(error)),
+                          "mean_m": float(np.mean(np.clip(error, -2.0, 3.0))),
+                          "under_0.1_m": float(np.mean(error < 0.1))}
+    return {"flight": flight, "uwb_mode": rec.metadata.get("uwb_mode"), "anchors": anchors}
+
+
 def write_figure(runs: list[dict], path: Path = FIGURE) -> None:
     """Each flight's 3D RMSE with the weighting against without, under a whole-flight
     block of the floor anchor (one panel) and of the ceiling anchor (the other), with the
@@ -178,11 +212,21 @@ def main() -> None:
     ap.add_argument("--models", type=Path, default=ROOT / "out" / "models" / "link-amd")
     ap.add_argument("--steady", action="store_true", help="every blocked range longer by m (no nlos draw)")
     ap.add_argument("--whole", action="store_true", help="with --steady: blocked over the whole flight")
+    ap.add_argument("--real-shape", action="store_true",
+                    help="print how the shared flights' long links are distributed, and nothing else")
     ap.add_argument("--figure", action="store_true",
                     help=f"draw {FIGURE.relative_to(ROOT)} from the --steady --whole run's JSON, and nothing else")
     ap.add_argument("--json", type=Path, help="default: out/blocked_anchor_stress[-steady[-whole]].json")
     ap.add_argument("--workers", type=int, default=2)
     args = ap.parse_args()
+    if args.real_shape:
+        with ProcessPoolExecutor(args.workers) as pool:
+            shapes = list(pool.map(real_shape, SHAPE_FLIGHTS))
+        for shape in shapes:
+            cells = [f"anchor {k}: {a['ranges']} ranges, median {a['median_m']:.2f} m, mean {a['mean_m']:.2f} m, "
+                     f"{a['under_0.1_m']:.0%} under 0.1 m" for k, a in shape["anchors"].items()]
+            print(f"{shape['flight']} ({shape['uwb_mode']}): " + "; ".join(cells))
+        return
     if args.figure:
         kept = ROOT / "out" / "blocked_anchor_stress-steady-whole.json"
         if not kept.is_file():
