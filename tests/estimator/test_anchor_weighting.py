@@ -101,20 +101,38 @@ def test_rig_evaluate_weights_blocked_anchors_unless_told_not_to(tmp_path: Path,
     assert w["rmse_3d"] < 0.6 * u["rmse_3d"]
 
 
-def test_the_stress_benchmarks_steady_block_lengthens_one_anchors_ranges(survey_0425: Path) -> None:
-    """benchmarks/blocked_anchor_stress.py's block: every range of the anchor longer by
-    the excess while the tag is in the anchor's half (anywhere, whole), nothing else."""
+def stress_benchmark():
     import sys
 
     from rigtest import ROOT
     sys.path.insert(0, str(ROOT / "benchmarks"))
-    from blocked_anchor_stress import BLOCKED, steady_block
+    import blocked_anchor_stress
 
+    return blocked_anchor_stress
+
+
+def test_the_stress_benchmarks_steady_block_lengthens_one_anchors_ranges(survey_0425: Path) -> None:
+    """benchmarks/blocked_anchor_stress.py's block: every range of the anchor longer by
+    the excess while the tag is in the anchor's half (anywhere, whole), nothing else."""
+    bench = stress_benchmark()
     rec = flight(survey_0425, "TDOA3", delayed=False)
     truth_y = np.interp(rec.tdoa.t, rec.truth.t, rec.truth.position[:, 1])
-    half = truth_y <= BLOCKED[0]["max"][1]
+    half = truth_y <= bench.BLOCKED[0]["max"][1]
     sign = (rec.tdoa.id_b == 0).astype(float) - (rec.tdoa.id_a == 0)
     assert 0.2 < np.mean(half) < 0.8 and np.count_nonzero(sign)
     for whole, where in ((False, half), (True, np.ones_like(half))):
-        change = steady_block(rec, 0, 0.4, whole).tdoa.distance_diff - rec.tdoa.distance_diff
+        change = bench.steady_block(rec, 0, 0.4, whole).tdoa.distance_diff - rec.tdoa.distance_diff
         np.testing.assert_allclose(change, 0.4 * sign * where, atol=1e-9)
+
+
+def test_a_floor_anchor_blocked_throughout_a_real_flight_is_down_weighted(data_dir: Path) -> None:
+    """What the weighting is for, on a real TDOA3 flight of a clear room: floor anchor 0
+    made 0.8 m long throughout (session 84: 0.545 -> 0.350 m without correction). A
+    ceiling anchor blocked so is its known limit (docs/reference/estimator.md)."""
+    from rig.data.importer import load_any
+
+    rec = stress_benchmark().steady_block(load_any(data_dir / "flights" / "0425-traj13"), 0, 0.8, whole=True)
+    weighted = evaluate(rec, use_nn=False)
+    unweighted = evaluate(rec, use_nn=False, anchor_bias_c=0.0)
+    assert weighted["rmse_3d"] < unweighted["rmse_3d"] - 0.1
+    assert weighted["tdoa_anchor_weighted"] > 0.5 * weighted["tdoa_accepted"]
