@@ -5,7 +5,8 @@ flights' wooden shelf? Obstacles injected into real TDOA3 flights of a clear roo
     .venv/bin/python benchmarks/blocked_anchor_stress.py            # ~5 min; out/blocked_anchor_stress.json
     .venv/bin/python benchmarks/blocked_anchor_stress.py --steady   # ~5 min; out/blocked_anchor_stress-steady.json
     .venv/bin/python benchmarks/blocked_anchor_stress.py --steady --whole   # out/blocked_anchor_stress-steady-whole.json
-    .venv/bin/python benchmarks/blocked_anchor_stress.py --figure   # docs/img/blocked_anchor_stress.png from it, seconds
+    .venv/bin/python benchmarks/blocked_anchor_stress.py --steady --whole --pairs   # out/blocked_anchor_stress-steady-whole-pairs.json
+    .venv/bin/python benchmarks/blocked_anchor_stress.py --figure   # docs/img/blocked_anchor_stress.png from --steady --whole
     .venv/bin/python benchmarks/blocked_anchor_stress.py --real-shape   # what the shared flights' long links look like, 1 min
 
 The question. The weighting (`anchor_bias_c`, session 83) was built and judged on the
@@ -45,6 +46,13 @@ its own run): the anchor is blocked wherever the tag flies, as a block near the 
 would, with everything else as above. The probe found a ceiling anchor blocked so the
 weighting's worst case (0425-traj13, anchor 3 at +0.8 m: 0.414 m without the weighting,
 0.690 m with it).
+
+Two anchors at once (`--pairs`, with `--steady --whole`; added after experiments B and
+C, before its own run, to learn from physics rather than from the 0426 flights where a
+redescending fit might lose): the shared flights' long links are often on several
+anchors in the same seconds (`--real-shape`). Blocked together throughout: floor
+anchors 0 and 7, on one wall (as an obstacle along it), and ceiling anchors 1 and 3,
+the two most often long. Everything else as above; it decides nothing.
 """
 
 from __future__ import annotations
@@ -74,6 +82,7 @@ MEAN_EXCESS_M = (0.2, 0.4, 0.8)
 SHARES = (1.0, 0.5)
 SEEDS = (0, 1, 2)
 FIGURE = ROOT / "docs" / "img" / "blocked_anchor_stress.png"
+PAIRS = ((0, 7), (1, 3))   # --pairs: anchors blocked together (floor, one wall; ceiling)
 WEIGHTING = {"on": 0.15, "off": 0.0}
 
 
@@ -82,20 +91,23 @@ def model_path(models: Path, flight: str, seed: int) -> Path:
     return models / f"within-0425-{fold}.link.seed{seed}.json"
 
 
-def steady_block(rec, anchor: int, excess_m: float, whole: bool = False):
+def steady_block(rec, anchor: int | tuple[int, ...], excess_m: float, whole: bool = False):
     """`rec` with every range of `anchor` longer by `excess_m` while the tag is in its half
-    (anywhere, `whole`)."""
+    (anywhere, `whole`; several anchors, only so)."""
     from dataclasses import replace
 
     from rig.sim.effects.tdoa import Region
 
+    anchors = anchor if isinstance(anchor, tuple) else (anchor,)
+    if len(anchors) > 1 and not whole:
+        raise ValueError("several anchors are blocked together over the whole flight only")
     truth = np.stack([np.interp(rec.tdoa.t, rec.truth.t, rec.truth.position[:, i]) for i in range(3)], axis=1)
-    inside = Region.from_json(None if whole else BLOCKED[anchor]).contains(truth)
-    sign = (rec.tdoa.id_b == anchor).astype(float) - (rec.tdoa.id_a == anchor)
+    inside = Region.from_json(None if whole else BLOCKED[anchors[0]]).contains(truth)
+    sign = sum((rec.tdoa.id_b == k).astype(float) - (rec.tdoa.id_a == k) for k in anchors)
     return replace(rec, tdoa=replace(rec.tdoa, distance_diff=rec.tdoa.distance_diff + excess_m * sign * inside))
 
 
-def case_figures(job: tuple[str, int | None, float, float | None, str, bool]) -> dict:
+def case_figures(job: tuple[str, int | tuple[int, ...] | None, float, float | None, str, bool]) -> dict:
     """One flight with one obstacle (none when `anchor` is None; steady when `share` is
     None, over the whole flight when `whole`): 3D RMSE without correction and with each seed's network, with and without the
     weighting."""
@@ -212,11 +224,12 @@ def main() -> None:
     ap.add_argument("--models", type=Path, default=ROOT / "out" / "models" / "link-amd")
     ap.add_argument("--steady", action="store_true", help="every blocked range longer by m (no nlos draw)")
     ap.add_argument("--whole", action="store_true", help="with --steady: blocked over the whole flight")
+    ap.add_argument("--pairs", action="store_true", help=f"with --steady --whole: block {PAIRS} together")
     ap.add_argument("--real-shape", action="store_true",
                     help="print how the shared flights' long links are distributed, and nothing else")
     ap.add_argument("--figure", action="store_true",
                     help=f"draw {FIGURE.relative_to(ROOT)} from the --steady --whole run's JSON, and nothing else")
-    ap.add_argument("--json", type=Path, help="default: out/blocked_anchor_stress[-steady[-whole]].json")
+    ap.add_argument("--json", type=Path, help="default: out/blocked_anchor_stress[-steady[-whole[-pairs]]].json")
     ap.add_argument("--workers", type=int, default=2)
     args = ap.parse_args()
     if args.real_shape:
@@ -235,7 +248,10 @@ def main() -> None:
         return
     if args.whole and not args.steady:
         ap.error("--whole is a kind of steady block: give --steady too")
-    suffix = ("-steady" if args.steady else "") + ("-whole" if args.whole else "")
+    if args.pairs and not args.whole:
+        ap.error("--pairs blocks two anchors over the whole flight: give --steady --whole too")
+    suffix = ("-steady" if args.steady else "") + ("-whole" if args.whole else "") + ("-pairs" if args.pairs else "")
+    blocked = PAIRS if args.pairs else tuple(BLOCKED)
     args.json = args.json or ROOT / "out" / f"blocked_anchor_stress{suffix}.json"
     shares = (None,) if args.steady else SHARES
     missing = [p for f in FLIGHTS for s in SEEDS if not (p := model_path(args.models, f, s)).is_file()]
@@ -243,7 +259,7 @@ def main() -> None:
         ap.error(f"{len(missing)} networks are missing, e.g. {missing[0]}: bias_validation.py --forms link "
                  f"--splits within-0425 --save-models {args.models}")
     jobs = [(f, None, 0.0, 0.0, str(args.models), False) for f in FLIGHTS]
-    jobs += [(f, a, m, s, str(args.models), args.whole) for f in FLIGHTS for a in BLOCKED for m in MEAN_EXCESS_M for s in shares]
+    jobs += [(f, a, m, s, str(args.models), args.whole) for f in FLIGHTS for a in blocked for m in MEAN_EXCESS_M for s in shares]
     with ProcessPoolExecutor(args.workers) as pool:
         runs = list(zip(jobs, pool.map(case_figures, jobs)))
     table = summary(runs)
