@@ -123,6 +123,12 @@ def test_the_stress_benchmarks_steady_block_lengthens_one_anchors_ranges(survey_
     for whole, where in ((False, half), (True, np.ones_like(half))):
         change = bench.steady_block(rec, 0, 0.4, whole).tdoa.distance_diff - rec.tdoa.distance_diff
         np.testing.assert_allclose(change, 0.4 * sign * where, atol=1e-9)
+    # two anchors blocked together: a pair of both reads both excesses, which cancel
+    sign_7 = (rec.tdoa.id_b == 7).astype(float) - (rec.tdoa.id_a == 7)
+    change = bench.steady_block(rec, (0, 7), 0.4, whole=True).tdoa.distance_diff - rec.tdoa.distance_diff
+    np.testing.assert_allclose(change, 0.4 * (sign + sign_7), atol=1e-9)
+    with pytest.raises(ValueError, match="whole flight only"):
+        bench.steady_block(rec, (0, 7), 0.4)
 
 
 def test_a_floor_anchor_blocked_throughout_a_real_flight_is_down_weighted(data_dir: Path) -> None:
