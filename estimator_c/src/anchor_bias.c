@@ -134,19 +134,19 @@ void anchor_bias_step(estimator_t *est, float dt)
     update_excess(est);
 }
 
-static float anchor_weight(const estimator_t *est, uint8_t k)
+/* One anchor's weight, in (0, 1]: the Geman-McClure weight of its excess bias at scale
+ * anchor_bias_c once it has enough partners; 1 before, and with the weighting off. */
+float anchor_bias_anchor_weight(const estimator_t *est, uint8_t k)
 {
     const est_anchor_bias_t *ab = &est->anchor_bias;
-    if (partner_count(ab, k) < EST_ANCHOR_BIAS_MIN_PARTNERS) return 1.0f;
+    if (!tracking(est) || k >= EST_MAX_ANCHORS || partner_count(ab, k) < EST_ANCHOR_BIAS_MIN_PARTNERS) return 1.0f;
     return gm_weight(ab->excess[k] / est->params.anchor_bias_c, 1.0f);
 }
 
-/* The weight of a measurement between anchors a and b, in (0, 1]: the product of
- * the Geman-McClure weights of their excess biases at scale anchor_bias_c. */
+/* The weight of a measurement between anchors a and b: the product of theirs. */
 float anchor_bias_weight(const estimator_t *est, uint8_t a, uint8_t b)
 {
-    if (!tracking(est)) return 1.0f;
-    return anchor_weight(est, a) * anchor_weight(est, b);
+    return anchor_bias_anchor_weight(est, a) * anchor_bias_anchor_weight(est, b);
 }
 
 /* One innovation (measured - predicted, after the correction) split between its

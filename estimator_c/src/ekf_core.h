@@ -39,6 +39,7 @@ float tdoa_trust_weight(const estimator_t *est);
 
 /* anchor_bias.c */
 void anchor_bias_step(estimator_t *est, float dt);
+float anchor_bias_anchor_weight(const estimator_t *est, uint8_t k);
 float anchor_bias_weight(const estimator_t *est, uint8_t a, uint8_t b);
 void anchor_bias_observe(estimator_t *est, uint8_t a, uint8_t b, float innovation);
 

@@ -51,11 +51,24 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
           f"{result['tdoa_rejected'] - by_reason['gate']}); refused before the update: {refused}; "
           f"resets {result['resets']}; diverged: {'yes' if result['diverged'] else 'no'}")
     if result["config"]["params"]["anchor_bias_c"] > 0:
-        print(f"blocked anchors: {result['tdoa_anchor_weighted']} TDOA down-weighted by the tracked range bias of "
-              "their anchors (--no-anchor-weighting: none)")
+        add_anchor_discounts(result, rec, args, given)
     print_imu_gaps(result)
     write_json(args.json, result)
     return EXIT_FAILED if result["diverged"] else EXIT_OK
+
+
+def add_anchor_discounts(result: dict, rec, args: argparse.Namespace, given) -> None:
+    """Which anchors the blocked-anchor weighting discounted, and for how much of the
+    flight, into `result` (`anchor_discounted`) and printed."""
+    from rig.estimator.evaluate import anchor_discounts, estimator_config
+
+    params, model = estimator_config(not args.no_robust, not args.no_nn, args.model, None, args.full_trust,
+                                     **anchor_weighting_params(args))
+    result["anchor_discounted"] = shares = anchor_discounts(rec, params, model, given)
+    most = sorted(((share, k) for k, share in shares.items() if share > 0), reverse=True)
+    which = ", ".join(f"anchor {k} {share:.0%}" for share, k in most) or "none"
+    print(f"blocked anchors: {result['tdoa_anchor_weighted']} TDOA down-weighted by the tracked range bias of "
+          f"their anchors; discounted for a share of the flight: {which} (--no-anchor-weighting: none)")
 
 
 def add_correction_effect(result: dict, rec, model_path: Path | None) -> None:

@@ -33,6 +33,8 @@ STEP_S = 0.01
 START_BEFORE_TAKEOFF = 1.0
 DIVERGED_RMSE_M = 1.0  # a flight scored worse than this has lost track
 FULL_TRUST = -1.0      # trust_prior_n that applies the whole correction on every flight
+DISCOUNTED_BELOW = 0.5     # an anchor weight under this is counted as tdoa_anchor_weighted is (EST_WEIGHT_ACCEPTED)
+DISCOUNT_SAMPLE_STEPS = 10  # anchor_discounts reads the anchors' weights every 100 ms
 
 
 @dataclass
@@ -181,19 +183,48 @@ def make_estimator(rec: Recording, params: native.EstimatorParams, model: BiasNe
     return est
 
 
-def replay(rec: Recording, params: native.EstimatorParams, model: BiasNet | None = None,
-           start_pose: StartPose | None = None) -> Replay:
-    """The whole recording from its start (`start_time`, `initial_pose`) through the
-    estimator, in-process."""
+def started(rec: Recording, params: native.EstimatorParams, model: BiasNet | None = None,
+            start_pose: StartPose | None = None) -> tuple[native.Estimator, np.ndarray, float]:
+    """An estimator at the recording's start (`start_time`, `initial_pose`), the events
+    it is to replay and their time origin on the recording's clock."""
     t0 = start_time(rec, given=start_pose)
     est = make_estimator(rec, params, model)
     pos, quat = initial_pose(rec, t0, start_pose)
     est.reset(0, pos, quat)
-    events = build_events(rec, t0)
+    return est, build_events(rec, t0), t0
+
+
+def replay(rec: Recording, params: native.EstimatorParams, model: BiasNet | None = None,
+           start_pose: StartPose | None = None) -> Replay:
+    """The whole recording from its start through the estimator, in-process."""
+    est, events, t0 = started(rec, params, model, start_pose)
     tic = time.perf_counter()
     outputs = est.replay(events)
     elapsed = time.perf_counter() - tic
     return Replay(t0 + outputs["t_us"].astype(float) * 1e-6, outputs, elapsed, t0, est.correction_trust())
+
+
+def anchor_discounts(rec: Recording, params: native.EstimatorParams, model: BiasNet | None = None,
+                     start_pose: StartPose | None = None) -> dict[str, float]:
+    """For each anchor of the recording, the share of the scored flight it spent
+    discounted by the blocked-anchor weighting (its weight under DISCOUNTED_BELOW): which
+    anchors the count `tdoa_anchor_weighted` is made of. A second replay, read every
+    DISCOUNT_SAMPLE_STEPS STEPs; the board sends the count only."""
+    est, events, t0 = started(rec, params, model, start_pose)
+    ends = np.flatnonzero(events["kind"] == native.EV_STEP)[DISCOUNT_SAMPLE_STEPS - 1::DISCOUNT_SAMPLE_STEPS] + 1
+    times, weights, begin = [], [], 0
+    for end in ends:
+        outputs = est.replay(events[begin:end])
+        begin = end
+        if len(outputs):
+            times.append(t0 + float(outputs["t_us"][-1]) * 1e-6)
+            weights.append(est.anchor_weights())
+    start, stop = metrics.flight_window(rec.truth, metrics.SegmentRule())
+    scored = (np.array(times) >= start) & (np.array(times) <= stop)
+    if not scored.any():
+        return {}
+    discounted = np.array(weights)[scored] < DISCOUNTED_BELOW
+    return {str(k): float(np.mean(discounted[:, k])) for k in sorted(rec.anchor_map()) if k < native.MAX_ANCHORS}
 
 
 def counter_summary(counters: np.void) -> dict:

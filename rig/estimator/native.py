@@ -148,6 +148,7 @@ def _load(path: Path) -> ctypes.CDLL:
     lib.est_replay.restype = ctypes.c_size_t
     lib.est_copy_covariance.argtypes = [ctypes.c_void_p, ctypes.c_void_p]
     lib.est_correction_trust.argtypes = [ctypes.c_void_p]
+    lib.est_copy_anchor_weights.argtypes = [ctypes.c_void_p, ctypes.c_void_p]
     lib.est_correction_trust.restype = ctypes.c_float
     lib.bn_features.argtypes = [ctypes.c_void_p] * 7
     lib.bn_features_batch.argtypes = [ctypes.c_size_t] + [ctypes.c_void_p] * 7
@@ -199,6 +200,12 @@ class Estimator:
         """The share of the bias correction the estimator applies now: the regression slope
         of the flight's uncorrected innovations on the corrections so far."""
         return float(self.lib.est_correction_trust(self.handle))
+
+    def anchor_weights(self) -> np.ndarray:
+        """Each anchor id's weight in the blocked-anchor weighting now (1: not discounted)."""
+        out = np.ones(MAX_ANCHORS, np.float32)
+        self.lib.est_copy_anchor_weights(self.handle, _ptr(out))
+        return out
 
     def covariance(self) -> np.ndarray:
         out = np.zeros((STATE_DIM, STATE_DIM), np.float32)

@@ -12,7 +12,8 @@ import pytest
 from rigtest import run_rig, simulate_exact
 
 from rig.estimator import metrics
-from rig.estimator.evaluate import StartPose, estimator_config, evaluate, replay, start_time, truth_pose_at
+from rig.estimator.evaluate import (StartPose, anchor_discounts, estimator_config, evaluate, replay, start_time,
+                                    started, truth_pose_at)
 from rig.estimator.native import default_params
 
 DELAY_M = 0.4      # an obstacle's excess path on every link to one anchor
@@ -99,6 +100,29 @@ def test_rig_evaluate_weights_blocked_anchors_unless_told_not_to(tmp_path: Path,
     assert "blocked-anchor weighting" in weighted.stdout and "blocked-anchor weighting" not in unweighted.stdout
     assert u["config"]["params"]["anchor_bias_c"] == 0.0 < w["config"]["params"]["anchor_bias_c"]
     assert w["rmse_3d"] < 0.6 * u["rmse_3d"]
+    assert max(w["anchor_discounted"], key=w["anchor_discounted"].get) == "3" and "anchor 3" in weighted.stdout
+    assert "anchor_discounted" not in u
+
+
+def test_which_anchors_are_discounted_and_for_how_long(blocked_tdoa3, survey_0425: Path) -> None:
+    """The blocked anchor is discounted for most of the flight; the TDOA2 ring and the
+    estimator without the weighting discount none."""
+    shares = anchor_discounts(blocked_tdoa3, *estimator_config(use_nn=False))
+    assert set(shares) == {str(a.id) for a in blocked_tdoa3.anchors}
+    assert shares["3"] > 0.5 and shares["3"] == max(shares.values())
+    assert not any(anchor_discounts(blocked_tdoa3, *estimator_config(use_nn=False, anchor_bias_c=0.0)).values())
+    ring = flight(survey_0425, "TDOA2", delayed=True)
+    assert not any(anchor_discounts(ring, *estimator_config(use_nn=False)).values())
+
+
+def test_a_replay_read_in_pieces_is_the_same_run(blocked_tdoa3) -> None:
+    """anchor_discounts replays the recording in pieces to read the anchors' weights
+    between them: the estimates must be those of one replay, bit for bit."""
+    config = estimator_config(use_nn=False)
+    est, events, _ = started(blocked_tdoa3, *config)
+    cuts = np.linspace(0, len(events), 37).astype(int)
+    pieces = np.concatenate([est.replay(events[a:b]) for a, b in zip(cuts[:-1], cuts[1:])])
+    np.testing.assert_array_equal(pieces["pos"], replay(blocked_tdoa3, *config).outputs["pos"])
 
 
 def stress_benchmark():

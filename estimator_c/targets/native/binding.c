@@ -3,6 +3,7 @@
  * can own the memory (the estimator itself never allocates). */
 #include <stddef.h>
 
+#include "ekf_core.h"
 #include "estimator.h"
 
 size_t est_sizeof_estimator(void) { return sizeof(estimator_t); }
@@ -15,6 +16,13 @@ void est_copy_covariance(const estimator_t *est, float out[EST_STATE_DIM * EST_S
 {
     for (int i = 0; i < EST_STATE_DIM; i++)
         for (int j = 0; j < EST_STATE_DIM; j++) out[i * EST_STATE_DIM + j] = est->P[i][j];
+}
+
+/* Each anchor's weight in the blocked-anchor weighting now (1: not discounted), so the
+ * rig can say which anchors the count tdoa_anchor_weighted is made of. */
+void est_copy_anchor_weights(const estimator_t *est, float out[EST_MAX_ANCHORS])
+{
+    for (int k = 0; k < EST_MAX_ANCHORS; k++) out[k] = anchor_bias_anchor_weight(est, (uint8_t)k);
 }
 
 /* bn_features over n measurements (row-major arrays), so the training set is
