@@ -8,6 +8,7 @@ flights' wooden shelf? Obstacles injected into real TDOA3 flights of a clear roo
     .venv/bin/python benchmarks/blocked_anchor_stress.py --steady --whole --pairs   # out/blocked_anchor_stress-steady-whole-pairs.json
     .venv/bin/python benchmarks/blocked_anchor_stress.py --figure   # docs/img/blocked_anchor_stress.png from --steady --whole
     .venv/bin/python benchmarks/blocked_anchor_stress.py --real-shape   # what the shared flights' long links look like, 1 min
+    .venv/bin/python benchmarks/blocked_anchor_stress.py --discounts    # which anchors the weighting discounts, seconds
 
 The question. The weighting (`anchor_bias_c`, session 83) was built and judged on the
 shared flights, whose only TDOA3 obstacle is a wooden shelf (0426-traj5, traj6). Six of
@@ -184,6 +185,26 @@ def real_shape(flight: str) -> dict:
     return {"flight": flight, "uwb_mode": rec.metadata.get("uwb_mode"), "anchors": anchors}
 
 
+DISCOUNT_FLIGHTS = ("0425-traj13", "0425-traj17", "0425-traj22")
+
+
+def discounts(flight: str) -> dict:
+    """`rig evaluate`'s `anchor_discounted` with the shipped estimator and network, on the
+    flight as flown and with floor anchor 0 or ceiling anchor 3 0.8 m long throughout,
+    and the count of TDOA it down-weighted against those it accepted."""
+    from rig.data.importer import load_any
+    from rig.estimator.evaluate import anchor_discounts, estimator_config, evaluate
+
+    flown = load_any(paths.data_dir() / "flights" / flight)
+    out = {}
+    for name, rec in (("as flown", flown), ("anchor 0 +0.8 m", steady_block(flown, 0, 0.8, True)),
+                      ("anchor 3 +0.8 m", steady_block(flown, 3, 0.8, True))):
+        counts = evaluate(rec)
+        out[name] = {"anchor_discounted": anchor_discounts(rec, *estimator_config()),
+                     "weighted_share": counts["tdoa_anchor_weighted"] / max(counts["tdoa_accepted"], 1)}
+    return out
+
+
 def write_figure(runs: list[dict], path: Path = FIGURE) -> None:
     """Each flight's 3D RMSE with the weighting against without, under a whole-flight
     block of the floor anchor (one panel) and of the ceiling anchor (the other), with the
@@ -225,6 +246,8 @@ def main() -> None:
     ap.add_argument("--steady", action="store_true", help="every blocked range longer by m (no nlos draw)")
     ap.add_argument("--whole", action="store_true", help="with --steady: blocked over the whole flight")
     ap.add_argument("--pairs", action="store_true", help=f"with --steady --whole: block {PAIRS} together")
+    ap.add_argument("--discounts", action="store_true",
+                    help="print which anchors the shipped weighting discounts under a whole-flight block, and nothing else")
     ap.add_argument("--real-shape", action="store_true",
                     help="print how the shared flights' long links are distributed, and nothing else")
     ap.add_argument("--figure", action="store_true",
@@ -232,6 +255,14 @@ def main() -> None:
     ap.add_argument("--json", type=Path, help="default: out/blocked_anchor_stress[-steady[-whole[-pairs]]].json")
     ap.add_argument("--workers", type=int, default=2)
     args = ap.parse_args()
+    if args.discounts:
+        with ProcessPoolExecutor(args.workers) as pool:
+            for flight, cases in zip(DISCOUNT_FLIGHTS, pool.map(discounts, DISCOUNT_FLIGHTS)):
+                for name, case in cases.items():
+                    shares = " ".join(f"{k}:{v:.2f}" for k, v in case["anchor_discounted"].items())
+                    print(f"{flight} {name:<16} discounted share by anchor {shares}; "
+                          f"weighted {case['weighted_share']:.0%} of the accepted")
+        return
     if args.real_shape:
         with ProcessPoolExecutor(args.workers) as pool:
             shapes = list(pool.map(real_shape, SHAPE_FLIGHTS))
