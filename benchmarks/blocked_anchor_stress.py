@@ -2,8 +2,8 @@
 flights' wooden shelf? Obstacles injected into real TDOA3 flights of a clear room
 (session 84):
 
-    .venv/bin/python benchmarks/blocked_anchor_stress.py            # ~5 min; out/blocked_anchor_stress.json
-    .venv/bin/python benchmarks/blocked_anchor_stress.py --steady   # ~5 min; out/blocked_anchor_stress-steady.json
+    .venv/bin/python benchmarks/blocked_anchor_stress.py            # ~1 min; out/blocked_anchor_stress.json
+    .venv/bin/python benchmarks/blocked_anchor_stress.py --steady   # ~1 min; out/blocked_anchor_stress-steady.json
     .venv/bin/python benchmarks/blocked_anchor_stress.py --steady --whole   # out/blocked_anchor_stress-steady-whole.json
     .venv/bin/python benchmarks/blocked_anchor_stress.py --steady --whole --pairs   # out/blocked_anchor_stress-steady-whole-pairs.json
     .venv/bin/python benchmarks/blocked_anchor_stress.py --figure   # docs/img/blocked_anchor_stress.png from --steady --whole
