@@ -9,6 +9,7 @@ flights' wooden shelf? Obstacles injected into real TDOA3 flights of a clear roo
     .venv/bin/python benchmarks/blocked_anchor_stress.py --figure   # docs/img/blocked_anchor_stress.png from --steady --whole
     .venv/bin/python benchmarks/blocked_anchor_stress.py --real-shape   # what the shared flights' long links look like, 1 min
     .venv/bin/python benchmarks/blocked_anchor_stress.py --discounts    # which anchors the weighting discounts, seconds
+    .venv/bin/python benchmarks/blocked_anchor_stress.py --axes    # where the error of a whole-flight block lies, 1 min
 
 The question. The weighting (`anchor_bias_c`, session 83) was built and judged on the
 shared flights, whose only TDOA3 obstacle is a wooden shelf (0426-traj5, traj6). Six of
@@ -54,6 +55,14 @@ redescending fit might lose): the shared flights' long links are often on severa
 anchors in the same seconds (`--real-shape`). Blocked together throughout: floor
 anchors 0 and 7, on one wall (as an obstacle along it), and ceiling anchors 1 and 3,
 the two most often long. Everything else as above; it decides nothing.
+
+Where the error lies (`--axes`, added in session 85 to test session 84's guess that a
+blocked ceiling anchor is read as a height error; descriptive, deciding nothing): the
+whole-flight blocks at +0.8 m (anchor 0, anchor 3, and both pairs), each flight replayed
+without correction and with the seeds' networks, weighting off and on; per axis, the RMSE
+and the mean error (estimate - truth), means over flights (and seeds); and, without
+correction, each anchor's mean weight over the flight after its first fifth (the
+tracker's start).
 """
 
 from __future__ import annotations
@@ -131,6 +140,60 @@ def case_figures(job: tuple[str, int | tuple[int, ...] | None, float, float | No
             net = BiasNet.load(model_path(Path(models), flight, seed))
             out[name][f"seed{seed}"] = evaluate(rec, use_nn=True, model=net, anchor_bias_c=scale)["rmse_3d"]
     return out
+
+
+AXES_BLOCKS = (0, 3, *PAIRS)
+AXES_EXCESS_M = 0.8
+
+
+def mean_anchor_weights(rec, scale: float) -> list[float]:
+    """Each anchor's weight in the blocked-anchor weighting, without correction, read every
+    second and averaged over the flight after its first fifth."""
+    from rig.estimator import native
+    from rig.estimator.evaluate import estimator_config, started
+
+    est, events, _ = started(rec, estimator_config(use_nn=False, anchor_bias_c=scale)[0], None, None)
+    ends = np.flatnonzero(events["kind"] == native.EV_STEP)[99::100] + 1
+    weights, begin = [], 0
+    for end in ends:
+        est.replay(events[begin:end])
+        begin = end
+        weights.append(est.anchor_weights())
+    return np.mean(weights[len(weights) // 5:], axis=0)[:8].tolist()
+
+
+def axes_figures(job: tuple[str, int | tuple[int, ...], str]) -> dict:
+    """One flight with `anchor` blocked throughout by AXES_EXCESS_M: per-axis RMSE and mean
+    error without correction and with each seed's network, weighting off and on, and the
+    anchors' mean weights."""
+    from rig.data.importer import load_any
+    from rig.estimator.bias_net import BiasNet
+    from rig.estimator.evaluate import evaluate
+
+    flight, anchor, models = job
+    rec = steady_block(load_any(paths.data_dir() / "flights" / flight), anchor, AXES_EXCESS_M, whole=True)
+    out = {}
+    for name, scale in WEIGHTING.items():
+        runs = {"none": evaluate(rec, use_nn=False, anchor_bias_c=scale)}
+        for seed in SEEDS:
+            net = BiasNet.load(model_path(Path(models), flight, seed))
+            runs[f"seed{seed}"] = evaluate(rec, use_nn=True, model=net, anchor_bias_c=scale)
+        out[name] = {key: {"rmse_xyz": r["rmse_xyz"], "mean_xyz": r["mean_xyz"]} for key, r in runs.items()}
+    out["weights"] = mean_anchor_weights(rec, WEIGHTING["on"])
+    return out
+
+
+def print_axes(runs: list[tuple[tuple, dict]]) -> None:
+    for anchor in AXES_BLOCKS:
+        rows = [r for j, r in runs if j[1] == anchor]
+        for name in WEIGHTING:
+            for label, keys in (("no-nn", ("none",)), ("network", tuple(f"seed{s}" for s in SEEDS))):
+                rmse = np.mean([r[name][k]["rmse_xyz"] for r in rows for k in keys], axis=0)
+                mean = np.mean([r[name][k]["mean_xyz"] for r in rows for k in keys], axis=0)
+                print(f"anchor {str(anchor):<7} {name:<3} {label:<8} RMSE x y z "
+                      f"{' '.join(f'{v:.3f}' for v in rmse)}   mean x y z {' '.join(f'{v:+.3f}' for v in mean)}")
+        weights = np.mean([r["weights"] for r in rows], axis=0)
+        print(f"anchor {str(anchor):<7} mean weights of anchors 0-7, no-nn: {' '.join(f'{w:.2f}' for w in weights)}")
 
 
 def summary(runs: list[tuple[tuple, dict]]) -> dict:
@@ -248,6 +311,8 @@ def main() -> None:
     ap.add_argument("--pairs", action="store_true", help=f"with --steady --whole: block {PAIRS} together")
     ap.add_argument("--discounts", action="store_true",
                     help="print which anchors the shipped weighting discounts under a whole-flight block, and nothing else")
+    ap.add_argument("--axes", action="store_true",
+                    help="per-axis errors and anchor weights under whole-flight blocks at +0.8 m (out/blocked_anchor_stress-axes.json)")
     ap.add_argument("--real-shape", action="store_true",
                     help="print how the shared flights' long links are distributed, and nothing else")
     ap.add_argument("--figure", action="store_true",
@@ -270,6 +335,15 @@ def main() -> None:
             cells = [f"anchor {k}: {a['ranges']} ranges, median {a['median_m']:.2f} m, mean {a['mean_m']:.2f} m, "
                      f"{a['under_0.1_m']:.0%} under 0.1 m" for k, a in shape["anchors"].items()]
             print(f"{shape['flight']} ({shape['uwb_mode']}): " + "; ".join(cells))
+        return
+    if args.axes:
+        jobs = [(f, a, str(args.models)) for a in AXES_BLOCKS for f in FLIGHTS]
+        with ProcessPoolExecutor(args.workers) as pool:
+            runs = list(zip(jobs, pool.map(axes_figures, jobs)))
+        out = args.json or ROOT / "out" / "blocked_anchor_stress-axes.json"
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps([{"flight": j[0], "anchor": j[1], **r} for j, r in runs], indent=1))
+        print_axes(runs)
         return
     if args.figure:
         kept = ROOT / "out" / "blocked_anchor_stress-steady-whole.json"
