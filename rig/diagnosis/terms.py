@@ -19,6 +19,7 @@ from rig.diagnosis.robust import (
     irls,
     weighted_normal,
 )
+from rig.sim import effects as fx
 
 log = logging.getLogger(__name__)
 
@@ -78,7 +79,7 @@ class Term:
         """Whether the parameters of the fit `theta` lie outside the effect's physical range."""
         values = self.param_map() @ theta
         c = self.candidate
-        return bool(np.abs(values).max() > c.bound or (c.nonnegative and values.min() < 0))
+        return bool(fx.size_of(c.effect, c.param, values) > c.bound or (c.nonnegative and values.min() < 0))
 
     def param_map(self) -> np.ndarray:
         """The candidate's parameter as a linear map of the fit of the columns: a delay
@@ -117,7 +118,7 @@ def model_terms(z: np.ndarray, named: list[Term], floor: Term | None = None) -> 
         refit(z, kept + ([floor] if floor else []))
         if not kept:
             break
-        excess = [np.abs(t.theta).max() / t.candidate.bound for t in kept]
+        excess = [fx.size_of(t.candidate.effect, t.candidate.param, t.theta) / t.candidate.bound for t in kept]
         below = [float(t.theta.min()) / t.candidate.bound if t.candidate.nonnegative else 0.0 for t in kept]
         if max(excess) > 1.0:
             kept.pop(int(np.argmax(excess)))

@@ -7,6 +7,7 @@ flags in report.json)."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from rig.diagnosis.candidates import Candidate
 from rig.diagnosis.findings import Finding
@@ -69,6 +70,28 @@ def test_the_physical_range_of_a_gain_is_bounded_below_by_zero() -> None:
     assert gain.beyond_bound(np.array([-0.01]))
     assert gain.beyond_bound(np.array([3.5]))
     assert not offset.beyond_bound(np.array([-1.5]))
+
+
+def test_a_displacement_leaves_the_model_by_its_length_and_says_how_far_beyond_along_it() -> None:
+    """[0.8, -0.8, 0] m lies within 1 m on every axis and 1.13 m from the survey: beyond
+    the anchor's bound, first out of the model, and reported by its length, with the
+    standard error along the fitted direction."""
+    from rig.diagnosis.wording import beyond_bound_by
+
+    rng = np.random.default_rng(6)
+    columns = rng.normal(size=(SAMPLES, 3))
+    candidate = Candidate("anchor_position", "tdoa", "offset_m", 3, {"anchor": 2})
+    candidate.columns = columns
+    displacement = Term(candidate, columns)
+    assert displacement.beyond_bound(np.array([0.8, -0.8, 0.0]))
+    assert not displacement.beyond_bound(np.array([0.9, 0.0, 0.3]))
+    kept, _ = model_terms(columns @ np.array([0.8, -0.8, 0.0]) + 0.1 * rng.normal(size=SAMPLES), [displacement])
+    assert kept == []
+    size, bound, beyond = beyond_bound_by("anchor_position", {"anchor": 2, "offset_m": [0.8, -0.8, 0.0]},
+                                          {"offset_m": [0.05, 0.05, 0.5]})
+    assert (size, bound) == (pytest.approx(np.hypot(0.8, 0.8)), 1.0)
+    assert beyond == pytest.approx((np.hypot(0.8, 0.8) - 1.0) / 0.05)   # the z error is across the fitted direction
+    assert beyond_bound_by("anchor_position", {"offset_m": [0.9, 0.0, 0.3]}, {"offset_m": [0.1] * 3}) is None
 
 
 def test_a_finding_left_out_for_its_sign_is_reported_as_a_finding_marked_not_simulated() -> None:

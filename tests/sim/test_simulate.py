@@ -334,6 +334,13 @@ def test_an_effect_beyond_its_physical_bound_is_injected_with_a_warning_naming_i
     assert make_effect("link_bias", {"coeffs_m": [0.1] * len(fx.LINK_TERMS), "gain": -1.0}).beyond_bound() == \
         ["gain -1 (bound: not negative)"]
     assert Candidate("anchor_delay", "tdoa", "meters", 1).bound == fx.AnchorDelay.bounds["meters"] == 1.5
+    # a displacement is bounded by its length: 0.8 m along two axes moves an anchor 1.13 m
+    assert make_effect("anchor_position", {"anchor": 3, "offset_m": [0.9, 0.0, 0.3]}).beyond_bound() == []
+    assert make_effect("anchor_position", {"anchor": 3, "offset_m": [0.8, -0.8, 0.0]}).beyond_bound() == \
+        ["offset_m [0.8, -0.8, 0.0] (bound 1)"]
+    assert make_effect("lever_arm", {"offset_m": [0.1, 0.1, 0.1]}).beyond_bound() != []          # 0.17 m
+    assert fx.size_of("anchor_position", "offset_m", [0.6, 0.0, -0.8]) == pytest.approx(1.0)
+    assert fx.size_of("imu_accel_bias", "bias_mps2", [3.0, -4.0, 0.0]) == 4.0                  # per axis
     proc = run_rig("inject", "recordings/default.mcap", "--effects",
                    '[{"effect": "time_offset", "params": {"seconds": 1e9}}]', "-o", str(tmp_path / "far.mcap"))
     assert proc.returncode == 0, proc.stderr

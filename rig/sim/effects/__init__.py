@@ -103,6 +103,13 @@ def bound_of(name: str, param: str) -> float:
     return EFFECTS[name].bounds[param]
 
 
+def size_of(name: str, param: str, deviation) -> float:
+    """How large a deviation from neutral of an effect's parameter is, as its bound
+    measures it (`Effect.size`; the largest |component| for a name the catalog lacks)."""
+    kind = EFFECTS.get(name, Effect)
+    return kind.size(param, deviation)
+
+
 def make_effect(name: str, params: dict | None = None) -> Effect:
     if name not in EFFECTS:
         raise ValueError(f"unknown effect {name!r}; known: {', '.join(sorted(EFFECTS))}")

@@ -98,11 +98,22 @@ class Effect:
 
     name: ClassVar[str] = ""
     stage: ClassVar[int] = SIGNAL
-    # The largest size each parameter can physically have, as |value − neutral| of every
-    # component: what a real flight can carry. The diagnosis reports a fit beyond it as
-    # not explained; a configuration beyond it is simulated, with a warning.
+    # The largest size each parameter can physically have (`size`): what a real flight can
+    # carry. The diagnosis reports a fit beyond it as not explained; a configuration
+    # beyond it is simulated, with a warning.
     bounds: ClassVar[dict[str, float]] = {}
     neutral: ClassVar[float] = 0.0
+    # The parameters that are displacements in space: their bound is on their length
+    # (an anchor 0.8 m off its survey along each axis has moved 1.4 m).
+    lengths: ClassVar[frozenset[str]] = frozenset()
+
+    @classmethod
+    def size(cls, param: str, deviation) -> float:
+        """How large a deviation from neutral of `param` is, as its bound measures it: a
+        displacement's length, else its largest |component| (an IMU's bias or scale per
+        axis, as a datasheet gives it)."""
+        deviation = np.ravel(np.asarray(deviation, float))
+        return float(np.linalg.norm(deviation) if param in cls.lengths else np.max(np.abs(deviation)))
 
     def params(self) -> dict:
         return {}
@@ -111,7 +122,7 @@ class Effect:
         """Each parameter beyond its physical bound, as 'name value (bound B)'."""
         params = self.params()
         return [f"{name} {params[name]} (bound {bound:g})" for name, bound in self.bounds.items()
-                if np.max(np.abs(np.asarray(params[name], float) - self.neutral)) > bound]
+                if self.size(name, np.asarray(params[name], float) - self.neutral) > bound]
 
     def to_json(self) -> dict:
         return {"effect": self.name, "params": self.params()}

@@ -11,7 +11,7 @@ from rig.sim.effects.link import largest_on_links
 class AnchorPosition(Effect):
     """The anchor's antenna is really at surveyed + `offset_m` (true minus surveyed)."""
 
-    name, stage, bounds = "anchor_position", WORLD, {"offset_m": 1.0}
+    name, stage, bounds, lengths = "anchor_position", WORLD, {"offset_m": 1.0}, frozenset({"offset_m"})
 
     def __init__(self, anchor: int = 0, offset_m=(0.0, 0.0, 0.0)):
         self.anchor, self.offset = _anchor_id(anchor), _vec3(offset_m, "offset_m")
@@ -43,7 +43,7 @@ AIRFRAME_M = 0.15
 class LeverArm(Effect):
     """The UWB antenna sits at `offset_m` from the body origin (body frame)."""
 
-    name, stage, bounds = "lever_arm", WORLD, {"offset_m": AIRFRAME_M}
+    name, stage, bounds, lengths = "lever_arm", WORLD, {"offset_m": AIRFRAME_M}, frozenset({"offset_m"})
 
     def __init__(self, offset_m=(0.0, 0.0, 0.0)):
         self.offset = _vec3(offset_m, "offset_m")
