@@ -40,10 +40,12 @@ def test_an_nlos_gives_its_mean_shifts_and_a_noise_level_finding_none() -> None:
 
 
 def test_a_fit_beyond_its_bound_says_by_how_many_standard_errors() -> None:
-    """The lever arm's bound is 0.15 m: 0.45 m with a standard error of 0.12 m is 2.5 beyond."""
+    """The lever arm's bound is 0.15 m of length: [0.45, -0.2, 0.1] m is 0.502 m long, with
+    a standard error of 0.121 m along it, so 2.9 beyond (its largest component alone,
+    0.45 ± 0.12 m, would read 2.5)."""
     lever = _finding("lever_arm", {"offset_m": [0.45, -0.2, 0.1]}, {"offset_m": [0.12, 0.1, 0.2]})
     lever.beyond_bound = True
-    assert "(0.45 against 0.15, 2.5 standard errors beyond)" in describe(lever)
+    assert "(0.502 against 0.15, 2.9 standard errors beyond)" in describe(lever)
     lever.beyond_bound = False
     assert "standard errors beyond" not in describe(lever)
 
@@ -62,8 +64,8 @@ def test_the_fits_not_explained_are_listed_short_by_where_they_lie() -> None:
                      anchors=[2])
     pattern = _finding("antenna_pattern", {"anchor": 2, "coeffs_m": [2.0, 0.1, 0.1]}, {"coeffs_m": [1.0, 0.3, 0.3]},
                        anchors=[2])
-    assert not_explained_line(moved) == "anchor_position on anchor 2: 2.2 against 1, 3.0 standard errors beyond"
-    assert not_explained_line(lever) == "lever_arm on the tdoa channel: 0.8 against 0.15, 10.8 standard errors beyond"
+    assert not_explained_line(moved) == "anchor_position on anchor 2: 2.82 against 1, 3.5 standard errors beyond"
+    assert not_explained_line(lever) == "lever_arm on the tdoa channel: 0.86 against 0.15, 12.3 standard errors beyond"
     nlos = _finding("nlos", {"anchor": 2, "fraction": 1.0, "mean_excess_m": 1.748}, {"mean_shift_m": 0.05},
                     anchors=[2])     # its standard error is of the mean shift, not of the bounded excess
     assert not_explained_line(nlos) == "nlos on anchor 2: mean_excess_m 1.748 (bound 1)"
@@ -80,7 +82,7 @@ def test_a_per_anchor_fit_says_how_much_it_changes_its_anchors_ranges() -> None:
     moved.where = {"anchors": [2], "spread_m": {"2": 0.1204},
                    "largest": {"anchor": 2, "tag_azimuth_deg": [10.0, 40.0], "tag_elevation_deg": [-30.0, -20.0],
                                "anchor_elevation_in_body_deg": [20.0, 30.0], "sign": "long"}}
-    assert not_explained_line(moved) == ("anchor_position on anchor 2: 2.2 against 1, 3.0 standard errors beyond; "
+    assert not_explained_line(moved) == ("anchor_position on anchor 2: 2.82 against 1, 3.5 standard errors beyond; "
                                          "its anchor's ranges vary by 0.120 m over the flight")
     assert "; it changes anchor 2's ranges by 0.120 m over the flight (standard deviation; their mean is a delay), " \
            "reading longest with the tag at azimuth 10…40° and elevation -30…-20° in the anchor's frame" in describe(moved)
