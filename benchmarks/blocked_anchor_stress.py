@@ -62,7 +62,7 @@ whole-flight blocks at +0.8 m (anchor 0, anchor 3, and both pairs), each flight 
 without correction and with the seeds' networks, weighting off and on; per axis, the RMSE
 and the mean error (estimate - truth), means over flights (and seeds); and, without
 correction, each anchor's mean weight over the flight after its first fifth (the
-tracker's start).
+tracker's start), read every 100 ms.
 """
 
 from __future__ import annotations
@@ -147,18 +147,11 @@ AXES_EXCESS_M = 0.8
 
 
 def mean_anchor_weights(rec, scale: float) -> list[float]:
-    """Each anchor's weight in the blocked-anchor weighting, without correction, read every
-    second and averaged over the flight after its first fifth."""
-    from rig.estimator import native
-    from rig.estimator.evaluate import estimator_config, started
+    """Each anchor's weight in the blocked-anchor weighting, without correction, averaged
+    over the flight after its first fifth (the tracker's start)."""
+    from rig.estimator.evaluate import anchor_weight_series, estimator_config
 
-    est, events, _ = started(rec, estimator_config(use_nn=False, anchor_bias_c=scale)[0], None, None)
-    ends = np.flatnonzero(events["kind"] == native.EV_STEP)[99::100] + 1
-    weights, begin = [], 0
-    for end in ends:
-        est.replay(events[begin:end])
-        begin = end
-        weights.append(est.anchor_weights())
+    _, weights = anchor_weight_series(rec, estimator_config(use_nn=False, anchor_bias_c=scale)[0])
     return np.mean(weights[len(weights) // 5:], axis=0)[:8].tolist()
 
 

@@ -34,7 +34,7 @@ START_BEFORE_TAKEOFF = 1.0
 DIVERGED_RMSE_M = 1.0  # a flight scored worse than this has lost track
 FULL_TRUST = -1.0      # trust_prior_n that applies the whole correction on every flight
 DISCOUNTED_BELOW = 0.5     # an anchor weight under this is counted as tdoa_anchor_weighted is (EST_WEIGHT_ACCEPTED)
-DISCOUNT_SAMPLE_STEPS = 10  # anchor_discounts reads the anchors' weights every 100 ms
+DISCOUNT_SAMPLE_STEPS = 10  # anchor_weight_series reads the anchors' weights every 100 ms
 
 
 @dataclass
@@ -204,12 +204,11 @@ def replay(rec: Recording, params: native.EstimatorParams, model: BiasNet | None
     return Replay(t0 + outputs["t_us"].astype(float) * 1e-6, outputs, elapsed, t0, est.correction_trust())
 
 
-def anchor_discounts(rec: Recording, params: native.EstimatorParams, model: BiasNet | None = None,
-                     start_pose: StartPose | None = None) -> dict[str, float]:
-    """For each anchor of the recording, the share of the scored flight it spent
-    discounted by the blocked-anchor weighting (its weight under DISCOUNTED_BELOW): which
-    anchors the count `tdoa_anchor_weighted` is made of. A second replay, read every
-    DISCOUNT_SAMPLE_STEPS STEPs; the board sends the count only."""
+def anchor_weight_series(rec: Recording, params: native.EstimatorParams, model: BiasNet | None = None,
+                         start_pose: StartPose | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Each anchor's weight in the blocked-anchor weighting over the flight: a replay read
+    every DISCOUNT_SAMPLE_STEPS STEPs, as (times on the recording's clock, weights with
+    one column per anchor id up to MAX_ANCHORS). The board sends the count only."""
     est, events, t0 = started(rec, params, model, start_pose)
     ends = np.flatnonzero(events["kind"] == native.EV_STEP)[DISCOUNT_SAMPLE_STEPS - 1::DISCOUNT_SAMPLE_STEPS] + 1
     times, weights, begin = [], [], 0
@@ -219,11 +218,20 @@ def anchor_discounts(rec: Recording, params: native.EstimatorParams, model: Bias
         if len(outputs):
             times.append(t0 + float(outputs["t_us"][-1]) * 1e-6)
             weights.append(est.anchor_weights())
+    return np.array(times), np.array(weights).reshape(len(weights), native.MAX_ANCHORS)
+
+
+def anchor_discounts(rec: Recording, params: native.EstimatorParams, model: BiasNet | None = None,
+                     start_pose: StartPose | None = None) -> dict[str, float]:
+    """For each anchor of the recording, the share of the scored flight it spent
+    discounted by the blocked-anchor weighting (its weight under DISCOUNTED_BELOW): which
+    anchors the count `tdoa_anchor_weighted` is made of (anchor_weight_series)."""
+    times, weights = anchor_weight_series(rec, params, model, start_pose)
     start, stop = metrics.flight_window(rec.truth, metrics.SegmentRule())
-    scored = (np.array(times) >= start) & (np.array(times) <= stop)
+    scored = (times >= start) & (times <= stop)
     if not scored.any():
         return {}
-    discounted = np.array(weights)[scored] < DISCOUNTED_BELOW
+    discounted = weights[scored] < DISCOUNTED_BELOW
     return {str(k): float(np.mean(discounted[:, k])) for k in sorted(rec.anchor_map()) if k < native.MAX_ANCHORS}
 
 
