@@ -63,23 +63,20 @@ def _std_err_text(finding: Finding) -> str:
 def beyond_bound_by(effect: str, params: dict, std_err: dict | None) -> tuple[float, float, float] | None:
     """(size, bound, standard errors beyond) of a fit, if it lies beyond its effect's
     physical bound; None where it does not or has no standard error of its bounded
-    parameter. The size is as the bound measures it (`Effect.size`): a displacement's
-    length, with its standard error along the fitted direction, else the largest
-    component. Beyond by less than two may be the flight's slow error."""
+    parameter. The size is as the bound measures it (`Effect.size`: a displacement's
+    length, a pattern's largest range bias, else the largest component), with its
+    standard error through `Effect.size_weights`. Beyond by less than two may be the
+    flight's slow error."""
     param = next(iter(std_err or {}), None)
     kind = fx.EFFECTS.get(effect)
     bound = kind.bounds.get(param) if kind is not None else None
     if bound is None or param not in params:
         return None
     deviation = np.ravel(np.asarray(params[param], float)) - kind.neutral   # a scale's size is from 1
-    errors = np.ravel(std_err[param])
     size = kind.size(param, deviation)
     if size <= bound:
         return None
-    if param in kind.lengths:
-        error = float(np.linalg.norm(deviation / size * errors))
-    else:
-        error = float(errors[int(np.argmax(np.abs(deviation)))])
+    error = float(np.linalg.norm(kind.size_weights(param, deviation) * np.ravel(std_err[param])))
     return size, float(bound), float((size - bound) / max(error, 1e-12))
 
 

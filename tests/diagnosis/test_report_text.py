@@ -50,6 +50,16 @@ def test_a_fit_beyond_its_bound_says_by_how_many_standard_errors() -> None:
     assert "standard errors beyond" not in describe(lever)
 
 
+def test_a_pattern_beyond_its_bound_is_measured_by_the_largest_bias_it_makes() -> None:
+    """[0.9, -0.99, -0.68] changes its anchor's ranges by up to 0.3 + 1.2 = 1.5 m, on the
+    horizon: beyond 1 m though every coefficient is within it; the standard error is of
+    that bias, through the basis there: √((0.3/3)² + (0.99·0.3/1.2)² + (0.68·0.4/1.2)²) = 0.35."""
+    pattern = _finding("antenna_pattern", {"anchor": 2, "coeffs_m": [0.9, -0.99, -0.68]},
+                       {"coeffs_m": [0.3, 0.3, 0.4]}, anchors=[2])
+    pattern.beyond_bound = True
+    assert "(1.5 against 1, 1.4 standard errors beyond)" in describe(pattern)
+
+
 def test_a_scale_beyond_its_bound_is_measured_from_one() -> None:
     """A scale's bound (0.15) is of its distance from 1: 1.25 ± 0.05 is 0.25 from it, 2
     standard errors beyond, not 1.25 against 0.15."""

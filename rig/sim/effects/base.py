@@ -109,11 +109,25 @@ class Effect:
 
     @classmethod
     def size(cls, param: str, deviation) -> float:
-        """How large a deviation from neutral of `param` is, as its bound measures it: a
-        displacement's length, else its largest |component| (an IMU's bias or scale per
-        axis, as a datasheet gives it)."""
+        """How large a deviation from neutral of `param` is, as its bound measures it
+        (`size_weights`)."""
         deviation = np.ravel(np.asarray(deviation, float))
-        return float(np.linalg.norm(deviation) if param in cls.lengths else np.max(np.abs(deviation)))
+        return float(cls.size_weights(param, deviation) @ deviation)
+
+    @classmethod
+    def size_weights(cls, param: str, deviation: np.ndarray) -> np.ndarray:
+        """The weights w whose w · deviation is its size near `deviation` (its gradient;
+        a fit's standard error of its size is |w · standard errors|, componentwise): a
+        displacement's length, else its largest |component| (an IMU's bias or scale per
+        axis, as a datasheet gives it). An effect whose parameter is not a size in itself
+        overrides it."""
+        if param in cls.lengths:
+            length = np.linalg.norm(deviation)
+            return deviation / length if length > 0 else np.zeros_like(deviation)
+        weights = np.zeros_like(deviation)
+        largest = int(np.argmax(np.abs(deviation)))
+        weights[largest] = np.sign(deviation[largest])
+        return weights
 
     def params(self) -> dict:
         return {}

@@ -106,13 +106,28 @@ def viewing_angles(tdoa: TdoaBatch, world: World, anchor: int) -> tuple[np.ndarr
 class AntennaPattern(_Windowed, Effect):
     """Range bias of `anchor` depending on where the tag is seen from the anchor (its
     doughnut-shaped radiation pattern, paper Section II.B): `coeffs_m` weigh
-    `pattern_basis` of the tag's azimuth and elevation in the anchor's frame."""
+    `pattern_basis` of the tag's azimuth and elevation in the anchor's frame. Its bound
+    is on the largest bias it makes (`size_weights`), not on each coefficient."""
 
     name, stage, bounds = "antenna_pattern", SIGNAL, {"coeffs_m": 1.0}
 
     def __init__(self, anchor: int = 0, coeffs_m=(0.0, 0.0, 0.0), during=None):
         self.anchor, self.coeffs = _anchor_id(anchor), _vec3(coeffs_m, "coeffs_m")
         self._set_during(during)
+
+    @classmethod
+    def size_weights(cls, param: str, deviation: np.ndarray) -> np.ndarray:
+        """A pattern's size is the largest range bias it makes in any direction, a
+        property of the antenna: with s = sin² el and r = √(c1² + c2²), the bias over
+        the azimuth reaches |c0 (s − 1/3)| + (1 − s) r, largest at s = 0 (|c0|/3 + r,
+        the horizon) or at s = 1 (2|c0|/3, the axis). Its weights are the basis there,
+        signed to the bias."""
+        c0, c1, c2 = deviation
+        r = np.hypot(c1, c2)
+        if 2 * abs(c0) / 3 > abs(c0) / 3 + r:
+            return np.array([2 * np.sign(c0) / 3, 0.0, 0.0])
+        harmonic = np.array([c1, c2]) / r if r > 0 else np.zeros(2)
+        return np.array([np.sign(c0) / 3, *harmonic])
 
     def params(self) -> dict:
         return {"anchor": self.anchor, "coeffs_m": self.coeffs.tolist(), **self._window_params()}
