@@ -142,8 +142,9 @@ def _not_explained_lines(diagnosis: Diagnosis) -> list[str]:
              "pose-dependent bias that the link bias every link shares does not carry: each anchor's own, and "
              "each place's. A change to the flight of one of these kinds (an anchor moved, an effect injected) "
              "shows only as a change of its fit: compare with a recording of the flight before it (`--control`).",
-             "", "| fitted as | where | fit | beyond its bound: its size (a displacement's length, else the largest component), or only jointly | "
-             "its anchor's ranges vary by | evidence |",
+             "", "| fitted as | where | fit | beyond its bound: its size (a displacement's length, a pattern's "
+             "largest range bias, else the largest component), or only jointly | its anchor's ranges vary by | "
+             "evidence |",
              "|---|---|---|---|---|---|"]
     for f in diagnosis.not_explained:
         spread = ranges_spread(f)
