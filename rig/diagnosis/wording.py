@@ -17,7 +17,9 @@ PLAIN = {
     "anchor_position": "anchor {anchor}'s ranges read as if it stood {offset_m} m from where the survey puts it",
     "anchor_delay": "every range from anchor {anchor} reads {meters:+.3f} m long (antenna delay; relative to the "
                     "anchors' common delay, which TDOA cannot see)",
-    "antenna_pattern": "anchor {anchor}'s ranges are biased with the viewing angle (antenna pattern {coeffs_m} m)",
+    # its coefficients are not its size: the largest bias it makes is (Effect.size)
+    "antenna_pattern": "anchor {anchor}'s ranges are biased with the viewing angle (antenna pattern {coeffs_m} m, "
+                       "at most {largest_m:.3f} m in any direction)",
     "nlos": "ranges to anchor {anchor} carry an excess delay (NLOS: {fraction:.0%} of them, {mean_excess_m:.3f} m "
             "on average) while the tag is inside {region}",
     "multipath_floor": "below {height_m} m the TDOA noise grows by {std_m:.3f} m{upper} (floor multipath)",
@@ -172,6 +174,8 @@ def describe(finding: Finding) -> str:
     if params.get("fade_m"):
         params["fade"] = f", fading out over the {params['fade_m']} m above"
     params.setdefault("fade", "")          # a step: whole below its height, none above
+    if finding.effect == "antenna_pattern":
+        params["largest_m"] = fx.size_of(finding.effect, "coeffs_m", finding.params["coeffs_m"])
     upper = params.get("upper_height_m")
     params["upper"] = "" if upper is None else f", on top of {params['upper_std_m']:.3f} m below {upper} m"
     if isinstance(params.get("region"), dict):

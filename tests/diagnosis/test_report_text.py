@@ -56,6 +56,7 @@ def test_a_pattern_beyond_its_bound_is_measured_by_the_largest_bias_it_makes() -
     that bias, through the basis there: √((0.3/3)² + (0.99·0.3/1.2)² + (0.68·0.4/1.2)²) = 0.35."""
     pattern = _finding("antenna_pattern", {"anchor": 2, "coeffs_m": [0.9, -0.99, -0.68]},
                        {"coeffs_m": [0.3, 0.3, 0.4]}, anchors=[2])
+    assert "(antenna pattern [0.9, -0.99, -0.68] m, at most 1.501 m in any direction)" in describe(pattern)
     pattern.beyond_bound = True
     assert "(1.5 against 1, 1.4 standard errors beyond)" in describe(pattern)
 
