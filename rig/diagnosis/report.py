@@ -143,7 +143,7 @@ def _not_explained_lines(diagnosis: Diagnosis) -> list[str]:
              "each place's. A change to the flight of one of these kinds (an anchor moved, an effect injected) "
              "shows only as a change of its fit: compare with a recording of the flight before it (`--control`).",
              "", "| fitted as | where | fit | beyond its bound: its size (a displacement's length, a pattern's "
-             "largest range bias, else the largest component), or only jointly | its anchor's ranges vary by | "
+             "peak-to-peak range bias, else the largest component), or only jointly | its anchor's ranges vary by | "
              "evidence |",
              "|---|---|---|---|---|---|"]
     for f in diagnosis.not_explained:

@@ -17,9 +17,9 @@ PLAIN = {
     "anchor_position": "anchor {anchor}'s ranges read as if it stood {offset_m} m from where the survey puts it",
     "anchor_delay": "every range from anchor {anchor} reads {meters:+.3f} m long (antenna delay; relative to the "
                     "anchors' common delay, which TDOA cannot see)",
-    # its coefficients are not its size: the largest bias it makes is (Effect.size)
+    # its coefficients are not its size: how much its ranges differ between directions is (Effect.size)
     "antenna_pattern": "anchor {anchor}'s ranges are biased with the viewing angle (antenna pattern {coeffs_m} m, "
-                       "at most {largest_m:.3f} m in any direction)",
+                       "differing by at most {span_m:.3f} m between any two directions)",
     "nlos": "ranges to anchor {anchor} carry an excess delay (NLOS: {fraction:.0%} of them, {mean_excess_m:.3f} m "
             "on average) while the tag is inside {region}",
     "multipath_floor": "below {height_m} m the TDOA noise grows by {std_m:.3f} m{upper} (floor multipath)",
@@ -66,7 +66,7 @@ def beyond_bound_by(effect: str, params: dict, std_err: dict | None) -> tuple[fl
     """(size, bound, standard errors beyond) of a fit, if it lies beyond its effect's
     physical bound; None where it does not or has no standard error of its bounded
     parameter. The size is as the bound measures it (`Effect.size`: a displacement's
-    length, a pattern's largest range bias, else the largest component), with its
+    length, a pattern's peak-to-peak range bias, else the largest component), with its
     standard error through `Effect.size_weights`. Beyond by less than two may be the
     flight's slow error."""
     param = next(iter(std_err or {}), None)
@@ -175,7 +175,7 @@ def describe(finding: Finding) -> str:
         params["fade"] = f", fading out over the {params['fade_m']} m above"
     params.setdefault("fade", "")          # a step: whole below its height, none above
     if finding.effect == "antenna_pattern":
-        params["largest_m"] = fx.size_of(finding.effect, "coeffs_m", finding.params["coeffs_m"])
+        params["span_m"] = fx.size_of(finding.effect, "coeffs_m", finding.params["coeffs_m"])
     upper = params.get("upper_height_m")
     params["upper"] = "" if upper is None else f", on top of {params['upper_std_m']:.3f} m below {upper} m"
     if isinstance(params.get("region"), dict):

@@ -50,15 +50,17 @@ def test_a_fit_beyond_its_bound_says_by_how_many_standard_errors() -> None:
     assert "standard errors beyond" not in describe(lever)
 
 
-def test_a_pattern_beyond_its_bound_is_measured_by_the_largest_bias_it_makes() -> None:
-    """[0.9, -0.99, -0.68] changes its anchor's ranges by up to 0.3 + 1.2 = 1.5 m, on the
-    horizon: beyond 1 m though every coefficient is within it; the standard error is of
-    that bias, through the basis there: √((0.3/3)² + (0.99·0.3/1.2)² + (0.68·0.4/1.2)²) = 0.35."""
+def test_a_pattern_beyond_its_bound_is_measured_by_its_peak_to_peak_bias() -> None:
+    """[0.9, -0.99, -0.68] has r = 1.2 on the horizon harmonics, more than |c0|: its
+    ranges differ by 2r = 2.4 m between two horizontal directions, beyond 1 m though
+    every coefficient is within it; the standard error is of that span, through its
+    gradient 2 (c1, c2)/r: √((2·0.99·0.3/1.2)² + (2·0.68·0.4/1.2)²) = 0.66."""
     pattern = _finding("antenna_pattern", {"anchor": 2, "coeffs_m": [0.9, -0.99, -0.68]},
                        {"coeffs_m": [0.3, 0.3, 0.4]}, anchors=[2])
-    assert "(antenna pattern [0.9, -0.99, -0.68] m, at most 1.501 m in any direction)" in describe(pattern)
+    assert ("(antenna pattern [0.9, -0.99, -0.68] m, differing by at most 2.402 m between any two directions)"
+            in describe(pattern))
     pattern.beyond_bound = True
-    assert "(1.5 against 1, 1.4 standard errors beyond)" in describe(pattern)
+    assert "(2.4 against 1, 2.1 standard errors beyond)" in describe(pattern)
 
 
 def test_a_scale_beyond_its_bound_is_measured_from_one() -> None:

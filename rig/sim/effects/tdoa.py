@@ -107,7 +107,8 @@ class AntennaPattern(_Windowed, Effect):
     """Range bias of `anchor` depending on where the tag is seen from the anchor (its
     doughnut-shaped radiation pattern, paper Section II.B): `coeffs_m` weigh
     `pattern_basis` of the tag's azimuth and elevation in the anchor's frame. Its bound
-    is on the largest bias it makes (`size_weights`), not on each coefficient."""
+    is on how much its ranges differ between two directions (`size_weights`), not on
+    each coefficient."""
 
     name, stage, bounds = "antenna_pattern", SIGNAL, {"coeffs_m": 1.0}
 
@@ -117,17 +118,19 @@ class AntennaPattern(_Windowed, Effect):
 
     @classmethod
     def size_weights(cls, param: str, deviation: np.ndarray) -> np.ndarray:
-        """A pattern's size is the largest range bias it makes in any direction, a
-        property of the antenna: with s = sin² el and r = √(c1² + c2²), the bias over
-        the azimuth reaches |c0 (s − 1/3)| + (1 − s) r, largest at s = 0 (|c0|/3 + r,
-        the horizon) or at s = 1 (2|c0|/3, the axis). Its weights are the basis there,
-        signed to the bias."""
+        """A pattern's size is how much it changes its anchor's ranges between any two
+        directions (its peak-to-peak bias), a property of the antenna that does not
+        depend on where the basis puts its zero (the constant part is the anchor's
+        delay). With s = sin² el and r = √(c1² + c2²) the bias is c0 (s − 1/3) + (1 − s) h,
+        h in [−r, r] over the azimuth; its extremes lie on the axis (2 c0/3) and on the
+        horizon (−c0/3 ± r), so it spans max(|c0|, r) + r, at least every coefficient.
+        Its weights are the gradient of that span."""
         c0, c1, c2 = deviation
         r = np.hypot(c1, c2)
-        if 2 * abs(c0) / 3 > abs(c0) / 3 + r:
-            return np.array([2 * np.sign(c0) / 3, 0.0, 0.0])
         harmonic = np.array([c1, c2]) / r if r > 0 else np.zeros(2)
-        return np.array([np.sign(c0) / 3, *harmonic])
+        if abs(c0) >= r:
+            return np.array([np.sign(c0), *harmonic])
+        return np.array([0.0, *(2 * harmonic)])
 
     def params(self) -> dict:
         return {"anchor": self.anchor, "coeffs_m": self.coeffs.tolist(), **self._window_params()}
