@@ -28,8 +28,9 @@ from rig.data.importer import load_any  # noqa: E402
 from rig.data.recording import Vec3Series  # noqa: E402
 from rig.diagnosis import compare, imu_spectrum  # noqa: E402
 from rig.diagnosis.channels import left_out_text  # noqa: E402
+from rig.diagnosis.diagnose import bound_measure  # noqa: E402
 from rig.diagnosis.floor_error import ON_GROUND_M  # noqa: E402
-from rig.diagnosis.identifiability import figures  # noqa: E402
+from rig.diagnosis.identifiability import figures, measured_size  # noqa: E402
 from rig.diagnosis.imu_spectrum import vibration_spread  # noqa: E402
 from rig.sim import effects as fx  # noqa: E402
 
@@ -185,11 +186,12 @@ def identifiability(reports: dict) -> str:
 
 
 def _case_size(effect: str, param: str, unit: str) -> str:
-    """The size of the suite's concealed case of `effect`: its parameter's change from neutral."""
+    """The size of the suite's concealed case of `effect`: its parameter's change from
+    neutral, as the effect's bound measures it (as `identifiability`'s sizes)."""
     if effect not in CASES:
         return "—"
     change = np.subtract(CASES[effect][0][param], compare.neutral(effect))
-    return f"{figures(np.linalg.norm(change))}{unit}"
+    return f"{figures(measured_size(np.ravel(change), bound_measure(effect, param)))}{unit}"
 
 
 def _shape(height: float, fade: float) -> str:

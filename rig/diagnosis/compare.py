@@ -200,7 +200,7 @@ def shown(items: Sequence[Identifiability], effect: str, anchors: list[int], par
     for item in items:
         if item.effect == effect and item.anchors == anchors and item.param in params:
             amount = np.asarray(params[item.param], float) - neutral(effect)
-            return Shown(float(np.linalg.norm(amount)), item.told_apart_along(amount))
+            return Shown(item.size(amount), item.told_apart_along(amount))
     return None
 
 

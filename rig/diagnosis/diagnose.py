@@ -58,6 +58,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import replace
+from functools import partial
 
 import numpy as np
 
@@ -219,8 +220,15 @@ def identifiability(pool: list[Candidate]) -> list[ident.Identifiability]:
         alikes = {a.effect: a.columns for a in pool if a.effect in LOOK_ALIKES.get(c.effect, ())
                   and ORDER[a.effect][1] <= rank and a.fixed.get("anchor") == c.fixed.get("anchor")}
         out.append(ident.assess(c.effect, c.anchors, c.param, c.columns, alikes, c.naming_bar, c.bound,
-                                c.axis_bars))
+                                c.axis_bars, bound_measure(c.effect, c.param)))
     return out
+
+
+def bound_measure(effect: str, param: str) -> ident.Measure:
+    """How `effect`'s bound measures a change of `param` (`Effect.size`); None where
+    that is its length."""
+    kind = fx.EFFECTS[effect]
+    return None if param in kind.lengths else partial(kind.size, param)
 
 
 def lever_arm_cross_talk(pool: list[Candidate]) -> dict[int, list[float]]:

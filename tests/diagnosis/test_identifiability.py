@@ -84,3 +84,53 @@ def test_an_effect_named_axis_by_axis_is_told_apart_at_the_bar_of_the_axes_it_mo
     assert whole.told_apart_along([0.0, 0.0, 0.1]) == pytest.approx(np.sqrt(2 * 14.0 / 16.0), rel=1e-3)
     assert result.smallest_told_apart < whole.smallest_told_apart
     assert result.every_direction == whole.every_direction
+
+
+@pytest.mark.parametrize("effect, param, seed", [("antenna_pattern", "coeffs_m", 4), ("imu_accel_scale", "scale", 5)])
+def test_sizes_are_as_the_bound_measures_them(effect: str, param: str, seed: int) -> None:
+    """A pattern's size is peak to peak, an IMU scale's its largest axis: over a dense
+    sample of amounts, the smallest size whose ½ aᵀGa reaches the bar in some direction
+    and the size from which it does in every direction match, and told_apart_along
+    and size agree with them along any direction."""
+    from rig.diagnosis.diagnose import bound_measure
+
+    measure = bound_measure(effect, param)
+    columns = np.random.default_rng(seed).normal(size=(200, 3)) * [1.0, 0.3, 2.0]
+    result = assess(effect, [], param, columns, {}, BAR, 1.0, measure=measure)
+    gram = columns.T @ columns
+    u = np.random.default_rng(6).normal(size=(40_000, 3))
+    u /= np.array([measure(v) for v in u])[:, None]                   # each of size 1
+    shown = np.einsum("ni,ij,nj->n", u, gram, u)
+    assert result.smallest_told_apart == pytest.approx(np.sqrt(2 * BAR / shown.max()), rel=2e-3)
+    assert result.smallest_told_apart <= np.sqrt(2 * BAR / shown.max()) * (1 + 1e-4)   # none beats it
+    assert result.every_direction == pytest.approx(np.sqrt(2 * BAR / shown.min()), rel=2e-3)
+    assert result.every_direction >= np.sqrt(2 * BAR / shown.min()) * (1 - 1e-4)
+    best = np.array(result.direction)
+    assert result.told_apart_along(best) == pytest.approx(result.smallest_told_apart, rel=1e-3)
+    assert result.size(0.5 * best / measure(best)) == pytest.approx(0.5)
+    euclidean = assess(effect, [], param, columns, {}, BAR, 1.0)
+    assert euclidean.smallest_told_apart != pytest.approx(result.smallest_told_apart, rel=1e-2)
+
+
+def test_an_effect_named_axis_by_axis_is_told_apart_first_on_the_axes_that_pay_least() -> None:
+    """With a bar per number of axes moved, the smallest size is the least over every
+    set of axes of the size at which that set's best amount reaches its bar; an IMU
+    scale measured by its largest axis reaches its largest form on the set's corners."""
+    from itertools import combinations
+
+    from rig.diagnosis.diagnose import bound_measure
+
+    measure = bound_measure("imu_accel_scale", "scale")
+    columns = np.random.default_rng(7).normal(size=(200, 3)) * [1.0, 0.8, 1.2]
+    bars = (10.0, 11.0, 30.0)
+    result = assess("imu_accel_scale", [], "scale", columns, {}, bars[-1], 0.15, bars, measure)
+    gram, u = columns.T @ columns, np.random.default_rng(8).normal(size=(20_000, 3))
+    sizes = []
+    for k, bar in enumerate(bars, 1):
+        for axes in combinations(range(3), k):
+            on = np.zeros_like(u)
+            on[:, axes] = u[:, axes]
+            on /= np.abs(on).max(axis=1)[:, None]                      # largest axis 1
+            sizes.append(np.sqrt(2 * bar / np.einsum("ni,ij,nj->n", on, gram, on).max()))
+    assert result.smallest_told_apart == pytest.approx(min(sizes), rel=2e-3)
+    assert result.told_apart_along(result.direction) == pytest.approx(result.smallest_told_apart, rel=1e-3)
