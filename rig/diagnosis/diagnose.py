@@ -364,9 +364,10 @@ def _uncertainty(term: Term) -> tuple[dict, dict, list[str]]:
 
 def _floor_finding(problem: Problem, residual: np.ndarray) -> Finding | None:
     """Floor multipath on what is left of each measurement after the running median of
-    its anchor pair's (local_noise): the extra noise stays, every slowly varying
+    its anchor pair's (local_noise): the extra noise stays, most slowly varying
     mismatch (a bias the model leaves, or one it adds where it extrapolates) goes, so
-    the finding does not depend on the rest of the model."""
+    the finding depends little on the rest of the model (measured in
+    benchmarks/floor_order.py)."""
     noise = local_noise(problem, residual)
     heights = problem.tag_positions()[:, 2]
     floor = floor_multipath(noise, heights, MIN_EVIDENCE + 2 * PENALTY_PER_PARAMETER)

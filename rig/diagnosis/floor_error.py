@@ -88,9 +88,14 @@ def on_ground_delays(problem: Problem, z: np.ndarray) -> dict[str, float]:
 def local_noise(problem: Problem, residual: np.ndarray) -> np.ndarray:
     """Each TDOA residual minus the median of its anchor pair's 2 x LOCAL_SAMPLES
     neighbouring measurements (itself left out), scaled so that white noise keeps its
-    standard deviation (a median of n samples varies about pi/2n times as much)."""
+    standard deviation (a median of n samples varies about pi/2n times as much). The
+    neighbours are taken in the sample's own regime, the tag below ON_GROUND_M or
+    above it: the ranges' step between the two (on_ground_delay) would otherwise enter
+    the windows of the first and last airborne samples and read as noise near the
+    floor (docs/notebook/diagnosis-experiments.md, session 88)."""
     d, rows = problem.rec.tdoa, problem.tdoa_rows
-    pair = d.id_a[rows].astype(np.int64) * 65536 + d.id_b[rows]
+    airborne = problem.tag_positions()[:, 2] >= ON_GROUND_M
+    pair = (d.id_a[rows].astype(np.int64) * 65536 + d.id_b[rows]) * 2 + airborne
     out = np.zeros(len(residual))
     k = LOCAL_SAMPLES
     for key in np.unique(pair):

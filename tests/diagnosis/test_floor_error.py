@@ -5,12 +5,14 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
 from rig.diagnosis.findings import Finding
-from rig.diagnosis.floor_error import floor_multipath
+from rig.diagnosis.floor_error import ON_GROUND_M, floor_multipath, local_noise
 from rig.diagnosis.wording import describe
 from rig.sim.effects import TdoaBatch, make_effect
 
@@ -47,6 +49,34 @@ def test_one_step_stays_one_step() -> None:
     assert floor["height_m"] == 0.6 and "upper_height_m" not in floor
     assert floor["std_m"] == pytest.approx(0.2, abs=0.02)
     assert floor_multipath(_noise(heights, [], 0.1, rng), heights, BAR) is None
+
+
+def _take_offs(pairs: int, per_pair: int, rng) -> tuple[SimpleNamespace, np.ndarray]:
+    """A problem's TDOA rows as local_noise reads them, and the tag's heights: `pairs`
+    anchor pairs heard at random (as in TDOA3) over a minute in which the tag sits on
+    the floor for 10 s, climbs to 1.5 m in 5 s, flies there and comes down again."""
+    n = pairs * per_pair
+    t = np.sort(rng.uniform(0.0, 60.0, n))
+    heights = np.interp(t, [0.0, 10.0, 15.0, 45.0, 50.0, 60.0], [0.02, 0.02, 1.5, 1.5, 0.02, 0.02])
+    pair = rng.permutation(np.repeat(np.arange(pairs), per_pair))
+    tdoa = SimpleNamespace(id_a=pair // 8, id_b=pair % 8 + 8, t=t)
+    problem = SimpleNamespace(rec=SimpleNamespace(tdoa=tdoa), tdoa_rows=np.arange(n),
+                              tag_positions=lambda: np.column_stack([np.zeros(n), np.zeros(n), heights]))
+    return problem, heights
+
+
+def test_the_step_of_a_tag_on_the_floor_is_not_read_as_noise_near_it() -> None:
+    """Ranges 1.5 m longer with the tag below ON_GROUND_M (on_ground_delay, not
+    modelled here) and white noise elsewhere: the running median is taken within each
+    regime, so no floor multipath shows above it. Windows straddling the step would
+    read half the step as noise in the first and last airborne samples of each pair."""
+    rng = np.random.default_rng(8)
+    problem, heights = _take_offs(28, 60, rng)
+    residual = rng.normal(0.0, 0.1, len(heights)) + 1.5 * (heights < ON_GROUND_M)
+    noise = local_noise(problem, residual)
+    airborne = heights >= ON_GROUND_M
+    assert np.std(noise[airborne]) == pytest.approx(0.1, rel=0.1)
+    assert floor_multipath(noise, heights, BAR) is None
 
 
 def test_the_effect_adds_both_steps_noise_below_each_height() -> None:
