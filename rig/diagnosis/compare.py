@@ -12,10 +12,9 @@ the window. An NLOS changes by its mean shift (fraction × mean excess) over the
 recording's region (the control's, where only the control names one), each
 recording's estimated there as the search that found it estimates, whether the
 control names one there or not: a flight has excess paths of its own, below the bar
-or in a box of its own. The floor's multipath is noise, and independent noises add
-in variance: named on both with the same steps, it changes by the recording's extra
-noise less the control's in quadrature; else it is listed as each recording has it,
-as is how the ranges read with the tag on the floor. An effect named on the recording only changes from the
+or in a box of its own. The floor's
+multipath and error are not differences of parameters; they are listed as each
+recording has them. An effect named on the recording only changes from the
 control's estimate of it where the control has one (the parametric TDOA effects
 it does not name, `unnamed_estimates`: a flight's own effect below the bar is still
 there), else from neutral; one named on the control only changes to the
@@ -48,10 +47,7 @@ from rig.diagnosis.robust import MIN_SAMPLES, irls
 from rig.estimator.metrics import interpolate_positions
 from rig.sim.effects import Region, anchor_sign
 
-NOT_ADDITIVE = {"multipath_floor", "on_ground_delay"}       # not a difference of parameters
-FLOOR_NOISE = "multipath_floor"                               # changes in quadrature (floor_noise_added)
-FLOOR_STEPS = ("height_m", "upper_height_m")                  # its steps' heights
-FLOOR_NOISES = {"height_m": "std_m", "upper_height_m": "upper_std_m"}   # the extra noise below each
+NOT_ADDITIVE = {"multipath_floor", "on_ground_delay"}       # listed as they are, not as a difference
 NLOS = "nlos"                                                  # changes by its mean shift over the samples
 CANCELLABLE = {"time_offset", "clock_drift"}                      # a clock's: the recording's may cancel the control's
 
@@ -239,20 +235,6 @@ def added(effect: str, found: dict, own: dict) -> dict:
     return got
 
 
-def floor_noise_added(found: dict, own: dict) -> dict | None:
-    """The floor multipath `found` has beyond the control's (`own`): with the same
-    steps, each step's extra noise less the control's in quadrature (independent
-    noises add in variance; none where the recording's is smaller). None where the
-    steps differ: their noises are measured over different bands."""
-    if any(found.get(step) != own.get(step) for step in FLOOR_STEPS):
-        return None
-    out = dict(found)
-    for step, noise in FLOOR_NOISES.items():
-        if step in found:
-            out[noise] = round(float(np.sqrt(max(found[noise] ** 2 - own[noise] ** 2, 0.0))), 4)
-    return out
-
-
 def cancelled(effect: str, own: dict) -> dict:
     """The change of a clock effect named on the control only: from its value to neutral."""
     return {field: (neutral(effect) - value if isinstance(value, (int, float)) else value)
@@ -315,9 +297,7 @@ def change(effect: str, anchors: list[int], found: dict | None, control: dict | 
     recording_estimate = on_named_axes(recording_unnamed, control) if named_in == "control" else None
     control_place, recording_place = in_place(found, control, control_in_place), in_place(control, found,
                                                                                          recording_in_place)
-    if effect == FLOOR_NOISE and named_in == "both":
-        difference = floor_noise_added(found["params"], control["params"])
-    elif effect in NOT_ADDITIVE:
+    if effect in NOT_ADDITIVE:
         difference = None
     elif effect == NLOS:
         difference = nlos_change(found, control, samples, control_samples)
