@@ -11,7 +11,6 @@ Two effects, both near the ground:
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -86,38 +85,29 @@ def on_ground_delays(problem: Problem, z: np.ndarray) -> dict[str, float]:
     return {str(k): float(c) for k, c in zip(fits[0].anchors, fits[0].change)} if fits else {}
 
 
-def local_noise(problem: Problem, residual: np.ndarray,
-                deviations: Callable[[np.ndarray], np.ndarray] | None = None) -> np.ndarray:
+def local_noise(problem: Problem, residual: np.ndarray) -> np.ndarray:
     """Each TDOA residual minus the median of its anchor pair's 2 x LOCAL_SAMPLES
-    neighbouring measurements (`median_deviations`, or `deviations` of each pair's
-    values in time order). The neighbours are taken in the sample's own regime, the
-    tag below ON_GROUND_M or above it: the ranges' step between the two
-    (on_ground_delay) would otherwise enter the windows of the first and last airborne
-    samples and read as noise near the floor (docs/notebook/diagnosis-experiments.md,
-    session 88)."""
-    deviations = deviations or median_deviations
+    neighbouring measurements (itself left out), scaled so that white noise keeps its
+    standard deviation (a median of n samples varies about pi/2n times as much). The
+    neighbours are taken in the sample's own regime, the tag below ON_GROUND_M or
+    above it: the ranges' step between the two (on_ground_delay) would otherwise enter
+    the windows of the first and last airborne samples and read as noise near the
+    floor (docs/notebook/diagnosis-experiments.md, session 88)."""
     d, rows = problem.rec.tdoa, problem.tdoa_rows
     airborne = problem.tag_positions()[:, 2] >= ON_GROUND_M
     pair = (d.id_a[rows].astype(np.int64) * 65536 + d.id_b[rows]) * 2 + airborne
     out = np.zeros(len(residual))
+    k = LOCAL_SAMPLES
     for key in np.unique(pair):
         idx = np.flatnonzero(pair == key)
         idx = idx[np.argsort(d.t[rows][idx], kind="stable")]
-        out[idx] = deviations(residual[idx])
-    return out
-
-
-def median_deviations(values: np.ndarray) -> np.ndarray:
-    """`values` (one pair's, in time order) minus the median of their LOCAL_SAMPLES
-    neighbours on each side (itself left out), scaled so that white noise keeps its
-    standard deviation (a median of n samples varies about pi/2n times as much)."""
-    k = LOCAL_SAMPLES
-    if len(values) <= 2 * k:
-        centred = values - np.median(values)
-    else:
+        values = residual[idx]
+        if len(values) <= 2 * k:
+            out[idx] = values - np.median(values)
+            continue
         windows = np.lib.stride_tricks.sliding_window_view(np.pad(values, k, mode="reflect"), 2 * k + 1)
-        centred = values - np.median(np.delete(windows, k, axis=1), axis=1)
-    return centred / np.sqrt(1.0 + np.pi / (4 * k))
+        out[idx] = values - np.median(np.delete(windows, k, axis=1), axis=1)
+    return out / np.sqrt(1.0 + np.pi / (4 * k))
 
 
 def floor_multipath(noise: np.ndarray, heights: np.ndarray, bar: float) -> dict | None:
